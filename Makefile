@@ -1,0 +1,40 @@
+# The two commands of the README:
+#   make run    set up, then run the main job (no hardware: the embedded simulated bench)
+#   make test   set up, then run every test (cargo test, then pytest)
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+CARGO_MANIFEST := rtcore/Cargo.toml
+
+.PHONY: setup ext run test test-rust test-python bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml $(shell find rtcore -name '*.rs' -o -name 'Cargo.toml' -o -name '*.toml' 2>/dev/null | grep -v target)
+	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip maturin
+	$(BIN)/pip install --quiet $$($(BIN)/python -c "import tomllib;p=tomllib.load(open('pyproject.toml','rb'))['project'];print(' '.join(repr(d) for d in p['dependencies']+p['optional-dependencies']['test']))" | tr -d "'")
+	$(BIN)/maturin develop --release --quiet
+	touch $(STAMP)
+
+# Rebuild only the extension, in place (admittance/_rtcore*.so), without touching the venv.
+ext:
+	$(BIN)/maturin develop --release --skip-install --quiet
+
+run: setup
+	$(BIN)/admittance run
+
+test: setup test-rust test-python
+
+test-rust:
+	cargo test --manifest-path $(CARGO_MANIFEST) --workspace --exclude admittance-py
+
+test-python: setup
+	MPLBACKEND=Agg $(BIN)/python -m pytest
+
+bench: setup
+	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) rtcore/target

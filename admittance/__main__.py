@@ -1,0 +1,3 @@
+from admittance.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,54 @@
+"""The ``admittance`` command line.
+
+Each area owns its subcommands in its own ``cli`` module, which exposes
+``register(subparsers)``; registration must stay cheap (heavy imports such as SciPy or Zenoh
+happen inside the command handlers), so ``admittance --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from admittance import __version__
+from admittance.errors import AdmittanceError
+
+# Modules that register subcommands, in the order they appear in --help.
+SUBCOMMAND_MODULES = (
+    "admittance.daemon.cli",  # run, monitor, set
+    "admittance.mockbench.cli",  # mock-bench
+    "admittance.ident.cli",  # identify
+    "admittance.ident.tools_cli",  # thesis, breakaway, predict
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="admittance",
+        description="Real-time admittance control for Dynamixel servos, and its system identification.",
+    )
+    parser.add_argument("--version", action="version", version=f"admittance {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMAND_MODULES:
+        importlib.import_module(name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except AdmittanceError as exc:
+        print(f"admittance {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

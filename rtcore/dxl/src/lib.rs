@@ -1,0 +1,1 @@
+//! Dynamixel protocol codec (skeleton; filled in by the dxl work).

@@ -1,0 +1,1 @@
+//! Simulated Dynamixel bus (skeleton; filled in by the dxlsim work).

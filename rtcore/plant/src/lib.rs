@@ -1,0 +1,1 @@
+//! The pendulum/admittance plant (skeleton; filled in by the plant work).

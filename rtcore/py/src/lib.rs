@@ -1,0 +1,25 @@
+//! `admittance._rtcore`: the one Python extension module of the Rust core.
+//!
+//! Each area registers its own classes and functions from its own file, so the binding layer
+//! stays a thin newtype shell over the pure-Rust crates (pydantic-core/polars style):
+//! - `plant.rs`: simulator (`Trial`, `simulate_batch`, ...)
+//! - `dxl.rs`: Dynamixel codec, model table, serial port
+//! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
+//! - `rt.rs`: the real-time admittance loop
+use pyo3::prelude::*;
+
+mod dxl;
+mod dxlsim;
+mod plant;
+mod rt;
+
+#[pymodule]
+fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("build_profile", if cfg!(debug_assertions) { "debug" } else { "release" })?;
+    plant::register(m)?;
+    dxl::register(m)?;
+    dxlsim::register(m)?;
+    rt::register(m)?;
+    Ok(())
+}

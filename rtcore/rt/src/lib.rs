@@ -1,0 +1,1 @@
+//! The real-time loop (skeleton; filled in by the rt work).
