@@ -1,0 +1,32 @@
+"""Fixtures shared by every test module: where the repository and the shared data are."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+REAL_DATA = SHARED / "data" / "real"
+THESIS_DATA = SHARED / "data" / "thesis"
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def real_data() -> Path:
+    """The measured data of ../shared/data/real; tests that need it skip when it is absent."""
+    if not REAL_DATA.is_dir():
+        pytest.skip(f"measured data not found at {REAL_DATA} (the shared/ folder is not beside the repo)")
+    return REAL_DATA
+
+
+@pytest.fixture(scope="session")
+def thesis_data() -> Path:
+    if not THESIS_DATA.is_dir():
+        pytest.skip(f"thesis tables not found at {THESIS_DATA}")
+    return THESIS_DATA
