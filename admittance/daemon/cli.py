@@ -1,5 +1,118 @@
-"""Subcommand registration (skeleton, replaced by the area's owner)."""
+"""``admittance run | monitor | set``: the daemon and its two remote tools (Contract 6).
+
+Registration stays import-light: zenoh, NumPy and the Rust extension are imported inside the
+handlers, so ``admittance --help`` is instant and a configuration error is reported before any
+of them loads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from admittance.errors import ConfigError
+
+DEFAULT_PREFIX = "bench/arm1"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def register(subparsers) -> None:
-    return None
+    run = subparsers.add_parser(
+        "run", help="run the admittance daemon (default: the simulated bench)",
+        description="Run the admittance loop. Without --config: the embedded simulated bench "
+                    "(a mock MX-64 and a scripted hand on pseudo-terminals). Stops on SIGINT/SIGTERM "
+                    "or after --duration, holding position, then applying [stop].torque_policy.")
+    run.add_argument("--config", type=Path, help="daemon configuration (TOML, see docs/daemon.md)")
+    run.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
+    run.add_argument("--stats-json", type=Path, metavar="FILE", help="write the loop's statistics on exit")
+    run.add_argument("--record", metavar="DIR", help="record the session as a dataset for `admittance identify`")
+    run.add_argument("--check", action="store_true", help="validate the configuration, print it and exit")
+    run.set_defaults(func=cmd_run)
+
+    monitor = subparsers.add_parser("monitor", help="live view of a running daemon's state and timing")
+    _remote_args(monitor)
+    monitor.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
+    monitor.set_defaults(func=cmd_monitor)
+
+    setp = subparsers.add_parser(
+        "set", help="change parameters of a running daemon (all or nothing)",
+        description="Set live parameters, e.g. `admittance set virtual_damping=0.08 1.virtual_inertia=0.03`. "
+                    "A bare name applies to every joint, <id>.name to one joint.")
+    setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
+    _remote_args(setp)
+    setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
+    setp.set_defaults(func=cmd_set)
+
+
+def _remote_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"the daemon's key prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument("--connect", action="append", metavar="ENDPOINT",
+                        help=f"zenoh endpoint of the daemon (default {DEFAULT_ENDPOINT}; repeatable)")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from admittance.daemon import config
+
+    cfg = config.load_config(args.config) if args.config else config.load_default()
+    cfg = config.with_overrides(cfg, record=args.record)
+    if args.check:
+        print(config.summary(cfg))
+        return 0
+    from admittance.daemon.backends import real_backends
+    from admittance.daemon.supervisor import RunOptions, Supervisor
+
+    options = RunOptions(duration=args.duration, stats_json=args.stats_json)
+    return Supervisor(cfg, real_backends(), options).run()
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from admittance.daemon.monitor import View, run_monitor
+    from admittance.daemon.zenoh_iface import Client
+
+    with Client(args.connect or [DEFAULT_ENDPOINT]) as client:
+        subscription = client.try_stream(args.prefix)
+        try:
+            view = View(args.prefix, sys.stdout, sys.stdout.isatty())
+            return run_monitor(subscription, view, args.duration)
+        finally:
+            subscription.close()
+
+
+def parse_assignments(items: list[str]) -> dict[str, float | list[float]]:
+    """``NAME=VALUE`` pairs; a comma list (``bias=0,0,0,0,0,0``) becomes a list of numbers."""
+    out: dict[str, float | list[float]] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError(f"{item!r}: expected NAME=VALUE")
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise ConfigError(f"{name}: expected a number, got {text!r}") from None
+        out[name.strip()] = values if len(values) > 1 else values[0]
+    return out
+
+
+def cmd_set(args: argparse.Namespace) -> int:
+    from admittance.daemon.zenoh_iface import Client
+
+    request = parse_assignments(args.assignments)
+    with Client(args.connect or [DEFAULT_ENDPOINT]) as client:
+        reply = client.query_params(args.prefix, request, timeout=args.timeout)
+    print(json.dumps(reply))
+    if not reply.get("accepted", False):
+        print(f"admittance set: rejected: {reply.get('reason', 'no reason given')}", file=sys.stderr)
+        return 1
+    return 0

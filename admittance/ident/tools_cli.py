@@ -1,5 +1,136 @@
-"""Subcommand registration (skeleton, replaced by the area's owner)."""
+"""Subcommands for the thesis's procedures and data conversion (Contract 6).
+
+- ``admittance thesis DATASET_DIR [--out DIR]``: the thesis's per-trial alternating fit,
+  printed as tables 3.2–3.4 (Markdown) and written as Markdown + CSV with ``--out``.
+- ``admittance breakaway DATASET_DIR [--json OUT]``: breakaway torque of force-ramp trials
+  (table 3.1).
+- ``admittance predict DATASET_DIR --params FILE.toml [--out DIR]``: section 3.3's testing of
+  fitted parameters against measured torque, with appendix-B-style plots.
+- ``admittance convert FORMAT FILE... --out DIR``: recordings in a foreign format (Motive,
+  Dynamixel/BAM, DFKI) to a contract dataset folder.
+
+Registration imports nothing heavy: SciPy, matplotlib and the Rust core load in the handlers.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
 
 
 def register(subparsers) -> None:
-    return None
+    thesis = subparsers.add_parser("thesis", help="reproduce the thesis's per-trial alternating LM fit (tables 3.2-3.4)")
+    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR")
+    thesis.add_argument("--out", type=Path, help="write thesis_table.md and thesis_table.csv here")
+    thesis.add_argument("--cycles", type=int, default=5, help="(I,B)/F alternations (default 5, as appendix C.3)")
+    thesis.add_argument("--initial-friction", type=float, help="initial F in N·m (default: table 3.1 for the motor)")
+    thesis.add_argument("--x0", choices=("rest", "data"), default="rest",
+                        help="initial state: first angle at rest (the thesis) or velocity from the data")
+    thesis.set_defaults(func=_run_thesis)
+
+    brk = subparsers.add_parser("breakaway", help="breakaway friction torque of slow force-ramp trials (table 3.1)")
+    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR")
+    brk.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
+    brk.set_defaults(func=_run_breakaway)
+
+    pred = subparsers.add_parser("predict", help="test fitted parameters on torque-driven trials (thesis 3.3)")
+    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR")
+    pred.add_argument("--params", type=Path, required=True, metavar="FILE.toml", help="a Contract 2 parameter file")
+    pred.add_argument("--out", type=Path, help="write metrics.json and the appendix-B plots here")
+    pred.add_argument("--thesis-k", type=float,
+                      help="k of the thesis formula's tanh(k*vel) (default: the file's tanh_k; appendix C.4 used 1)")
+    pred.set_defaults(func=_run_predict)
+
+    conv = subparsers.add_parser("convert", help="turn Motive / Dynamixel / DFKI recordings into a dataset folder")
+    conv.add_argument("format", choices=("motive", "dynamixel", "dfki"))
+    conv.add_argument("files", type=Path, nargs="+", metavar="FILE")
+    conv.add_argument("--out", type=Path, required=True, help="the dataset folder to write")
+    conv.add_argument("--motor", default="", help="motor label for the manifest")
+    conv.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                      help="a loader option, e.g. segment=all, axes=x,z, zero_tick=2048 (repeatable)")
+    conv.set_defaults(func=_run_convert)
+
+
+def _run_thesis(args) -> int:
+    from admittance.ident import thesis
+    from admittance.ident.dataset import load_dataset
+
+    dataset = load_dataset(args.dataset)
+    progress = (lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None
+    rows = thesis.fit_dataset(dataset, cycles=args.cycles, x0=args.x0,
+                              initial_friction=args.initial_friction, progress=progress)
+    markdown = thesis.to_markdown(rows, f"Thesis-method fit: {dataset.motor or args.dataset.name}")
+    print(markdown, end="")
+    if args.out:
+        _write(args.out, {"thesis_table.md": markdown, "thesis_table.csv": thesis.to_csv(rows)})
+    return 0
+
+
+def _run_breakaway(args) -> int:
+    from admittance.ident import breakaway
+    from admittance.ident.dataset import load_dataset
+
+    dataset = load_dataset(args.dataset)
+    summary = breakaway.summarise([breakaway.breakaway_of(tr) for tr in dataset.trials])
+    print(breakaway.to_markdown(summary), end="")
+    if args.json:
+        _write(args.json.parent, {args.json.name: json.dumps(summary, indent=2)})
+    return 0
+
+
+def _run_predict(args) -> int:
+    from admittance.ident import predict
+    from admittance.ident.dataset import load_dataset
+
+    dataset = load_dataset(args.dataset)
+    predictions = predict.predict_dataset(dataset, args.params, args.thesis_k)
+    print(predict.metrics_table(predictions), end="")
+    if args.out:
+        _write(args.out, {"metrics.json": json.dumps(predict.metrics_dicts(predictions), indent=2)})
+        for p in predictions:
+            predict.plot_trial(p, args.out)
+    return 0
+
+
+def _run_convert(args) -> int:
+    from admittance.ident import loaders
+
+    options = dict(_parse_option(item) for item in args.option)
+    header = {"motor": args.motor} if args.motor else {}
+    out = loaders.convert_files(args.files, args.format, args.out, header=header, **options)
+    print(f"wrote {len(args.files)} trial(s) to {out}")
+    return 0
+
+
+def _parse_option(item: str) -> tuple[str, object]:
+    """``KEY=VALUE``: a number, a comma list (``axes=x,z``), or a string."""
+    from admittance.errors import ConfigError
+
+    key, sep, value = item.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"--option {item!r}: expected KEY=VALUE")
+    if "," in value:
+        return key.strip(), [_number_or_text(v) for v in value.split(",")]
+    return key.strip(), _number_or_text(value)
+
+
+def _number_or_text(text: str):
+    text = text.strip()
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _write(folder: Path, files: dict[str, str]) -> None:
+    from admittance.errors import ConfigError
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, text in files.items():
+            (folder / name).write_text(text)
+    except OSError as exc:
+        raise ConfigError(f"{folder}: cannot write ({exc.strerror})") from None

@@ -1,5 +1,104 @@
-"""Subcommand registration (skeleton, replaced by the area's owner)."""
+"""``admittance mock-bench``: run the simulated bench alone, for any client to drive.
+
+With ``--print-ports`` the first line on stdout is one JSON object,
+``{"bus": "/dev/pts/N", "sensor": "/dev/pts/M"}`` (flushed at once), so a test or a script
+can start the bench as a subprocess and read where to connect; nothing else goes to stdout.
+The bench then runs until SIGINT or SIGTERM (or ``--duration``) and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+
+from admittance.errors import ConfigError
 
 
-def register(subparsers) -> None:
-    return None
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "mock-bench",
+        help="run the simulated bench (mock Dynamixel bus + force sensor on ptys)",
+        description="Start a simulated Dynamixel bus and a simulated OptoForce sensor on pseudo-terminals, "
+        "driven by a scripted hand, and run until SIGINT/SIGTERM.",
+    )
+    parser.add_argument("--print-ports", action="store_true", help='first print {"bus": ..., "sensor": ...} as one JSON line')
+    parser.add_argument("--servos", type=int, default=1, metavar="N", help="number of servos, IDs 1..N (default 1)")
+    parser.add_argument("--model", default="MX-64", help="servo model (default MX-64)")
+    parser.add_argument("--protocol", type=int, choices=(1, 2), default=2, help="firmware protocol (default 2)")
+    parser.add_argument("--params", metavar="FILE", help="fitted parameter file (default config/params/<model>.toml)")
+    parser.add_argument("--baudrate", type=int, default=1_000_000)
+    parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau")
+    parser.add_argument("--sensor", choices=("optoforce", "can"), default="optoforce")
+    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate (default 1000)")
+    parser.add_argument("--noise", type=float, default=0.0, metavar="N", help="sensor noise std in N (default 0)")
+    parser.add_argument("--bias", type=float, default=0.0, metavar="N", help="sensor bias in N (default 0)")
+    parser.add_argument("--lever-arm", type=float, default=0.105, metavar="M", help="hand-to-axis distance in m (default 0.105)")
+    parser.add_argument("--can-interface", default="virtual", help="python-can interface of the CAN sensor (virtual is in-process only)")
+    parser.add_argument("--can-channel", default="admittance-mock")
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones (repeatable)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
+    parser.set_defaults(func=run)
+
+
+def parse_effects(items: list[str]) -> dict[str, float]:
+    effects = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            effects[name.strip()] = float(text)
+        except ValueError:
+            raise ConfigError(f"--effect takes NAME=VALUE with a number, not '{item}'") from None
+    return effects
+
+
+def run(args: argparse.Namespace) -> int:
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    config = BenchConfig(
+        servos=args.servos,
+        model=args.model,
+        protocol=args.protocol,
+        params_file=args.params,
+        effects=parse_effects(args.effect),
+        baudrate=args.baudrate,
+        profile=args.profile,
+        sensor=args.sensor,
+        sensor_rate_hz=args.rate,
+        noise_std_n=args.noise,
+        bias_n=args.bias,
+        lever_arm=args.lever_arm,
+        can_interface=args.can_interface,
+        can_channel=args.can_channel,
+        seed=args.seed,
+    )
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with MockBench(config) as bench:
+        if args.print_ports:
+            print(json.dumps(bench.ports()), flush=True)
+        else:
+            _describe(bench)
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        while not stop.wait(0.2):
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+    return 0
+
+
+def _describe(bench) -> None:
+    cfg = bench.config
+    print(f"mock bus:    {bench.bus_port}  ({len(bench.servo_ids)} × {cfg.model}, Protocol {cfg.protocol}.0, IDs {bench.servo_ids}, {cfg.baudrate} baud)")
+    if bench.sensor_port:
+        print(f"mock sensor: {bench.sensor_port}  (OptoForce 3-axis frames at {cfg.sensor_rate_hz:g} Hz)")
+    else:
+        print(f"mock sensor: CAN {cfg.can_interface} channel {bench.can_channel!r}, id {cfg.can_id:#x}")
+    print(f"hand:        {cfg.profile} on servo {bench.hand_servo_id}, lever arm {cfg.lever_arm} m; Ctrl-C to stop")
+    sys.stdout.flush()

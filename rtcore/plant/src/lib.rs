@@ -1,1 +1,29 @@
-//! The pendulum/admittance plant (skeleton; filled in by the plant work).
+//! The pendulum/admittance plant: friction models and a fixed-step batch simulator (no I/O).
+//!
+//! `I·ω' = τ(t − delay) − bias − drift·t − G·sin(θ − offset) − cogging(θ) − B·ω − c·ω|ω| + friction`
+//! (docs/architecture.md, Contract 1; docs/plant.md for the reasoning).
+//!
+//! - `params`: the 16-entry parameter vector and its names (`PARAM_NAMES`).
+//! - `friction`: the friction level and the stick / tanh laws.
+//! - `model`: one semi-implicit Euler substep of the plant (`step`), used by the mock bus.
+//! - `trial`: a trial's inputs and its simulation at the sample times.
+//! - `batch`: parameter sets × trials in parallel (rayon), for identification.
+//! - `admittance`: the RT loop's virtual joint and its stability gate.
+//!
+//! Semi-implicit (symplectic) Euler rather than RK4: the stick law is a per-step constraint
+//! that a multi-stage method would straddle, and symplectic Euler keeps a frictionless
+//! pendulum's energy bounded over thousands of periods at first-order cost.
+pub mod admittance;
+pub mod batch;
+pub mod error;
+pub mod friction;
+pub mod model;
+pub mod params;
+pub mod trial;
+
+pub use batch::{Batch, Output};
+pub use error::PlantError;
+pub use friction::FrictionLaw;
+pub use model::{step, Load, State};
+pub use params::{param_index, Params, N_PARAMS, PARAM_NAMES};
+pub use trial::{simulate, Trial};

@@ -1,6 +1,265 @@
-//! Python bindings of the `dxlsim` crate.
-use pyo3::prelude::*;
+//! Python bindings of the `dxlsim` crate: `MockBus` (docs/architecture.md, Contract 4).
+//!
+//! Servos are described by plain dicts so a TOML configuration maps onto them directly.
+//! Every key is checked (an unknown key is a typo, not something to ignore) and every
+//! configuration error is an `admittance.errors.ConfigError` with one clear line; `stop()`
+//! and the blocking calls release the GIL so the bus thread, which never takes it, can finish.
+use std::collections::HashMap;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
-    Ok(())
+use dxl::Protocol;
+use dxlsim::servo::Snapshot;
+use dxlsim::{build_bus, BusConfig, MockBus, ServoConfig};
+use plant::{param_index, FrictionLaw, Load, Params, PARAM_NAMES};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple, PyType};
+
+/// The keys a servo dict may have.
+const SERVO_KEYS: [&str; 14] = [
+    "id",
+    "model",
+    "protocol",
+    "params",
+    "load_inertia",
+    "gravity_torque",
+    "friction",
+    "kt",
+    "resistance",
+    "input_voltage",
+    "initial_theta",
+    "ambient_temperature",
+    "registers",
+    "name",
+];
+
+/// An `admittance.errors.<class_name>` carrying `message` (a `ValueError` if the Python
+/// package is not importable, e.g. when the extension is used alone).
+fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
+    let class = py.import("admittance.errors").and_then(|m| m.getattr(class_name));
+    match class.map(|c| c.cast_into::<PyType>()) {
+        Ok(Ok(ty)) => PyErr::from_type(ty, message),
+        _ => PyValueError::new_err(message),
+    }
+}
+
+fn config_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    admittance_error(py, "ConfigError", message.into())
+}
+
+fn device_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    admittance_error(py, "DeviceError", message.into())
+}
+
+/// `key` of a servo dict as `T`, or `default` when absent.
+fn field<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, default: T) -> PyResult<T> {
+    match d.get_item(key)? {
+        Some(v) if !v.is_none() => v.extract::<T>().map_err(|e| {
+            let e: PyErr = e.into();
+            config_error(d.py(), format!("servo key {key:?} has a bad value: {e}"))
+        }),
+        _ => Ok(default),
+    }
+}
+
+fn plant_params(d: &Bound<'_, PyDict>, id: u8) -> PyResult<Params> {
+    let py = d.py();
+    let Some(obj) = d.get_item("params")? else {
+        return Err(config_error(py, format!("servo {id}: \"params\" is required (at least motor_inertia)")));
+    };
+    let given: HashMap<String, f64> = obj
+        .extract()
+        .map_err(|e| config_error(py, format!("servo {id}: \"params\" must map names to numbers: {e}")))?;
+    let mut values = Params::default().to_array();
+    for (name, value) in given {
+        let k = param_index(&name).ok_or_else(|| {
+            config_error(py, format!("servo {id}: unknown plant parameter {name:?} (known: {})", PARAM_NAMES.join(", ")))
+        })?;
+        values[k] = value;
+    }
+    Params::from_slice(&values).map_err(|e| config_error(py, e.to_string()))
+}
+
+fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
+    let py = d.py();
+    for key in d.keys() {
+        let key: String = key.extract()?;
+        if !SERVO_KEYS.contains(&key.as_str()) {
+            return Err(config_error(py, format!("unknown servo key {key:?} (known: {})", SERVO_KEYS.join(", "))));
+        }
+    }
+    let id: i64 = d
+        .get_item("id")?
+        .ok_or_else(|| config_error(py, "every servo needs an \"id\""))?
+        .extract()
+        .map_err(|_| config_error(py, "servo \"id\" must be an integer"))?;
+    let id = u8::try_from(id).map_err(|_| config_error(py, format!("servo ID {id} is out of range")))?;
+    let protocol_number: u8 = field(d, "protocol", 2)?;
+    let protocol = Protocol::from_number(protocol_number)
+        .ok_or_else(|| config_error(py, format!("servo {id}: protocol must be 1 or 2, got {protocol_number}")))?;
+    let friction: String = field(d, "friction", "stick".to_string())?;
+    let friction: FrictionLaw = friction.parse().map_err(|e: plant::PlantError| config_error(py, e.to_string()))?;
+    let registers: HashMap<String, i64> = field(d, "registers", HashMap::new())?;
+    let defaults = ServoConfig::new(id, Params::default());
+    Ok(ServoConfig {
+        id,
+        model: field(d, "model", defaults.model)?,
+        protocol,
+        params: plant_params(d, id)?,
+        load: Load { inertia: field(d, "load_inertia", 0.0)?, gravity_torque: field(d, "gravity_torque", 0.0)? },
+        friction,
+        kt: field(d, "kt", None)?,
+        resistance: field(d, "resistance", None)?,
+        input_voltage: field(d, "input_voltage", defaults.input_voltage)?,
+        initial_theta: field(d, "initial_theta", defaults.initial_theta)?,
+        ambient_temperature: field(d, "ambient_temperature", defaults.ambient_temperature)?,
+        registers: registers.into_iter().collect(),
+    })
+}
+
+fn snapshot_dict<'py>(py: Python<'py>, s: &Snapshot) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("theta", s.theta)?;
+    d.set_item("omega", s.omega)?;
+    d.set_item("goal_tick", s.goal_tick)?;
+    d.set_item("present_tick", s.present_tick)?;
+    d.set_item("torque_enabled", s.torque_enabled)?;
+    d.set_item("duty", s.duty)?;
+    d.set_item("motor_torque", s.motor_torque)?;
+    d.set_item("external_torque", s.external_torque)?;
+    d.set_item("temperature", s.temperature)?;
+    d.set_item("hardware_error", s.hardware_error)?;
+    d.set_item("time", s.time)?;
+    Ok(d)
+}
+
+/// A simulated Dynamixel bus on a pseudo-terminal (see docs/mock-bench.md).
+#[pyclass(name = "MockBus", module = "admittance._rtcore")]
+pub struct PyMockBus {
+    inner: MockBus,
+}
+
+impl PyMockBus {
+    fn with_servo<T>(&self, py: Python<'_>, id: u8, f: impl FnOnce(&mut dxlsim::Servo) -> T) -> PyResult<T> {
+        let mut shared = self.inner.lock();
+        match shared.bus.servo_mut(id) {
+            Some(servo) => Ok(f(servo)),
+            None => Err(config_error(py, format!("no servo with ID {id} on this bus"))),
+        }
+    }
+}
+
+#[pymethods]
+impl PyMockBus {
+    #[new]
+    #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0))]
+    fn new(py: Python<'_>, servos: Vec<Bound<'_, PyDict>>, baudrate: u32, wire_delay: bool, physics_rate_hz: f64) -> PyResult<Self> {
+        if !(physics_rate_hz.is_finite() && (100.0..=100_000.0).contains(&physics_rate_hz)) {
+            return Err(config_error(py, format!("physics_rate_hz must be within 100..=100000, got {physics_rate_hz}")));
+        }
+        if baudrate == 0 {
+            return Err(config_error(py, "baudrate must be positive"));
+        }
+        let configs = servos.iter().map(servo_config).collect::<PyResult<Vec<_>>>()?;
+        let bus = build_bus(configs, baudrate).map_err(|e| config_error(py, e))?;
+        let config = BusConfig { baudrate, wire_delay, physics_rate_hz };
+        let inner = MockBus::new(bus, config)
+            .map_err(|e| device_error(py, format!("cannot open a pseudo-terminal for the mock bus: {e}")))?;
+        Ok(PyMockBus { inner })
+    }
+
+    /// The device a client opens, e.g. "/dev/pts/7".
+    #[getter]
+    fn port_path(&self) -> String {
+        self.inner.port_path().to_string()
+    }
+
+    #[getter]
+    fn running(&self) -> bool {
+        self.inner.is_running()
+    }
+
+    /// The Dynamixel protocol of the bus (1 or 2).
+    #[getter]
+    fn protocol(&self) -> u8 {
+        self.inner.lock().bus.protocol().number()
+    }
+
+    fn start(&mut self, py: Python<'_>) -> PyResult<()> {
+        self.inner.start().map_err(|e| device_error(py, format!("cannot start the mock bus thread: {e}")))
+    }
+
+    /// Stops the bus thread and joins it (without the GIL).
+    fn stop(&mut self, py: Python<'_>) -> PyResult<()> {
+        let inner = &mut self.inner;
+        py.detach(|| inner.stop()).map_err(|e| device_error(py, format!("the mock bus thread failed: {e}")))
+    }
+
+    fn __enter__(mut slf: PyRefMut<'_, Self>) -> PyResult<PyRefMut<'_, Self>> {
+        let py = slf.py();
+        slf.start(py)?;
+        Ok(slf)
+    }
+
+    #[pyo3(signature = (*_args))]
+    fn __exit__(&mut self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> PyResult<bool> {
+        self.stop(py)?;
+        Ok(false)
+    }
+
+    /// The hand / disturbance torque on a horn (N·m), held until changed.
+    fn set_external_torque(&self, py: Python<'_>, id: u8, tau: f64) -> PyResult<()> {
+        if !tau.is_finite() {
+            return Err(config_error(py, format!("external torque must be finite, got {tau}")));
+        }
+        self.with_servo(py, id, |s| s.set_external_torque(tau))
+    }
+
+    /// Raises Hardware Error Status bits (P2 layout: 0x01 voltage, 0x04 overheating, 0x08
+    /// encoder, 0x10 electrical shock, 0x20 overload); 0 clears them (P1 has no reboot).
+    fn set_hardware_error(&self, py: Python<'_>, id: u8, bits: u8) -> PyResult<()> {
+        self.with_servo(py, id, |s| s.set_hardware_error(bits))
+    }
+
+    /// The horn's simulated state: theta, omega, goal_tick, present_tick and more.
+    fn servo_state<'py>(&self, py: Python<'py>, id: u8) -> PyResult<Bound<'py, PyDict>> {
+        let snapshot = self.with_servo(py, id, |s| s.snapshot())?;
+        snapshot_dict(py, &snapshot)
+    }
+
+    /// A control-table item's value by its e-manual name (e.g. "Present Position").
+    fn register(&self, py: Python<'_>, id: u8, name: &str) -> PyResult<i64> {
+        self.with_servo(py, id, |s| s.table.get(name))?
+            .ok_or_else(|| config_error(py, format!("servo {id} has no control-table item {name:?}")))
+    }
+
+    /// Counters of packets, replies, errors and I/O since construction.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.inner.stats();
+        let d = PyDict::new(py);
+        let entries = [
+            ("packets", s.bus.packets),
+            ("replies", s.bus.replies),
+            ("crc_errors", s.bus.crc_errors),
+            ("unknown_instructions", s.bus.unknown_instructions),
+            ("malformed", s.bus.malformed),
+            ("table_errors", s.bus.table_errors),
+            ("absent_ids", s.bus.absent_ids),
+            ("bytes_in", s.io.bytes_in),
+            ("bytes_out", s.io.bytes_out),
+            ("garbage_bytes", s.io.garbage_bytes),
+            ("framing_errors", s.io.framing_errors),
+            ("foreign_status_packets", s.io.foreign_status_packets),
+            ("dropped_reply_bytes", s.io.dropped_reply_bytes),
+            ("physics_steps", s.io.physics_steps),
+            ("skipped_steps", s.io.skipped_steps),
+        ];
+        for (key, value) in entries {
+            d.set_item(key, value)?;
+        }
+        Ok(d)
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyMockBus>()
 }

@@ -1,6 +1,191 @@
-//! Python bindings of the `plant` crate.
+//! Python bindings of the `plant` crate: `PARAM_NAMES`, `Trial`, `simulate_batch`.
+//!
+//! A `Trial` copies its arrays into Rust once; `simulate_batch` then only reads parameter
+//! rows and initial states, releases the GIL (`py.detach`) and runs the S×T simulations on
+//! rayon. Inputs are converted with `numpy.asarray` semantics (lists, float32, strided views
+//! are all accepted) and every error is a `ValueError` naming the bad input.
+use numpy::{AllowTypeChange, PyArray1, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods};
+use plant::{Batch, FrictionLaw, Load, Output, Params, PlantError, State, Trial, N_PARAMS, PARAM_NAMES};
+use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+fn value_error(e: PlantError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// Copies an array-like of numbers with exactly `ndim` dimensions; returns data and shape.
+fn f64_array(obj: &Bound<'_, PyAny>, name: &str, ndim: usize) -> PyResult<(Vec<f64>, Vec<usize>)> {
+    let arr: PyArrayLikeDyn<'_, f64, AllowTypeChange> = obj
+        .extract()
+        .map_err(|e| PyValueError::new_err(format!("{name} must be an array of numbers: {e}")))?;
+    if arr.ndim() != ndim {
+        return Err(PyValueError::new_err(format!(
+            "{name} must have {ndim} dimension(s), got shape {:?}",
+            arr.shape()
+        )));
+    }
+    let shape = arr.shape().to_vec();
+    let data: Vec<f64> = arr.as_array().iter().copied().collect();
+    Ok((data, shape))
+}
+
+/// One experiment's sample times, applied torque (optional) and load; immutable.
+#[pyclass(name = "Trial", module = "admittance._rtcore", frozen)]
+pub struct PyTrial {
+    inner: Trial,
+}
+
+#[pymethods]
+impl PyTrial {
+    #[new]
+    #[pyo3(signature = (t, tau=None, load_inertia=0.0, gravity_torque=0.0))]
+    fn new(
+        t: &Bound<'_, PyAny>,
+        tau: Option<&Bound<'_, PyAny>>,
+        load_inertia: f64,
+        gravity_torque: f64,
+    ) -> PyResult<Self> {
+        let (t, _) = f64_array(t, "t", 1)?;
+        let tau = match tau {
+            Some(obj) if !obj.is_none() => Some(f64_array(obj, "tau", 1)?.0),
+            _ => None,
+        };
+        let load = Load { inertia: load_inertia, gravity_torque };
+        Ok(PyTrial { inner: Trial::new(t, tau, load).map_err(value_error)? })
+    }
+
+    #[getter]
+    fn n_samples(&self) -> usize {
+        self.inner.n_samples()
+    }
+
+    #[getter]
+    fn duration(&self) -> f64 {
+        self.inner.duration()
+    }
+
+    #[getter]
+    fn load_inertia(&self) -> f64 {
+        self.inner.load().inertia
+    }
+
+    #[getter]
+    fn gravity_torque(&self) -> f64 {
+        self.inner.load().gravity_torque
+    }
+
+    #[getter]
+    fn has_tau(&self) -> bool {
+        self.inner.tau().is_some()
+    }
+
+    /// A copy of the sample times.
+    #[getter]
+    fn t<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, self.inner.t())
+    }
+
+    /// A copy of the applied torque, or None for a free swing.
+    #[getter]
+    fn tau<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        self.inner.tau().map(|tau| PyArray1::from_slice(py, tau))
+    }
+
+    /// Number of substeps a simulation at `max_step` takes.
+    fn substeps(&self, max_step: f64) -> PyResult<u64> {
+        plant::trial::validate_max_step(max_step).map_err(value_error)?;
+        Ok(self.inner.substeps(max_step))
+    }
+
+    fn __repr__(&self) -> String {
+        let load = self.inner.load();
+        format!(
+            "Trial(n_samples={}, duration={}, tau={}, load_inertia={}, gravity_torque={})",
+            self.inner.n_samples(),
+            self.inner.duration(),
+            if self.inner.tau().is_some() { "yes" } else { "None" },
+            load.inertia,
+            load.gravity_torque
+        )
+    }
+}
+
+/// Reads the (S, P) parameter array into `Params`.
+fn param_sets(params: &Bound<'_, PyAny>) -> PyResult<Vec<Params>> {
+    let (data, shape) = f64_array(params, "params", 2)?;
+    if shape[1] != N_PARAMS {
+        return Err(PyValueError::new_err(format!(
+            "params must have {N_PARAMS} columns (PARAM_NAMES), got shape {shape:?}"
+        )));
+    }
+    data.chunks(N_PARAMS.max(1))
+        .take(shape[0])
+        .map(|row| Params::from_slice(row).map_err(value_error))
+        .collect()
+}
+
+/// Reads the (S, T, 2) initial states.
+fn initial_states(x0: &Bound<'_, PyAny>, n_sets: usize, n_trials: usize) -> PyResult<Vec<State>> {
+    let (data, shape) = f64_array(x0, "x0", 3)?;
+    if shape != [n_sets, n_trials, 2] {
+        return Err(PyValueError::new_err(format!(
+            "x0 must have shape (S, T, 2) = ({n_sets}, {n_trials}, 2), got {shape:?}"
+        )));
+    }
+    Ok(data.chunks(2).map(|c| State { theta: c[0], omega: c[1] }).collect())
+}
+
+/// Simulates every trial under every parameter set; see docs/architecture.md, Contract 1.
+#[pyfunction]
+#[pyo3(signature = (trials, params, x0, *, max_step=5e-4, friction="stick", return_velocity=false, threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn simulate_batch<'py>(
+    py: Python<'py>,
+    trials: Vec<Bound<'py, PyTrial>>,
+    params: &Bound<'py, PyAny>,
+    x0: &Bound<'py, PyAny>,
+    max_step: f64,
+    friction: &str,
+    return_velocity: bool,
+    threads: Option<usize>,
+) -> PyResult<Vec<Bound<'py, PyAny>>> {
+    let law: FrictionLaw = friction.parse().map_err(value_error)?;
+    let params = param_sets(params)?;
+    let x0 = initial_states(x0, params.len(), trials.len())?;
+    let trial_refs: Vec<&Trial> = trials.iter().map(|t| &t.get().inner).collect();
+    let output = if return_velocity { Output::ThetaOmega } else { Output::Theta };
+    let batch = Batch { trials: &trial_refs, params: &params, x0: &x0, law, max_step, output, threads };
+    let outs = py.detach(|| batch.run()).map_err(value_error)?;
+    let n_sets = params.len();
+    outs.into_iter()
+        .zip(&trial_refs)
+        .map(|(buf, trial)| {
+            let flat = PyArray1::from_vec(py, buf);
+            let n = trial.n_samples();
+            let shaped = if return_velocity {
+                flat.reshape([n_sets, n, 2])?.into_any()
+            } else {
+                flat.reshape([n_sets, n])?.into_any()
+            };
+            Ok(shaped)
+        })
+        .collect()
+}
+
+/// `None` when the virtual joint is safe to integrate at step `h`, else the reason.
+#[pyfunction]
+fn admittance_check_stable(inertia: f64, damping: f64, coulomb: f64, h: f64) -> Option<String> {
+    let p = plant::admittance::AdmittanceParams { inertia, damping, coulomb };
+    plant::admittance::check_stable(&p, h).err()
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("PARAM_NAMES", PyTuple::new(py, PARAM_NAMES)?)?;
+    m.add("PARAM_DEFAULTS", PyTuple::new(py, Params::default().to_array())?)?;
+    m.add_class::<PyTrial>()?;
+    m.add_function(wrap_pyfunction!(simulate_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(admittance_check_stable, m)?)?;
     Ok(())
 }

@@ -1,6 +1,411 @@
-//! Python bindings of the `rt` crate.
+//! Python bindings of the `rt` crate: `AdmittanceLoop` and its `ForceSink` (Contract 5).
+//!
+//! The configuration dict is read here, key by key, into `rtloop::LoopConfig`; an unknown key
+//! or a bad value is an `admittance.errors.ConfigError` naming the key, a missing or silent bus
+//! at `start()` an `admittance.errors.DeviceError`. `start()` and `stop()` block (bus reads,
+//! thread join) and release the GIL while they do; everything else is O(1) or proportional to
+//! the telemetry drained. The RT thread itself never touches Python.
+use dxl::Protocol;
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList, PyType};
+use rtloop::histogram::Percentiles;
+use rtloop::params::{joint_value, LoopParams};
+use rtloop::sched::{Policy, RtRequest};
+use rtloop::sensor::ForceSample;
+use rtloop::telemetry::{Record, RECORD_FIELDS};
+use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+const LOOP_KEYS: [&str; 20] = [
+    "port",
+    "baudrate",
+    "protocol",
+    "rate_hz",
+    "rt_policy",
+    "rt_priority",
+    "lock_memory",
+    "cpu",
+    "joints",
+    "sync_read_divisor",
+    "stale_timeout_ms",
+    "deadband",
+    "lowpass_hz",
+    "ramp_time_s",
+    "bias",
+    "force_capacity",
+    "telemetry_capacity",
+    "start_timeout_ms",
+    "model",
+    "name",
+];
+
+const JOINT_KEYS: [&str; 19] = [
+    "id",
+    "model",
+    "goal_address",
+    "goal_size",
+    "present_address",
+    "present_size",
+    "torque_enable_address",
+    "zero_tick",
+    "direction",
+    "ticks_per_rev",
+    "tick_min",
+    "tick_max",
+    "virtual_inertia",
+    "virtual_damping",
+    "virtual_coulomb",
+    "axis",
+    "lever_arm",
+    "limits",
+    "name",
+];
+
+const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
+const AXES: [&str; 6] = ["x", "y", "z", "tx", "ty", "tz"];
+
+/// An `admittance.errors.<class_name>` (a RuntimeError if the package is not importable).
+fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
+    let class = py.import("admittance.errors").and_then(|m| m.getattr(class_name));
+    match class.map(|c| c.cast_into::<PyType>()) {
+        Ok(Ok(ty)) => PyErr::from_type(ty, message),
+        _ => PyRuntimeError::new_err(message),
+    }
+}
+
+fn config_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
+    admittance_error(py, "ConfigError", message.into())
+}
+
+fn check_keys(d: &Bound<'_, PyDict>, known: &[&str], where_: &str) -> PyResult<()> {
+    for key in d.keys() {
+        let key: String = key.extract().map_err(|_| config_error(d.py(), format!("{where_}: keys must be strings")))?;
+        if !known.contains(&key.as_str()) {
+            return Err(config_error(d.py(), format!("{where_}: unknown key {key:?} (known: {})", known.join(", "))));
+        }
+    }
+    Ok(())
+}
+
+/// `d[key]` as `T` when present and not None.
+fn opt<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, where_: &str) -> PyResult<Option<T>> {
+    match d.get_item(key)? {
+        Some(v) if !v.is_none() => v
+            .extract::<T>()
+            .map(Some)
+            .map_err(|e| {
+                let e: PyErr = e.into();
+                config_error(d.py(), format!("{where_}.{key}: bad value {v}: {e}"))
+            }),
+        _ => Ok(None),
+    }
+}
+
+fn set<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, where_: &str, slot: &mut T) -> PyResult<()> {
+    if let Some(v) = opt(d, key, where_)? {
+        *slot = v;
+    }
+    Ok(())
+}
+
+fn axis_of(obj: &Bound<'_, PyAny>, where_: &str) -> PyResult<usize> {
+    if let Ok(k) = obj.extract::<usize>() {
+        return Ok(k);
+    }
+    let name: String = obj.extract().unwrap_or_default();
+    AXES.iter().position(|a| *a == name.to_lowercase()).ok_or_else(|| {
+        config_error(obj.py(), format!("{where_}.axis: {obj} is not one of {} or 0..=5", AXES.join(", ")))
+    })
+}
+
+fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult<JointConfig> {
+    let py = d.py();
+    let where_ = format!("joints[{k}]");
+    check_keys(d, &JOINT_KEYS, &where_)?;
+    let id: u8 = opt(d, "id", &where_)?.ok_or_else(|| config_error(py, format!("{where_}: \"id\" is required")))?;
+    let mut j = JointConfig::new(id, protocol);
+    set(d, "model", &where_, &mut j.model)?;
+    let r = &mut j.registers;
+    set(d, "goal_address", &where_, &mut r.goal_address)?;
+    set(d, "goal_size", &where_, &mut r.goal_size)?;
+    set(d, "present_address", &where_, &mut r.present_address)?;
+    set(d, "present_size", &where_, &mut r.present_size)?;
+    set(d, "torque_enable_address", &where_, &mut r.torque_enable_address)?;
+    let t = &mut j.ticks;
+    set(d, "zero_tick", &where_, &mut t.zero_tick)?;
+    set(d, "direction", &where_, &mut t.direction)?;
+    set(d, "ticks_per_rev", &where_, &mut t.ticks_per_rev)?;
+    set(d, "tick_min", &where_, &mut t.tick_min)?;
+    set(d, "tick_max", &where_, &mut t.tick_max)?;
+    // The default position limits follow the (possibly configured) tick range.
+    (j.limits.position_min, j.limits.position_max) = j.ticks.theta_range();
+    set(d, "virtual_inertia", &where_, &mut j.gains.inertia)?;
+    set(d, "virtual_damping", &where_, &mut j.gains.damping)?;
+    set(d, "virtual_coulomb", &where_, &mut j.gains.coulomb)?;
+    set(d, "lever_arm", &where_, &mut j.gains.lever_arm)?;
+    if let Some(axis) = d.get_item("axis")?.filter(|a| !a.is_none()) {
+        j.axis = axis_of(&axis, &where_)?;
+    }
+    if let Some(limits) = opt::<Bound<'_, PyDict>>(d, "limits", &where_)? {
+        let where_ = format!("{where_}.limits");
+        check_keys(&limits, &LIMIT_KEYS, &where_)?;
+        let l = &mut j.limits;
+        set(&limits, "position_min", &where_, &mut l.position_min)?;
+        set(&limits, "position_max", &where_, &mut l.position_max)?;
+        set(&limits, "velocity_max", &where_, &mut l.velocity_max)?;
+        set(&limits, "acceleration_max", &where_, &mut l.acceleration_max)?;
+    }
+    Ok(j)
+}
+
+fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
+    let py = d.py();
+    let mut rt = RtRequest::default();
+    set(d, "rt_priority", "config", &mut rt.priority)?;
+    set(d, "lock_memory", "config", &mut rt.lock_memory)?;
+    rt.cpu = opt(d, "cpu", "config")?;
+    let policy: String = opt(d, "rt_policy", "config")?.unwrap_or_else(|| "fifo".into());
+    rt.policy = match policy.to_lowercase().as_str() {
+        "fifo" | "sched_fifo" if rt.priority > 0 => Policy::Fifo,
+        "fifo" | "sched_fifo" | "other" | "sched_other" => Policy::Other,
+        _ => return Err(config_error(py, format!("config.rt_policy: {policy:?} is not \"fifo\" or \"other\""))),
+    };
+    Ok(rt)
+}
+
+fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
+    let py = d.py();
+    check_keys(d, &LOOP_KEYS, "config")?;
+    let mut c = LoopConfig::default();
+    c.port = opt(d, "port", "config")?.ok_or_else(|| config_error(py, "config: \"port\" (the Dynamixel bus device) is required"))?;
+    set(d, "baudrate", "config", &mut c.baudrate)?;
+    let protocol: u8 = opt(d, "protocol", "config")?.unwrap_or(2);
+    c.protocol = Protocol::from_number(protocol)
+        .ok_or_else(|| config_error(py, format!("config.protocol: must be 1 or 2, got {protocol}")))?;
+    set(d, "rate_hz", "config", &mut c.rate_hz)?;
+    c.rt = rt_request(d)?;
+    set(d, "sync_read_divisor", "config", &mut c.sync_read_divisor)?;
+    set(d, "stale_timeout_ms", "config", &mut c.sensor.stale_timeout_ms)?;
+    set(d, "deadband", "config", &mut c.sensor.deadband)?;
+    set(d, "lowpass_hz", "config", &mut c.sensor.lowpass_hz)?;
+    set(d, "ramp_time_s", "config", &mut c.ramp_time_s)?;
+    set(d, "bias", "config", &mut c.bias)?;
+    set(d, "force_capacity", "config", &mut c.force_capacity)?;
+    set(d, "telemetry_capacity", "config", &mut c.telemetry_capacity)?;
+    set(d, "start_timeout_ms", "config", &mut c.start_timeout_ms)?;
+    let joints: Vec<Bound<'_, PyDict>> = opt(d, "joints", "config")?.unwrap_or_default();
+    c.joints = joints.iter().enumerate().map(|(k, j)| joint_config(j, k, c.protocol)).collect::<PyResult<_>>()?;
+    c.validate().map_err(|e| config_error(py, e))?;
+    Ok(c)
+}
+
+fn percentiles<'py>(py: Python<'py>, p: &Percentiles) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("p50", p.p50)?;
+    d.set_item("p99", p.p99)?;
+    d.set_item("p999", p.p999)?;
+    d.set_item("max", p.max)?;
+    d.set_item("mean", p.mean)?;
+    d.set_item("count", p.count)?;
+    Ok(d)
+}
+
+fn params_dict<'py>(py: Python<'py>, p: &LoopParams, ids: &[u8]) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    for (joint, id) in p.joints.iter().zip(ids) {
+        for key in rtloop::params::known_names() {
+            if let Some(v) = joint_value(joint, key) {
+                d.set_item(format!("{id}.{key}"), v)?;
+            }
+        }
+    }
+    d.set_item("deadband", p.sensor.deadband)?;
+    d.set_item("lowpass_hz", p.sensor.lowpass_hz)?;
+    d.set_item("stale_timeout_ms", p.sensor.stale_timeout_ms)?;
+    d.set_item("ramp_time_s", p.ramp_time_s)?;
+    d.set_item("bias", p.bias.to_vec())?;
+    Ok(d)
+}
+
+/// A set_params value: a number, or a list of 6 numbers (bias).
+fn param_value(name: &str, v: &Bound<'_, PyAny>) -> Result<ParamValue, String> {
+    if let Ok(x) = v.extract::<f64>() {
+        return Ok(ParamValue::Scalar(x));
+    }
+    v.extract::<[f64; 6]>()
+        .map(ParamValue::Vector)
+        .map_err(|_| format!("'{name}' must be a number (or, for bias, 6 numbers), got {v}"))
+}
+
+fn start_error(py: Python<'_>, e: StartError) -> PyErr {
+    match e {
+        StartError::AlreadyStarted => PyRuntimeError::new_err(e.to_string()),
+        other => admittance_error(py, "DeviceError", other.to_string()),
+    }
+}
+
+/// The sink force readers push samples into (`push(t_ns, forces) -> bool`).
+#[pyclass(name = "ForceSink", module = "admittance._rtcore", frozen)]
+pub struct PyForceSink {
+    inner: ForceSink,
+}
+
+#[pymethods]
+impl PyForceSink {
+    /// `t_ns` = time.monotonic_ns() at arrival; `forces` = up to 6 numbers [fx, fy, fz, tx, ty, tz]
+    /// (missing trailing components are 0). False when the ring is full and the sample dropped.
+    fn push(&self, t_ns: u64, forces: Vec<f64>) -> PyResult<bool> {
+        if forces.is_empty() || forces.len() > 6 {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "forces must hold 1 to 6 numbers [fx, fy, fz, tx, ty, tz], got {}",
+                forces.len()
+            )));
+        }
+        let mut sample = ForceSample { t_ns, forces: [0.0; 6] };
+        sample.forces[..forces.len()].copy_from_slice(&forces);
+        Ok(self.inner.push(sample))
+    }
+}
+
+/// The real-time admittance loop (Contract 5; keys in docs/realtime.md).
+#[pyclass(name = "AdmittanceLoop", module = "admittance._rtcore", frozen)]
+pub struct PyAdmittanceLoop {
+    inner: LoopHandle,
+}
+
+#[pymethods]
+impl PyAdmittanceLoop {
+    #[new]
+    fn new(config: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let py = config.py();
+        let inner = LoopHandle::new(loop_config(config)?).map_err(|e| config_error(py, e))?;
+        Ok(PyAdmittanceLoop { inner })
+    }
+
+    /// Opens the bus, reads every joint's present position (bumpless start), spawns the RT
+    /// thread and returns once it runs.
+    fn start(&self, py: Python<'_>) -> PyResult<()> {
+        py.detach(|| self.inner.start()).map_err(|e| start_error(py, e))
+    }
+
+    /// Stops the loop: "hold" keeps the last goal, "torque_off" disables torque on every joint.
+    #[pyo3(signature = (torque_policy="hold"))]
+    fn stop(&self, py: Python<'_>, torque_policy: &str) -> PyResult<()> {
+        let policy = match torque_policy {
+            "hold" => StopPolicy::Hold,
+            "torque_off" => StopPolicy::TorqueOff,
+            other => return Err(config_error(py, format!("torque_policy must be \"hold\" or \"torque_off\", got {other:?}"))),
+        };
+        py.detach(|| self.inner.stop(policy)).map_err(|e| admittance_error(py, "DeviceError", e))
+    }
+
+    fn force_sink(&self) -> PyForceSink {
+        PyForceSink { inner: self.inner.force_sink() }
+    }
+
+    /// Validates every change together; applies all of them (ramped) or none.
+    fn set_params(&self, changes: &Bound<'_, PyDict>) -> PyResult<(bool, String)> {
+        let mut parsed = Vec::with_capacity(changes.len());
+        for (name, value) in changes.iter() {
+            let Ok(name) = name.extract::<String>() else {
+                return Ok((false, format!("parameter names must be strings, got {name}")));
+            };
+            match param_value(&name, &value) {
+                Ok(v) => parsed.push((name, v)),
+                Err(reason) => return Ok((false, reason)),
+            }
+        }
+        Ok(match self.inner.set_params(&parsed) {
+            Ok(()) => (true, String::new()),
+            Err(reason) => (false, reason),
+        })
+    }
+
+    /// The accepted parameters, flat: "<id>.<name>" per joint, loop-wide names bare.
+    fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        params_dict(py, &self.inner.params(), self.inner.ids())
+    }
+
+    /// Averages the next `samples` force samples into the bias.
+    #[pyo3(signature = (samples=100))]
+    fn tare(&self, samples: u32) {
+        self.inner.tare(samples);
+    }
+
+    /// Every queued telemetry record, as a numpy structured array (one row per joint per cycle).
+    fn drain_telemetry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let mut records = Vec::new();
+        self.inner.drain_telemetry(&mut records);
+        let mut bytes = Vec::with_capacity(records.len() * 8 * RECORD_FIELDS.len());
+        records.iter().for_each(|r: &Record| r.write_le(&mut bytes));
+        let numpy = py.import("numpy")?;
+        let array = numpy.call_method1("frombuffer", (PyBytes::new(py, &bytes), telemetry_dtype(py)?))?;
+        array.call_method0("copy")
+    }
+
+    /// The numpy dtype of `drain_telemetry`'s rows.
+    #[staticmethod]
+    fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+        telemetry_dtype(py)
+    }
+
+    /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads).
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = self.inner.stats();
+        let d = PyDict::new(py);
+        d.set_item("cycles", s.cycles)?;
+        d.set_item("overruns", s.overruns)?;
+        d.set_item("rate_hz", s.rate_hz)?;
+        d.set_item("period_us", percentiles(py, &s.period_us)?)?;
+        d.set_item("latency_us", percentiles(py, &s.latency_us)?)?;
+        d.set_item("work_us", percentiles(py, &s.work_us)?)?;
+        d.set_item("bus_errors", s.bus_errors)?;
+        d.set_item("sensor_samples", s.sensor_samples)?;
+        d.set_item("sensor_stale_events", s.sensor_stale_events)?;
+        d.set_item("telemetry_drops", s.telemetry_drops)?;
+        d.set_item("sync_reads", s.sync_reads)?;
+        let rt = PyDict::new(py);
+        rt.set_item("policy", s.rt.policy)?;
+        rt.set_item("priority", s.rt.priority)?;
+        rt.set_item("memory_locked", s.rt.memory_locked)?;
+        rt.set_item("cpu", s.rt.cpu)?;
+        d.set_item("rt", rt)?;
+        Ok(d)
+    }
+
+    /// What the loop could not get (SCHED_FIFO, mlockall, affinity, port setup), once each.
+    fn warnings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        PyList::new(py, self.inner.warnings())
+    }
+
+    /// Cycles so far; a watchdog follows it.
+    fn heartbeat(&self) -> u64 {
+        self.inner.heartbeat()
+    }
+
+    fn running(&self) -> bool {
+        self.inner.running()
+    }
+
+    /// The joints' servo IDs, in configuration order.
+    #[getter]
+    fn ids(&self) -> Vec<u8> {
+        self.inner.ids().to_vec()
+    }
+
+    #[getter]
+    fn rate_hz(&self) -> f64 {
+        self.inner.config().rate_hz
+    }
+}
+
+fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    let fields: Vec<(&str, &str)> = RECORD_FIELDS.to_vec();
+    py.import("numpy")?.call_method1("dtype", (fields,))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyAdmittanceLoop>()?;
+    m.add_class::<PyForceSink>()?;
     Ok(())
 }

@@ -1,0 +1,116 @@
+"""The real implementations behind the supervisor's :class:`~supervisor.Backends`.
+
+Each function wraps another part of the project (the mock bench, the Dynamixel setup, the
+force-sensor registry, the RT loop, Zenoh) and turns its failures into one-line
+DeviceError/ConfigError messages that say which device and what to check. Keeping them here,
+apart from the supervisor's sequencing, is what lets the sequence be tested with fakes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+from admittance.daemon.config import MOCK_PORT, DaemonConfig
+from admittance.daemon.loopconfig import loop_config
+from admittance.daemon.supervisor import Backends
+from admittance.errors import DeviceError
+
+
+def real_backends() -> Backends:
+    from admittance.daemon.zenoh_iface import DaemonInterface
+
+    return Backends(start_bench=start_bench, check_servos=check_servos, release_servos=release_servos,
+                    make_sensor=make_sensor, make_loop=make_loop, make_interface=DaemonInterface)
+
+
+@contextlib.contextmanager
+def start_bench(cfg: DaemonConfig) -> Iterator[tuple[str, str]]:
+    """Yield (bus port, sensor port): the configured devices, or the embedded simulated bench's."""
+    if cfg.bus.port != MOCK_PORT:
+        yield cfg.bus.port, cfg.sensor.port
+        return
+    bench = _make_bench(cfg)
+    bench.start()
+    try:
+        sensor_port = bench.sensor_port if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
+        yield bench.bus_port, sensor_port
+    finally:
+        bench.stop()
+
+
+class DelayedHand:
+    """A hand profile that starts ``delay`` seconds late: the joint is untouched during the tare."""
+
+    def __init__(self, profile: Any, delay: float) -> None:
+        self.profile = profile
+        self.delay = delay
+
+    def __call__(self, t: float) -> float:
+        return 0.0 if t < self.delay else self.profile(t - self.delay)
+
+
+def _make_bench(cfg: DaemonConfig) -> Any:
+    """The simulated bench matching the configuration: same IDs, models, plant files and sensor."""
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    servos = [{"id": j.id, "model": j.model, "protocol": cfg.bus.protocol, "params_file": j.params}
+              for j in cfg.joints]
+    s = cfg.sensor
+    bench = MockBench(BenchConfig(
+        servos=servos, baudrate=cfg.bus.baudrate, profile=cfg.bench.profile,
+        sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
+        counts_per_newton=list(s.counts_per_newton), noise_std_n=cfg.bench.noise_std_n, can_id=s.can_id))
+    bench.profile = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
+    return bench
+
+
+def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
+    """Ping and prepare every joint's servo, hold it where it is, torque on; return warnings.
+
+    The goal is set to the present position before torque goes on, so the joint does not jump
+    to whatever goal it held from a previous session. The SDK's port is closed on return: from
+    then on the RT loop owns the tty.
+    """
+    from admittance.drivers.dynamixel import ServoBus
+
+    warnings: list[str] = []
+    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol) as bus:
+        if bus.warning:
+            warnings.append(bus.warning)
+        for joint in cfg.joints:
+            info = bus.prepare(joint.id)
+            if info.model.lower() != joint.model.lower():
+                raise DeviceError(f"servo {joint.id} on {port} is a {info.model}, but the configuration "
+                                  f"says {joint.model} ([[joints]] model)")
+            bus.write_raw(joint.id, "Goal Position", bus.read_raw(joint.id, "Present Position"))
+            bus.set_torque(joint.id, True)
+    return warnings
+
+
+def release_servos(cfg: DaemonConfig, port: str) -> None:
+    """Torque off every joint (a start that failed after torque-on, with policy torque_off)."""
+    from admittance.drivers.dynamixel import ServoBus
+
+    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol) as bus:
+        for joint in cfg.joints:
+            bus.set_torque(joint.id, False)
+
+
+def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
+    from admittance.drivers.sensor import create_sensor
+
+    s = cfg.sensor
+    section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),
+               "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate}
+    return create_sensor(section, sink)
+
+
+def make_loop(cfg: DaemonConfig, bus_port: str) -> Any:
+    from admittance import _rtcore
+
+    try:
+        return _rtcore.AdmittanceLoop(loop_config(cfg, bus_port))
+    except (ValueError, TypeError) as exc:  # the loop's own check of its configuration
+        raise DeviceError(f"RT loop: {exc}") from None

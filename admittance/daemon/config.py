@@ -1,0 +1,305 @@
+"""The daemon's configuration (``admittance run --config FILE``): read, validate, resolve.
+
+Every table of ../shared/contracts/daemon.md is one frozen dataclass below, and every key a
+field declared with :func:`schema.key` (type, unit, range, default, live-updatable). A bad
+file fails here, before any device is opened, with one line that names the key.
+
+Two defaults are not constants and are filled after validation:
+
+- ``params`` of a joint defaults to ``config/params/<model>.toml`` (e.g. ``mx64.toml``); a
+  relative path is looked up beside the configuration file, then at the repository root;
+- ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
+  ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from admittance.daemon.schema import build, did_you_mean, key
+from admittance.errors import ConfigError
+from admittance.ident import paramfile
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+BENCH_CONFIG = REPO_ROOT / "config" / "bench.toml"
+MOCK_PORT = "mock"
+AXES = ("x", "y", "z")
+SENSOR_KINDS = ("optoforce", "can", "mock")
+_KEY_CHUNK = re.compile(r"^[^*$?#/]+$")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BusConfig:
+    port: str = key("str", doc='serial device, or "mock" for the embedded simulated bench')
+    baudrate: int = key("int", 1_000_000, unit="bit/s", lo=9600, hi=10_500_000, doc="bus baud rate")
+    protocol: int = key("int", 2, choices=(1, 2), doc="Dynamixel protocol")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LimitsConfig:
+    """Limits on the model's state (not just its output), so the integrator never winds up."""
+
+    position_min: float = key("float", -3.1, unit="rad", lo=-3.1416, hi=3.1416, live=True, doc="lowest model angle")
+    position_max: float = key("float", 3.1, unit="rad", lo=-3.1416, hi=3.1416, live=True, doc="highest model angle")
+    velocity_max: float = key("float", 6.0, unit="rad/s", lo=0.0, lo_open=True, live=True, doc="model speed limit")
+    acceleration_max: float = key("float", 200.0, unit="rad/s²", lo=0.0, lo_open=True, live=True,
+                                  doc="model acceleration limit")
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointConfig:
+    id: int = key("int", lo=0, hi=252, doc="Dynamixel ID")
+    model: str = key("str", doc="servo model, e.g. MX-64 (the model table's names)")
+    zero_tick: int = key("int", 2048, unit="tick", lo=0, hi=4095, doc="encoder tick of joint angle 0")
+    direction: int = key("int", 1, choices=(1, -1), doc="+1: the angle grows with the tick; -1: reversed")
+    params: str = key("str", "", doc="fitted parameter file (Contract 2); default config/params/<model>.toml")
+    # None = the fitted plant's value (filled by _resolve_joint).
+    virtual_inertia: float | None = key("float", None, unit="kg·m²", lo=0.0, lo_open=True, live=True,
+                                        doc="felt inertia")
+    virtual_damping: float | None = key("float", None, unit="N·m·s/rad", lo=0.0, live=True, doc="felt damping")
+    virtual_coulomb: float | None = key("float", None, unit="N·m", lo=0.0, live=True, doc="felt Coulomb friction")
+    lever_arm: float | None = key("float", None, unit="m", live=True, doc="this joint's lever arm; default [sensor].lever_arm")
+    limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
+    # Filled by resolve(): the parsed limits and the loaded parameter file.
+    resolved_limits: LimitsConfig | None = dataclasses.field(default=None, metadata={"internal": True})
+    plant: dict | None = dataclasses.field(default=None, metadata={"internal": True})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorConfig:
+    kind: str = key("str", choices=SENSOR_KINDS, doc="force sensor kind")
+    port: str = key("str", "", doc='serial path (optoforce), python-can channel (can); "mock" = the bench\'s')
+    interface: str = key("str", "socketcan", doc="python-can interface (can only)")
+    can_id: int = key("int", 0x100, lo=0, hi=0x1FFFFFFF, doc="CAN identifier of the data frames (can only)")
+    bitrate: int = key("int", 1_000_000, unit="bit/s", lo=10_000, hi=8_000_000, doc="CAN bit rate (can only)")
+    counts_per_newton: list = key("float_list", [451.89, 451.89, 451.89], unit="count/N", lo=0.0, lo_open=True,
+                                  doc="OptoForce scale per axis")
+    axis: str = key("str", "x", choices=AXES, doc="force axis that drives the joints")
+    lever_arm: float = key("float", unit="m", doc="torque = force × lever_arm (negative flips the direction)")
+    deadband: float = key("float", 0.0, unit="N", lo=0.0, live=True, doc="half-width of the smooth dead zone on the force")
+    lowpass_hz: float = key("float", 0.0, unit="Hz", lo=0.0, live=True, doc="first-order low-pass on the torque; 0 = off")
+    tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoopConfig:
+    rate_hz: float = key("float", 1000.0, unit="Hz", lo=10.0, hi=4000.0, doc="control rate")
+    rt_priority: int = key("int", 80, lo=0, hi=99, doc="SCHED_FIFO priority asked for; 0 = stay SCHED_OTHER")
+    lock_memory: bool = key("bool", True, doc="mlockall the process (falls back, and reports, when refused)")
+    sync_read_divisor: int = key("int", 10, lo=0, hi=10_000, doc="read present positions every N cycles; 0 = never")
+    stale_timeout_ms: float = key("float", 50.0, unit="ms", lo=0.0, lo_open=True, hi=10_000.0, live=True,
+                                  doc="no force sample for this long: hold position")
+    ramp_time_s: float = key("float", 0.5, unit="s", lo=0.0, hi=60.0, live=True,
+                             doc="a live parameter change blends in over this time (no jump)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class StopConfig:
+    torque_policy: str = key("str", "hold", choices=("hold", "torque_off"), doc="what the servos do at exit")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ZenohConfig:
+    prefix: str = key("str", "bench/arm1", doc="key-expression prefix of every key")
+    listen: list = key("str_list", ["tcp/127.0.0.1:7447"], doc="endpoints to listen on; empty = zenoh defaults")
+    connect: list = key("str_list", [], doc="endpoints to connect to")
+    scouting: bool = key("bool", False, doc="multicast scouting")
+    mode: str = key("str", "peer", choices=("peer", "client", "router"), doc="zenoh session mode")
+    state_rate_hz: float = key("float", 100.0, unit="Hz", lo=50.0, hi=1000.0, doc="rate of <prefix>/state")
+    encoding: str = key("str", "json", choices=("json", "msgpack"), doc="payload encoding")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RecordConfig:
+    path: str = key("str", "", doc="record the session into this dataset folder; empty = no recording")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BenchConfig:
+    """The embedded simulated bench (only with [bus].port = "mock")."""
+
+    profile: str = key("str", "push-release", doc="the scripted hand: a mock-bench profile (NAME[:k=v,...] or CSV)")
+    hand_delay_s: float = key("float", 1.5, unit="s", lo=0.0, hi=3600.0,
+                              doc="the hand stays off this long after the bench starts (the tare needs stillness)")
+    noise_std_n: float = key("float", 0.0, unit="N", lo=0.0, hi=10.0, doc="sensor noise of the simulated sensor")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DaemonConfig:
+    bus: BusConfig
+    joints: tuple[JointConfig, ...]
+    sensor: SensorConfig
+    loop: LoopConfig
+    stop: StopConfig
+    zenoh: ZenohConfig
+    record: RecordConfig
+    bench: BenchConfig
+    source: Path  # the file it came from (relative paths are resolved beside it)
+
+    def joint(self, joint_id: int) -> JointConfig:
+        return next(j for j in self.joints if j.id == joint_id)
+
+
+TABLES = {"bus": BusConfig, "sensor": SensorConfig, "loop": LoopConfig, "stop": StopConfig,
+          "zenoh": ZenohConfig, "record": RecordConfig, "bench": BenchConfig}
+REQUIRED_TABLES = ("bus", "joints", "sensor")
+
+
+def load_config(path: str | Path) -> DaemonConfig:
+    """Read, validate and resolve a configuration file."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read ({exc})") from None
+    return parse_config(doc, path)
+
+
+def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
+    where = str(path)
+    for name in doc:
+        if name not in (*TABLES, "joints"):
+            raise ConfigError(f"{where}: unknown table [{name}]{did_you_mean(name, [*TABLES, 'joints'])}")
+    for name in REQUIRED_TABLES:
+        if name not in doc:
+            raise ConfigError(f"{where}: [{name}] is required")
+    tables = {name: build(cls, doc.get(name, {}), f"{where}: [{name}]") for name, cls in TABLES.items()}
+    joints = _parse_joints(doc["joints"], path)
+    lever_arm = tables["sensor"].lever_arm
+    joints = tuple(j if j.lever_arm is not None else dataclasses.replace(j, lever_arm=lever_arm) for j in joints)
+    _check_cross(tables, joints, where)
+    if "bench" in doc and tables["bus"].port != MOCK_PORT:
+        raise ConfigError(f"{where}: [bench] only applies to the simulated bench ([bus].port = \"mock\")")
+    return DaemonConfig(joints=joints, source=path, **tables)
+
+
+def _parse_joints(raw: Any, path: Path) -> tuple[JointConfig, ...]:
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError(f"{path}: [[joints]] must be a non-empty array of tables")
+    joints, seen = [], set()
+    for i, table in enumerate(raw):
+        where = f"{path}: [[joints]] #{i + 1}"
+        joint = build(JointConfig, table, where)
+        if joint.id in seen:
+            raise ConfigError(f"{where}.id: duplicate joint id {joint.id}")
+        seen.add(joint.id)
+        joints.append(_resolve_joint(joint, path, f"{path}: [joints.{joint.id}]"))
+    return tuple(joints)
+
+
+def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
+    limits = build(LimitsConfig, joint.limits, f"{where}.limits")
+    if limits.position_min >= limits.position_max:
+        raise ConfigError(f"{where}.limits.position_min: must be below position_max ({limits.position_max:g} rad)")
+    if joint.lever_arm == 0.0:
+        raise ConfigError(f"{where}.lever_arm: must not be 0 m")
+    params_path = resolve_params_path(joint, path, where)
+    plant = paramfile.load(params_path)
+    if plant["model"].get("mode", "geometry") == "lumped":
+        raise ConfigError(f"{where}.params: {params_path} is a lumped fit (per unit inertia); "
+                          "the daemon needs a geometry fit in SI units")
+    fitted = plant["params"]
+    if "motor_inertia" not in fitted:
+        raise ConfigError(f"{where}.params: {params_path} has no motor_inertia")
+    return dataclasses.replace(
+        joint,
+        params=str(params_path),
+        virtual_inertia=_or(joint.virtual_inertia, fitted["motor_inertia"]),
+        virtual_damping=_or(joint.virtual_damping, fitted.get("damping", 0.0)),
+        virtual_coulomb=_or(joint.virtual_coulomb, fitted.get("coulomb", 0.0)),
+        resolved_limits=limits,
+        plant=plant,
+    )
+
+
+def _or(value: float | None, fallback: float) -> float:
+    return fallback if value is None else value
+
+
+def resolve_params_path(joint: JointConfig, config_path: Path, where: str) -> Path:
+    """The joint's parameter file: beside the config file first, then from the repository root."""
+    name = joint.params or f"params/{joint.model.lower().replace('-', '')}.toml"
+    candidates = [Path(name)] if Path(name).is_absolute() else [
+        config_path.resolve().parent / name, REPO_ROOT / name, REPO_ROOT / "config" / name]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    if not joint.params:
+        raise ConfigError(f"{where}.params: required (no default parameter file for model {joint.model!r})")
+    raise ConfigError(f"{where}.params: file {name!r} not found beside {config_path} nor in {REPO_ROOT}")
+
+
+def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> None:
+    """Rules that involve more than one key."""
+    bus, sensor, loop, zen = tables["bus"], tables["sensor"], tables["loop"], tables["zenoh"]
+    if sensor.lever_arm == 0.0:
+        raise ConfigError(f"{where}: [sensor].lever_arm: must not be 0 m")
+    if sensor.kind in ("optoforce", "can") and not sensor.port:
+        raise ConfigError(f"{where}: [sensor].port: required for kind {sensor.kind!r}")
+    if sensor.port == MOCK_PORT and bus.port != MOCK_PORT:
+        raise ConfigError(f"{where}: [sensor].port: \"mock\" needs the simulated bench ([bus].port = \"mock\")")
+    if len(sensor.counts_per_newton) != 3:
+        raise ConfigError(f"{where}: [sensor].counts_per_newton: expected 3 values (x, y, z), got "
+                          f"{len(sensor.counts_per_newton)}")
+    if sensor.lowpass_hz >= loop.rate_hz / 2:
+        raise ConfigError(f"{where}: [sensor].lowpass_hz: must be below half of [loop].rate_hz "
+                          f"({loop.rate_hz / 2:g} Hz), got {sensor.lowpass_hz:g}")
+    if zen.state_rate_hz > loop.rate_hz:
+        raise ConfigError(f"{where}: [zenoh].state_rate_hz: must not exceed [loop].rate_hz ({loop.rate_hz:g} Hz)")
+    chunks = zen.prefix.split("/")
+    if not all(_KEY_CHUNK.match(c) for c in chunks):
+        raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
+                          "(non-empty '/'-separated chunks without * $ ? #)")
+    for joint in joints:
+        if bus.protocol == 1 and joint.model.startswith(("XM", "XL")):
+            raise ConfigError(f"{where}: [joints.{joint.id}].model: {joint.model} speaks protocol 2 only")
+
+
+def load_default() -> DaemonConfig:
+    """The embedded default: the simulated bench of config/bench.toml."""
+    if not BENCH_CONFIG.is_file():
+        raise ConfigError(f"the default bench configuration {BENCH_CONFIG} is missing; pass --config FILE")
+    return load_config(BENCH_CONFIG)
+
+
+def summary(cfg: DaemonConfig) -> str:
+    """A few lines for `run --check`: what would run, with every default filled in."""
+    lines = [f"config: {cfg.source}",
+             f"bus: {cfg.bus.port} at {cfg.bus.baudrate} bit/s, protocol {cfg.bus.protocol}"]
+    for j in cfg.joints:
+        lines.append(f"joint {j.id}: {j.model}, zero tick {j.zero_tick}, params {j.params}; virtual "
+                     f"I={j.virtual_inertia:g} kg·m², B={j.virtual_damping:g} N·m·s/rad, "
+                     f"F={j.virtual_coulomb:g} N·m, lever arm {j.lever_arm:g} m")
+    s = cfg.sensor
+    lines.append(f"sensor: {s.kind} on {s.port or '-'}, axis {s.axis}, tare {s.tare_samples} samples")
+    lines.append(f"loop: {cfg.loop.rate_hz:g} Hz, rt priority {cfg.loop.rt_priority}; "
+                 f"stop: {cfg.stop.torque_policy}")
+    z = cfg.zenoh
+    lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
+    return "\n".join(lines)
+
+
+def with_overrides(cfg: DaemonConfig, *, record: str | None = None, listen: list[str] | None = None) -> DaemonConfig:
+    """A copy with command-line overrides applied (they win over the file)."""
+    if record is not None:
+        cfg = dataclasses.replace(cfg, record=RecordConfig(path=str(Path(record).resolve())))
+    if listen is not None:
+        cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=listen))
+    return cfg
+
+
+def record_dir(cfg: DaemonConfig) -> Path | None:
+    """Where to record, or None: a relative [record].path is beside the configuration file."""
+    if not cfg.record.path:
+        return None
+    path = Path(cfg.record.path)
+    return path if path.is_absolute() else cfg.source.resolve().parent / path

@@ -1,0 +1,78 @@
+"""The RT loop's configuration dict (docs/realtime.md), built from a validated daemon config.
+
+The daemon's TOML speaks the user's language (a model name, a lever arm, limits in rad); the
+loop wants register addresses and tick ranges. The addresses come from the one model table
+(``_rtcore.model_table()``, read through ``admittance.drivers.control_table``), so an address
+is never typed twice; the tick range and the position limits follow from the model's Goal
+Position range and the joint's zero tick.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from admittance.daemon.config import DaemonConfig, JointConfig
+from admittance.errors import ConfigError
+
+TICKS_PER_REV = 4096.0
+GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Torque Enable"
+
+
+def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
+    s, lp = cfg.sensor, cfg.loop
+    return {
+        "port": bus_port,
+        "baudrate": cfg.bus.baudrate,
+        "protocol": cfg.bus.protocol,
+        "rate_hz": lp.rate_hz,
+        "rt_priority": lp.rt_priority,
+        "lock_memory": lp.lock_memory,
+        "sync_read_divisor": lp.sync_read_divisor,
+        "deadband": s.deadband,
+        "lowpass_hz": s.lowpass_hz,
+        "stale_timeout_ms": lp.stale_timeout_ms,
+        "ramp_time_s": lp.ramp_time_s,
+        "joints": [joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints],
+    }
+
+
+def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
+    from admittance.drivers.control_table import table_for_name
+
+    table = table_for_name(joint.model, protocol)
+    goal, present, torque = (table.item(name) for name in (GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM))
+    tick_min = goal.minimum if goal.minimum is not None else 0
+    tick_max = goal.maximum if goal.maximum is not None else int(TICKS_PER_REV) - 1
+    if not tick_min <= joint.zero_tick <= tick_max:
+        raise ConfigError(f"[joints.{joint.id}].zero_tick: {joint.zero_tick} is outside the {joint.model}'s "
+                          f"goal range {tick_min}..{tick_max}")
+    limits = joint.resolved_limits
+    reachable = _reachable(joint, tick_min, tick_max)
+    return {
+        "id": joint.id,
+        "model": table.name,
+        "goal_address": goal.address, "goal_size": goal.size,
+        "present_address": present.address, "present_size": present.size,
+        "torque_enable_address": torque.address,
+        "zero_tick": joint.zero_tick, "direction": joint.direction, "ticks_per_rev": TICKS_PER_REV,
+        "tick_min": tick_min, "tick_max": tick_max,
+        "axis": axis,
+        "virtual_inertia": joint.virtual_inertia,
+        "virtual_damping": joint.virtual_damping,
+        "virtual_coulomb": joint.virtual_coulomb,
+        "lever_arm": joint.lever_arm,
+        "limits": {
+            # The model may not go where the servo cannot follow: clip to the tick range.
+            "position_min": max(limits.position_min, reachable[0]),
+            "position_max": min(limits.position_max, reachable[1]),
+            "velocity_max": limits.velocity_max,
+            "acceleration_max": limits.acceleration_max,
+        },
+    }
+
+
+def _reachable(joint: JointConfig, tick_min: int, tick_max: int) -> tuple[float, float]:
+    """The joint-angle range that the goal's tick range covers (direction taken into account)."""
+    ends = sorted(joint.direction * (t - joint.zero_tick) * 2 * math.pi / TICKS_PER_REV for t in (tick_min, tick_max))
+    return ends[0], ends[1]

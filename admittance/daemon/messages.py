@@ -1,0 +1,136 @@
+"""Typed payloads of the Zenoh keys, and their two encodings (JSON, MessagePack).
+
+Every payload the daemon sends or accepts is a msgspec Struct declared here, so the daemon,
+``admittance monitor``/``set`` and outside tools share one schema, and a malformed request
+fails in the decoder with a message rather than deep in the supervisor.
+
+Decoding sniffs the encoding: a JSON object starts with ``{`` (after optional blanks) and a
+MessagePack map never does (0x80–0x8f, 0xde, 0xdf), so clients need not be told which
+encoding a daemon was configured with.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+import msgspec
+
+from admittance.errors import DataError
+
+T = TypeVar("T")
+
+
+class JointState(msgspec.Struct, omit_defaults=True):
+    id: int
+    t: float  # s, CLOCK_MONOTONIC of the cycle
+    force: float  # N, the tared force on the configured axis
+    tau: float  # N·m, the hand torque applied to the model
+    theta: float  # rad, model angle
+    omega: float  # rad/s, model velocity
+    goal_tick: int
+    present_tick: int | None = None  # the servo's position when it was read this cycle
+
+
+class State(msgspec.Struct):
+    cycle: int
+    joints: list[JointState]
+
+
+class Percentiles(msgspec.Struct):
+    p50: float
+    p99: float
+    p999: float
+    max: float
+
+
+class RtInfo(msgspec.Struct):
+    policy: str
+    priority: int
+    memory_locked: bool
+
+
+class Stats(msgspec.Struct):
+    """The keys of ../shared/contracts/daemon.md; further keys are passed through in ``extra``."""
+
+    cycles: int
+    overruns: int
+    rate_hz: float
+    period_us: Percentiles
+    latency_us: Percentiles
+    bus_errors: int
+    sensor_samples: int
+    sensor_stale_events: int
+    rt: RtInfo
+    extra: dict[str, Any] = {}
+
+
+STATS_KEYS = ("cycles", "overruns", "rate_hz", "period_us", "latency_us", "bus_errors",
+              "sensor_samples", "sensor_stale_events", "rt")
+
+
+class ParamsReply(msgspec.Struct):
+    params: dict[str, float | list[float]]  # "<id>.<name>" per joint, loop-wide names bare
+
+
+class SetReply(msgspec.Struct, omit_defaults=True):
+    accepted: bool
+    reason: str = ""
+
+
+def stats_message(stats: dict[str, Any]) -> Stats:
+    """The loop's stats dict as a Stats struct (contract keys typed, the rest in ``extra``)."""
+    core = {k: stats[k] for k in STATS_KEYS if k in stats}
+    extra = {k: v for k, v in stats.items() if k not in STATS_KEYS}
+    try:
+        return msgspec.convert({**core, "extra": extra}, Stats, strict=False)
+    except msgspec.ValidationError as exc:
+        raise DataError(f"stats: {exc}") from None
+
+
+class Codec:
+    """Encoder for one configured encoding; the decoder accepts both."""
+
+    def __init__(self, encoding: str = "json") -> None:
+        if encoding not in ("json", "msgpack"):
+            raise ValueError(f"unknown encoding {encoding!r}")
+        self.encoding = encoding
+        self._encoder = msgspec.json.Encoder() if encoding == "json" else msgspec.msgpack.Encoder()
+
+    def encode(self, obj: Any) -> bytes:
+        return self._encoder.encode(obj)
+
+
+def is_json(payload: bytes) -> bool:
+    return payload.lstrip()[:1] in (b"{", b"[")
+
+
+def decode(payload: bytes, typ: type[T] = Any) -> T:  # type: ignore[assignment]
+    """Decode a JSON or MessagePack payload into ``typ``; DataError on anything malformed."""
+    try:
+        if is_json(payload):
+            return msgspec.json.decode(payload, type=typ)
+        return msgspec.msgpack.decode(payload, type=typ)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise DataError(f"malformed payload: {exc}") from None
+
+
+def decode_set_request(payload: bytes) -> dict[str, float | list[float]]:
+    """A set request: an object of ``{"name": number or list of numbers}``; DataError says what is wrong."""
+    if not payload.strip():
+        raise DataError("empty request")
+    request = decode(payload, dict[str, Any])
+    if not request:
+        raise DataError("empty request: no parameter given")
+    return {name: _number_or_list(name, value) for name, value in request.items()}
+
+
+def _number_or_list(name: str, value: Any) -> float | list[float]:
+    if isinstance(value, list):
+        return [_number(f"{name}[{i}]", v) for i, v in enumerate(value)]
+    return _number(name, value)
+
+
+def _number(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise DataError(f"{name}: expected a number, got {value!r}")
+    return float(value)

@@ -1,0 +1,127 @@
+"""A tiny declarative schema for the daemon's TOML: one dataclass per table, one field per key.
+
+Why not a validation library (pydantic, cerberus)? The configuration has about forty keys and
+one error style: *one line that names the key and the problem*. Keeping each key's type, range,
+unit, default and live-updatability beside the dataclass field that holds it means the
+validator, the documentation check (tests/test_daemon_config.py reads docs/daemon.md against
+these fields) and the code that uses the values cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from typing import Any
+
+from admittance.errors import ConfigError
+
+REQUIRED = object()
+
+
+def key(
+    kind: str,
+    default: Any = REQUIRED,
+    *,
+    unit: str = "",
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    choices: tuple | None = None,
+    live: bool = False,
+    doc: str = "",
+) -> Any:
+    """Declare one configuration key.
+
+    kind: "int", "float", "bool", "str", "str_list", "float_list" or "table" (kept as a dict).
+    lo/hi bound numbers (and list items); lo_open makes the lower bound strict.
+    live: the key can be changed while the loop runs (through the params queryable).
+    """
+    meta = dict(kind=kind, unit=unit, lo=lo, hi=hi, lo_open=lo_open, choices=choices, live=live, doc=doc)
+    if default is REQUIRED:
+        return dataclasses.field(metadata=meta)
+    if isinstance(default, (list, dict)):
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def build(cls: type, table: Any, where: str) -> Any:
+    """Validate ``table`` against the dataclass ``cls``; ``where`` prefixes every message."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(table).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for name in table:
+        if name not in fields:
+            raise ConfigError(f"{where}: unknown key {name!r}{did_you_mean(name, fields)}")
+    values = {}
+    for name, field in fields.items():
+        if name in table:
+            values[name] = check_value(field.metadata, table[name], f"{where}.{name}")
+        elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{where}.{name}: required key is missing")
+    return cls(**values)
+
+
+def did_you_mean(name: str, known) -> str:
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(sorted(known))})"
+
+
+def check_value(meta: dict, value: Any, where: str) -> Any:
+    kind = meta["kind"]
+    if kind in ("str_list", "float_list"):
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        item_kind = "str" if kind == "str_list" else "float"
+        return [check_value({**meta, "kind": item_kind}, v, f"{where}[{i}]") for i, v in enumerate(value)]
+    value = _check_type(kind, value, where)
+    if meta["choices"] is not None and value not in meta["choices"]:
+        options = ", ".join(repr(c) for c in meta["choices"])
+        raise ConfigError(f"{where}: expected one of {options}, got {value!r}")
+    if kind in ("int", "float"):
+        _check_range(meta, value, where)
+    return value
+
+
+def _check_type(kind: str, value: Any, where: str) -> Any:
+    if kind == "table":
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if kind == "str":
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if kind == "int":
+        if isinstance(value, float):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if not math.isfinite(value):
+        raise ConfigError(f"{where}: must be finite, got {value!r}")
+    return float(value)
+
+
+def _check_range(meta: dict, value: float, where: str) -> None:
+    lo, hi, unit = meta["lo"], meta["hi"], f" {meta['unit']}" if meta["unit"] else ""
+    if lo is not None and (value <= lo if meta["lo_open"] else value < lo):
+        op = ">" if meta["lo_open"] else ">="
+        raise ConfigError(f"{where}: must be {op} {lo:g}{unit}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{where}: must be <= {hi:g}{unit}, got {value!r}")
+
+
+def describe(cls: type) -> list[dict]:
+    """Every key of ``cls`` with its metadata (for docs checks and `set` validation)."""
+    out = []
+    for f in dataclasses.fields(cls):
+        default = None if f.default is dataclasses.MISSING else f.default
+        if f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        out.append({"name": f.name, "default": default, **f.metadata})
+    return out

@@ -1,0 +1,285 @@
+"""The supervisor: bring the joint up in a safe order, serve it, and bring it down cleanly.
+
+Start order, each step with its own clear error (a DeviceError/ConfigError becomes one stderr
+line and a non-zero exit in the CLI; everything already started is undone in reverse):
+
+1. the bench (only for ``[bus].port = "mock"``: the simulated bus and sensor on ptys);
+2. bus and servo checks with the Python SDK (ping, model, RDT 0, position mode, latency timer,
+   torque on), then the SDK port is closed so the RT loop owns the tty alone;
+3. the force sensor: open, then tare while nothing moves yet;
+4. the RT loop (``_rtcore.AdmittanceLoop``), and only then is the sensor's stream let through
+   to it (a gate), so the loop never starts on samples taken before the tare;
+5. the Zenoh interface, the recorder, and ``READY=1`` to systemd.
+
+The main thread then ticks at ``[zenoh].state_rate_hz``: it drains the loop's telemetry
+(recording every cycle, publishing the latest), answers params queries, publishes stats about
+once a second and relays the loop's warnings. SIGINT/SIGTERM only set an event; the stop
+itself (hold, then the torque policy) happens on the main thread, and exits 0.
+
+Every dependency on another part of the project comes in through :class:`Backends`, so the
+whole sequence is unit-tested with fakes and run for real by the HIL tests.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from admittance.daemon import telemetry
+from admittance.daemon.config import DaemonConfig, record_dir
+from admittance.daemon.messages import Codec, stats_message
+from admittance.daemon.notify import Notifier, Watchdog
+from admittance.daemon.recording import Recorder
+from admittance.errors import DeviceError
+
+STATS_PERIOD_S = 1.0
+
+
+@dataclass
+class RunOptions:
+    duration: float | None = None
+    stats_json: Path | None = None
+    log: Callable[[str], None] = field(default=lambda line: print(f"admittance run: {line}", file=sys.stderr))
+
+
+@dataclass
+class Backends:
+    """Factories for the parts other engineers own (see admittance.daemon.backends)."""
+
+    start_bench: Callable[[DaemonConfig], Any]  # -> context manager yielding (bus_port, sensor_port)
+    check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings
+    release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
+    make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
+    make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
+    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, get, set) -> DaemonInterface
+
+
+class GatedSink:
+    """Drops samples until opened, then forwards them to the loop's sink.
+
+    The sensor streams from the moment it is opened (the tare needs samples), but the loop
+    must only see tared samples taken after it started.
+    """
+
+    def __init__(self, target: Any) -> None:
+        self._target = target
+        self._push = None
+        self.dropped_before_open = 0
+
+    def open(self) -> None:
+        self._push = self._target.push
+
+    def push(self, t_ns: int, forces) -> bool:
+        push = self._push
+        if push is None:
+            self.dropped_before_open += 1
+            return True  # consumed on purpose, not a full ring
+        return push(t_ns, forces)
+
+
+class Supervisor:
+    def __init__(self, cfg: DaemonConfig, backends: Backends, options: RunOptions | None = None,
+                 notifier: Notifier | None = None) -> None:
+        self.cfg = cfg
+        self.backends = backends
+        self.options = options or RunOptions()
+        self.notifier = notifier or Notifier()
+        self.stop_event = threading.Event()
+        self.loop: Any = None
+        self.sensor: Any = None
+        self.interface: Any = None
+        self.recorder: Recorder | None = None
+        self.final_stats: dict[str, Any] | None = None
+        self._codec = Codec(cfg.zenoh.encoding)
+        self._t0 = 0.0
+        self._warned: set[str] = set()
+        self.watchdog: Watchdog | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def run(self) -> int:
+        with self._signals_set(), contextlib.ExitStack() as stack:
+            self._start(stack)
+            self._serve()
+            self._stop()
+        self._write_stats()
+        return 0
+
+    def request_stop(self, *_args: Any) -> None:
+        self.stop_event.set()
+
+    @contextlib.contextmanager
+    def _signals_set(self):
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = {sig: signal.signal(sig, self.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _start(self, stack: contextlib.ExitStack) -> None:
+        b, cfg = self.backends, self.cfg
+        self.notifier.status("starting: bus")
+        bus_port, sensor_port = stack.enter_context(b.start_bench(cfg))
+        for warning in b.check_servos(cfg, bus_port):
+            self._warn(warning)
+        if cfg.stop.torque_policy == "torque_off":
+            stack.callback(self._release_unless_loop_ran, bus_port)
+        self.notifier.status("starting: sensor")
+        self.loop = b.make_loop(cfg, bus_port)
+        gate = GatedSink(self.loop.force_sink())
+        self.sensor = b.make_sensor(cfg, sensor_port, gate)
+        self.sensor.start()
+        stack.callback(self.sensor.stop)
+        self._tare()
+        self.notifier.status("starting: loop")
+        try:
+            self.loop.start()
+        except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
+            raise DeviceError(f"RT loop: cannot start on {bus_port}: {exc}") from None
+        stack.callback(self._stop_loop)
+        gate.open()
+        self._t0 = time.monotonic()
+        self._start_recorder(stack)
+        self._start_interface(stack)
+        self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
+        self.notifier.ready(self._status_line())
+
+    def _tare(self) -> None:
+        n = self.cfg.sensor.tare_samples
+        if n == 0:
+            return
+        result = self.sensor.tare(n, timeout=max(2.0, 5.0 * n / 1000.0))
+        if not result.accepted:
+            raise DeviceError(f"sensor: tare refused: {result.reason}")
+
+    def _start_recorder(self, stack: contextlib.ExitStack) -> None:
+        folder = record_dir(self.cfg)
+        if folder is None:
+            return
+        joints = [(j.id, j.model) for j in self.cfg.joints]
+        self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
+                                 t0=self._t0)
+        stack.callback(self.recorder.close)
+
+    def _start_interface(self, stack: contextlib.ExitStack) -> None:
+        if self.backends.make_interface is None:
+            return
+        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self.get_params,
+                                                      self.set_params)
+        stack.callback(self.interface.close)
+
+    def _release_unless_loop_ran(self, bus_port: str) -> None:
+        """A start that failed after torque-on: the loop cannot apply the policy, so do it here."""
+        if self.final_stats is None:
+            self.backends.release_servos(self.cfg, bus_port)
+
+    def _stop_loop(self) -> None:
+        """Undo path for a failed start or an exception: hold, apply the policy, keep the stats."""
+        if self.loop is not None and self.final_stats is None:
+            self.final_stats = self.loop.stats()
+            self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
+
+    def _stop(self) -> None:
+        self.notifier.stopping(f"stopping: {self.cfg.stop.torque_policy}")
+        self._drain()
+        self.final_stats = self.loop.stats()
+        self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
+        self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
+        self._drain()
+
+    # -- the main thread's tick --------------------------------------------------------------
+
+    def _serve(self) -> None:
+        period = 1.0 / self.cfg.zenoh.state_rate_hz
+        deadline = None if self.options.duration is None else self._t0 + self.options.duration
+        next_tick = next_stats = time.monotonic()
+        while not self.stop_event.is_set():
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                break
+            self._tick()
+            if now >= next_stats:
+                self._publish_stats()
+                next_stats = now + STATS_PERIOD_S
+            next_tick = max(next_tick + period, time.monotonic())
+            wait = next_tick - time.monotonic()
+            if deadline is not None:
+                wait = min(wait, max(deadline - time.monotonic(), 0.0))
+            self.stop_event.wait(max(wait, 0.0))
+
+    def _tick(self) -> None:
+        self.watchdog.poll()
+        latest = self._drain()
+        if self.interface is not None:
+            if latest is not None:
+                self.interface.publish_state(latest)
+            self.interface.poll()
+        if self.sensor.error:
+            self._warn(f"force sensor stopped: {self.sensor.error} (the joints hold)")
+
+    def _drain(self):
+        """Drain the loop's telemetry into the recorder; return the latest State message."""
+        records = self.loop.drain_telemetry()
+        if len(records) == 0:
+            return None
+        if self.recorder is not None:
+            for joint_id, columns in telemetry.columns_by_joint(records, self.cfg).items():
+                self.recorder.append(joint_id, columns)
+        return telemetry.latest_state(records, self.cfg)
+
+    def _publish_stats(self) -> None:
+        for warning in self.loop.warnings():
+            self._warn(warning)
+        if self.interface is not None:
+            self.interface.publish_stats(stats_message(self.loop.stats()))
+
+    def _warn(self, text: str) -> None:
+        if text not in self._warned:
+            self._warned.add(text)
+            self.options.log(f"warning: {text}")
+
+    # -- parameters (called from the main thread's poll) -------------------------------------
+
+    def get_params(self) -> dict[str, float | list[float]]:
+        return telemetry.params_values(self.loop.params())
+
+    def set_params(self, request: dict[str, float]) -> tuple[bool, str]:
+        accepted, reason = self.loop.set_params(request)
+        if accepted:
+            self.options.log(f"params set: {json.dumps(request, sort_keys=True)}")
+        return accepted, reason
+
+    # -- exit ----------------------------------------------------------------------------------
+
+    def _status_line(self) -> str:
+        rt = self.loop.stats().get("rt", {})
+        joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
+        return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')})"
+
+    def _write_stats(self) -> None:
+        path = self.options.stats_json
+        if path is None or self.final_stats is None:
+            return
+        stats = dict(self.final_stats)
+        stats["daemon"] = {
+            "queries": getattr(self.interface, "queries", 0),
+            "recorded_rows": dict(self.recorder.rows) if self.recorder else {},
+            "sensor": self.sensor.stats() if self.sensor is not None else {},
+        }
+        try:
+            Path(path).write_text(json.dumps(stats, indent=2, default=str) + "\n")
+        except OSError as exc:
+            raise DeviceError(f"--stats-json: cannot write {path} ({exc.strerror})") from None
+

@@ -1,0 +1,72 @@
+"""The loop's per-cycle telemetry, turned into what the daemon publishes and records.
+
+``AdmittanceLoop.drain_telemetry()`` hands over a NumPy structured array, one row per joint
+per cycle (see docs/realtime.md). Working on whole columns keeps the main thread's cost per
+tick independent of the loop rate: at 1 kHz and a 100 Hz tick it converts ten rows per joint
+with a handful of vectorised operations, never a Python loop over rows.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from admittance.daemon.messages import JointState, State
+
+# Every supported model (MX-28/64/106, XM430, XL330) has a 12-bit absolute encoder.
+TICKS_PER_REV = 4096
+RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
+NOT_READ = -1  # present_tick of a cycle that did not read the servo
+
+
+def tick_to_rad(tick: np.ndarray | int, joint) -> np.ndarray | float:
+    """The joint angle of an encoder tick (the loop's goal_tick mapping, inverted)."""
+    return (np.asarray(tick, dtype=float) - joint.zero_tick) * RAD_PER_TICK * joint.direction
+
+
+def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray]]:
+    """Per joint ID, the recorder's columns (see Recorder.append)."""
+    ids = records["id"]
+    out = {}
+    for joint in cfg.joints:
+        rows = records[ids == joint.id]
+        if len(rows) == 0:
+            continue
+        present = rows["present_tick"].astype(float)
+        present[rows["present_tick"] == NOT_READ] = np.nan
+        out[joint.id] = {
+            "t": rows["t_ns"] * 1e-9,
+            "tau": rows["torque"].astype(float),
+            "force": rows["force"].astype(float),
+            "theta_model": rows["theta"].astype(float),
+            "omega_model": rows["omega"].astype(float),
+            "theta_goal": tick_to_rad(rows["goal_tick"], joint),
+            "theta_present": tick_to_rad(present, joint),
+        }
+    return out
+
+
+def latest_state(records: np.ndarray, cfg) -> State:
+    """The newest row of each joint as a State message (present_tick from its last read)."""
+    ids = records["id"]
+    joints = []
+    for joint in cfg.joints:
+        rows = records[ids == joint.id]
+        if len(rows) == 0:
+            continue
+        row = rows[-1]
+        read = rows["present_tick"][rows["present_tick"] != NOT_READ]
+        joints.append(JointState(
+            id=joint.id, t=int(row["t_ns"]) * 1e-9, force=float(row["force"]), tau=float(row["torque"]),
+            theta=float(row["theta"]), omega=float(row["omega"]), goal_tick=int(row["goal_tick"]),
+            present_tick=int(read[-1]) if len(read) else None,
+        ))
+    return State(cycle=int(records["cycle"][-1]), joints=joints)
+
+
+def params_values(params: dict[str, Any]) -> dict[str, float | list[float]]:
+    """The loop's params() with plain Python numbers (``bias`` stays a list of 6)."""
+    return {name: [float(v) for v in value] if isinstance(value, (list, tuple)) else float(value)
+            for name, value in params.items()}

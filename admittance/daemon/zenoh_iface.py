@@ -1,0 +1,164 @@
+"""The daemon's Zenoh interface, and the client side used by ``admittance monitor`` and ``set``.
+
+This is the only module that imports zenoh, so the rest of the daemon is testable without a
+network and the zenoh API (which changed between 0.11 and 1.x) is confined to one file.
+
+Zenoh runs its callbacks on its own Rust threads, and each one takes the GIL. The daemon
+therefore declares no Python callbacks at all: queries to ``<prefix>/params`` land in a
+bounded FIFO channel that the supervisor's main loop drains (:meth:`DaemonInterface.poll`),
+and state/stats are published from that same loop. A burst of queries can only fill the
+channel; it never stalls anything but the main loop's own next tick.
+
+Networking is loopback-only by default (listen on tcp/127.0.0.1:7447, multicast scouting
+off): a bench daemon should not appear on a lab network unless its configuration says so.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from admittance.daemon.messages import Codec, ParamsReply, SetReply, decode, decode_set_request
+from admittance.errors import DataError, DeviceError
+
+QUERY_BACKLOG = 32
+
+SetParams = Callable[[dict[str, float]], tuple[bool, str]]
+GetParams = Callable[[], dict[str, float]]
+
+
+def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
+                scouting: bool = False) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(scouting))
+    if not scouting:
+        conf.insert_json5("scouting/gossip/enabled", "false")
+    if listen is not None:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return conf
+
+
+def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
+    zenoh.init_log_from_env_or("error")
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise DeviceError(f"zenoh: cannot open a session for {what}: {exc}") from None
+
+
+class DaemonInterface:
+    """``<prefix>/state``, ``/stats`` (publications), ``/params`` (queryable), ``/alive`` (token)."""
+
+    def __init__(self, zcfg, codec: Codec, get_params: GetParams, set_params: SetParams) -> None:
+        self.prefix = zcfg.prefix
+        self._codec = codec
+        self._get_params = get_params
+        self._set_params = set_params
+        listen = zcfg.listen if zcfg.listen else None
+        conf = make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting)
+        self._session = open_session(conf, f"listening on {', '.join(zcfg.listen) or 'defaults'}")
+        encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
+            "application/msgpack")
+        self._encoding = encoding
+        declare = self._session.declare_publisher
+        self._state_pub = declare(f"{self.prefix}/state", encoding=encoding,
+                                  congestion_control=zenoh.CongestionControl.DROP, express=True)
+        self._stats_pub = declare(f"{self.prefix}/stats", encoding=encoding)
+        self._params_key = f"{self.prefix}/params"
+        self._queryable = self._session.declare_queryable(self._params_key,
+                                                          zenoh.handlers.FifoChannel(QUERY_BACKLOG))
+        self._token = self._session.liveliness().declare_token(f"{self.prefix}/alive")
+        self.queries = 0
+
+    def publish_state(self, message: Any) -> None:
+        self._state_pub.put(self._codec.encode(message))
+
+    def publish_stats(self, message: Any) -> None:
+        self._stats_pub.put(self._codec.encode(message))
+
+    def poll(self) -> int:
+        """Answer every pending params query; returns how many were answered."""
+        answered = 0
+        while (query := self._queryable.try_recv()) is not None:
+            try:
+                query.reply(self._params_key, self._codec.encode(self._answer(query)), encoding=self._encoding)
+            finally:
+                query.drop()
+            answered += 1
+        self.queries += answered
+        return answered
+
+    def _answer(self, query: Any) -> ParamsReply | SetReply:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        if not payload.strip():
+            return ParamsReply(params=self._get_params())
+        try:
+            request = decode_set_request(payload)
+        except DataError as exc:
+            return SetReply(accepted=False, reason=str(exc))
+        accepted, reason = self._set_params(request)
+        return SetReply(accepted=accepted, reason="" if accepted else reason)
+
+    def close(self) -> None:
+        """Withdraw the liveliness token first, so watchers see the daemon leave at once."""
+        for entity in (self._token, self._queryable, self._state_pub, self._stats_pub):
+            entity.undeclare()
+        self._session.close()
+
+
+class Client:
+    """A short-lived session for ``monitor`` and ``set``: connects to a daemon, listens nowhere."""
+
+    def __init__(self, connect: list[str]) -> None:
+        self.connect = connect
+        conf = make_config(mode="peer", listen=[], connect=connect)
+        self._session = open_session(conf, f"connecting to {', '.join(connect)}")
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self._session.close()
+
+    def query_params(self, prefix: str, request: dict[str, float] | None = None,
+                     timeout: float = 3.0) -> dict[str, Any]:
+        """Query ``<prefix>/params``; the first reply as a dict. DeviceError when no daemon answers."""
+        payload = json.dumps(request).encode() if request is not None else None
+        kwargs = {"payload": payload} if payload is not None else {}
+        for reply in self._session.get(f"{prefix}/params", timeout=timeout, **kwargs):
+            if reply.ok is not None:
+                return decode(reply.ok.payload.to_bytes())
+            raise DeviceError(f"{prefix}/params: the daemon replied with an error: "
+                              f"{reply.err.payload.to_string()}")
+        raise DeviceError(f"no daemon answered on {prefix}/params via {', '.join(self.connect)} "
+                          f"within {timeout:g} s (is `admittance run` up, with the same prefix?)")
+
+    def try_stream(self, prefix: str) -> Any:
+        """A subscriber whose ``try_recv()`` never blocks (for a redraw loop with its own clock)."""
+        return _Polled(self._session.declare_subscriber(f"{prefix}/*", zenoh.handlers.RingChannel(16)))
+
+    def alive(self, prefix: str, timeout: float = 2.0) -> bool:
+        return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))
+
+
+class _Polled:
+    def __init__(self, subscriber: Any) -> None:
+        self._subscriber = subscriber
+
+    def drain(self) -> list[tuple[str, dict[str, Any]]]:
+        out = []
+        while (sample := self._subscriber.try_recv()) is not None:
+            leaf = str(sample.key_expr).rsplit("/", 1)[-1]
+            if leaf in ("state", "stats"):
+                out.append((leaf, decode(sample.payload.to_bytes())))
+        return out
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+

@@ -1,0 +1,132 @@
+"""An OptoForce-format force sensor on CAN, through python-can (any interface it supports).
+
+Frame layout (shared contracts/daemon.md): the sensor's OptoForce sample bytes, in order, split
+over consecutive 8-byte data frames with one identifier ``can_id`` (a 16-byte 3-axis sample is
+two frames, a 34-byte 4-channel sample five). The payloads are therefore just a byte stream,
+and the reader feeds them to the serial parser unchanged: it reassembles samples by their
+header and checks the checksum exactly as on serial. A lost CAN frame costs one checksum
+error and a resync, never a wrong sample.
+
+The bus is created with ``can.Bus(interface=..., channel=..., bitrate=..., ignore_config=True)``
+so that no environment variable or ~/.canrc silently changes it, with an acceptance filter on
+``can_id`` (the kernel drops other traffic on socketcan). The reader drains every queued
+frame before parsing, so one parse serves a burst: at 2 kHz of frames the thread wakes at
+most once per frame and usually less.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from admittance.drivers.optoforce import SampleConverter
+from admittance.drivers.sensor import ForceSensor, Sink, require_key
+from admittance.errors import DeviceError
+
+STANDARD_ID_MAX = 0x7FF
+EXTENDED_ID_MAX = 0x1FFFFFFF
+MAX_FRAMES_PER_BATCH = 256
+
+
+class CanForceReader(ForceSensor):
+    """Reads OptoForce samples carried in CAN frames with identifier ``can_id``."""
+
+    kind = "can"
+
+    def __init__(
+        self,
+        channel: str | int,
+        counts_per_newton: float | Sequence[float],
+        sink: Sink,
+        *,
+        interface: str = "socketcan",
+        can_id: int = 0x100,
+        bitrate: int | None = 1_000_000,
+        axes: int = 3,
+        sensor_index: int = 0,
+        recv_timeout: float = 0.05,
+    ):
+        super().__init__(sink)
+        self.channel = channel
+        self.interface = interface
+        self.can_id = int(can_id)
+        self.bitrate = bitrate
+        self.recv_timeout = recv_timeout
+        self.extended_id = self.can_id > STANDARD_ID_MAX
+        self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index)
+        self._bus = None
+        self.can_frames = 0
+        self.foreign_frames = 0
+
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any], sink: Sink) -> CanForceReader:
+        return cls(
+            require_key(section, "port"),
+            require_key(section, "counts_per_newton"),
+            sink,
+            interface=str(section.get("interface", "socketcan")),
+            can_id=int(section.get("can_id", 0x100)),
+            bitrate=section.get("bitrate", 1_000_000),
+            axes=int(section.get("axes", 3)),
+            sensor_index=int(section.get("sensor_index", 0)),
+        )
+
+    def _open(self) -> None:
+        import can  # python-can; imported here so that the registry stays cheap
+
+        mask = EXTENDED_ID_MAX if self.extended_id else STANDARD_ID_MAX
+        options: dict[str, Any] = {
+            "interface": self.interface,
+            "channel": self.channel,
+            "ignore_config": True,
+            "can_filters": [{"can_id": self.can_id, "can_mask": mask, "extended": self.extended_id}],
+        }
+        if self.bitrate is not None:
+            options["bitrate"] = int(self.bitrate)
+        try:
+            self._bus = can.Bus(**options)
+        except (can.CanError, OSError, ImportError, NotImplementedError, ValueError, TypeError) as exc:
+            raise DeviceError(
+                f"cannot open the CAN force sensor (interface {self.interface!r}, channel {self.channel!r}): {exc}"
+            ) from None
+
+    def _poll(self) -> None:
+        bus = self._bus
+        msg = bus.recv(self.recv_timeout)
+        if msg is None:
+            return
+        chunk = bytearray()
+        for _ in range(MAX_FRAMES_PER_BATCH):
+            self._append_payload(msg, chunk)
+            msg = bus.recv(0.0)
+            if msg is None:
+                break
+        else:
+            self._append_payload(msg, chunk)
+        if chunk:
+            self._emit_all(self._converter.forces(chunk))
+
+    def _append_payload(self, msg: Any, chunk: bytearray) -> None:
+        if (
+            msg.arbitration_id != self.can_id
+            or msg.is_extended_id != self.extended_id
+            or msg.is_error_frame
+            or msg.is_remote_frame
+        ):
+            self.foreign_frames += 1
+            return
+        self.can_frames += 1
+        chunk += msg.data
+
+    def _close(self) -> None:
+        if self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
+
+    def stats(self) -> dict[str, Any]:
+        return super().stats() | self._converter.stats() | {"can_frames": self.can_frames, "foreign_frames": self.foreign_frames}
+
+
+def split_into_can_payloads(data: bytes, size: int = 8) -> list[bytes]:
+    """The sender's side of the layout: consecutive chunks of at most ``size`` bytes."""
+    return [data[i : i + size] for i in range(0, len(data), size)]

@@ -1,0 +1,337 @@
+"""The common part of the force-sensor readers: lifecycle, sink, tare, and the kind registry.
+
+Modelled on python-can's driver abstraction (shared style-anchors.md §2):
+
+- A tiny backend contract. A reader subclasses :class:`ForceSensor` and writes ``_open``
+  (acquire the device, raise DeviceError if it is missing), ``_poll`` (wait a bounded time for
+  data and hand any samples to ``_emit_all``) and ``_close``. The base owns the thread, the
+  idempotent start/stop, the context manager, the bias, tare and the statistics.
+- The registry is data with lazy import (``SENSOR_KINDS``): importing ``admittance.drivers``
+  never loads pyserial or python-can, and a kind whose import fails names itself.
+- Readers never import the daemon or the RT loop: they get a *sink* (Contract 5), any object
+  with ``push(t_ns, forces) -> bool``. The reader thread only converts and pushes; a sink
+  that is full (False) loses that sample and the loss is counted, never waited for.
+
+Tare is done on the host from the reader's own stream and not with the DAQ's ZERO command,
+because the same code then serves every kind of sensor, and because a tare taken while the
+user is still touching the handle must be refused: the bias is the mean of N samples, and the
+standard deviation of each axis must stay below a bound (a still sensor shows only its noise).
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from admittance.errors import ConfigError, DeviceError
+
+log = logging.getLogger(__name__)
+
+AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
+# A still sensor shows a few counts of noise, well below 0.05 N on the OptoForce sensors we
+# know; a hand resting on the handle moves by tenths of a newton.
+DEFAULT_TARE_MAX_STD = (0.25, 0.25, 0.25, 0.025, 0.025, 0.025)
+DEFAULT_TARE_SAMPLES = 200
+
+
+class Sink(Protocol):
+    def push(self, t_ns: int, forces: Sequence[float]) -> bool: ...
+
+
+class SampleBuffer:
+    """A bounded sink that keeps the latest samples: for tools, benches and tests.
+
+    ``push`` never blocks and always accepts (the oldest sample falls off the end), which is
+    what a monitor wants; the RT loop's own sink is a lock-free ring instead.
+    """
+
+    def __init__(self, maxlen: int = 100_000):
+        self._samples: deque[tuple[int, list[float]]] = deque(maxlen=maxlen)
+        self._cond = threading.Condition()
+        self.total = 0
+
+    def push(self, t_ns: int, forces: Sequence[float]) -> bool:
+        with self._cond:
+            self._samples.append((t_ns, list(forces)))
+            self.total += 1
+            self._cond.notify_all()
+        return True
+
+    def snapshot(self) -> list[tuple[int, list[float]]]:
+        with self._cond:
+            return list(self._samples)
+
+    def wait_for(self, total: int, timeout: float) -> bool:
+        """Wait until ``total`` samples have been pushed in all; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self.total >= total, timeout)
+
+
+# ---------------------------------------------------------------------------------------------
+# Tare and bias
+
+
+@dataclass(frozen=True)
+class TareResult:
+    """The outcome of a bias estimate. When refused, ``bias`` is None and ``reason`` says why."""
+
+    accepted: bool
+    bias: tuple[float, ...] | None
+    std: tuple[float, ...]
+    n_samples: int
+    reason: str = ""
+
+
+def estimate_bias(
+    samples: Sequence[Sequence[float]], *, max_std: float | Sequence[float] = DEFAULT_TARE_MAX_STD, min_samples: int = 10
+) -> TareResult:
+    """The bias is the per-axis mean of ``samples`` (rows of 6); refused when not still.
+
+    ``max_std`` bounds each axis's standard deviation (N for forces, N·m for torques); a
+    scalar applies to every axis.
+    """
+    data = np.asarray(samples, dtype=float).reshape(-1, len(AXES)) if len(samples) else np.zeros((0, len(AXES)))
+    n = data.shape[0]
+    if n < max(2, min_samples):
+        return TareResult(False, None, (), n, f"too few samples for a tare: {n} < {max(2, min_samples)}")
+    if not np.all(np.isfinite(data)):
+        return TareResult(False, None, (), n, "the samples contain NaN or infinite values")
+    bound = np.broadcast_to(np.asarray(max_std, dtype=float), (len(AXES),))
+    std = data.std(axis=0, ddof=1)
+    stds = tuple(float(s) for s in std)
+    moving = [i for i in range(len(AXES)) if std[i] > bound[i]]
+    if moving:
+        i = moving[0]
+        unit = "N" if i < 3 else "N·m"
+        reason = (
+            f"the sensor is not still: the std of {AXES[i]} is {std[i]:.3g} {unit} "
+            f"> {bound[i]:.3g} {unit} over {n} samples (let go of the handle and retry)"
+        )
+        return TareResult(False, None, stds, n, reason)
+    return TareResult(True, tuple(float(m) for m in data.mean(axis=0)), stds, n)
+
+
+# ---------------------------------------------------------------------------------------------
+# The reader base
+
+
+class ForceSensor(abc.ABC):
+    """A force sensor that streams samples to a sink from its own thread.
+
+    ``start()`` opens the device (DeviceError if it is missing) and starts the thread;
+    ``stop()`` joins it and closes the device. Both are idempotent; the sensor can be started
+    again after a stop. If the device fails while running (unplugged), the thread ends and
+    ``error`` holds the message; the caller sees the samples stop.
+    """
+
+    kind: str = ""
+
+    def __init__(self, sink: Sink):
+        if not callable(getattr(sink, "push", None)):
+            raise ConfigError("a force sensor needs a sink with push(t_ns, forces)")
+        self._sink = sink
+        self._bias = (0.0,) * len(AXES)
+        self._thread: threading.Thread | None = None
+        self._stop_event = threading.Event()
+        self._tare_rows: list[list[float]] | None = None
+        self._tare_full = threading.Event()
+        self._tare_wanted = 0
+        self.error: str | None = None
+        self.samples_pushed = 0
+        self.samples_dropped = 0
+        self.last_sample_ns = 0
+
+    # -- backend contract --------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _open(self) -> None:
+        """Acquire the device; raise DeviceError with the device's name if it is missing."""
+
+    @abc.abstractmethod
+    def _poll(self) -> None:
+        """Wait a bounded time (≤ ~0.1 s) for data and pass any samples to ``_emit_all``."""
+
+    @abc.abstractmethod
+    def _close(self) -> None:
+        """Release the device (called once per successful ``_open``)."""
+
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any], sink: Sink) -> ForceSensor:
+        """Build the reader from the daemon's [sensor] table."""
+        raise ConfigError(f"sensor kind '{cls.kind}' cannot be built from a configuration")
+
+    # -- lifecycle -----------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self.error = None
+        self._open()
+        self._stop_event.clear()
+        self._thread = threading.Thread(target=self._run, name=f"force-{self.kind}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        thread, self._thread = self._thread, None
+        if thread is None:
+            return
+        self._stop_event.set()
+        thread.join()
+        self._close()
+
+    def __enter__(self) -> ForceSensor:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop_event.is_set():
+                self._poll()
+        except Exception as exc:  # the device died under us: report it, do not kill the process
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.error("force sensor %s stopped: %s", self.kind, self.error)
+
+    # -- samples -------------------------------------------------------------------------------
+
+    def _emit_all(self, vectors: Iterable[list[float]]) -> None:
+        """Hand a batch of 6-vectors (bias not yet removed) to the sink, stamped now."""
+        t_ns = time.monotonic_ns()
+        bias = self._bias
+        for raw in vectors:
+            if self._tare_rows is not None:
+                self._collect_for_tare(raw)
+            forces = [f - b for f, b in zip(raw, bias)]
+            if self._sink.push(t_ns, forces):
+                self.samples_pushed += 1
+            else:
+                self.samples_dropped += 1
+            self.last_sample_ns = t_ns
+
+    def _collect_for_tare(self, raw: list[float]) -> None:
+        rows = self._tare_rows
+        if rows is not None and len(rows) < self._tare_wanted:
+            rows.append(raw)
+            if len(rows) >= self._tare_wanted:
+                self._tare_full.set()
+
+    # -- bias ----------------------------------------------------------------------------------
+
+    @property
+    def bias(self) -> tuple[float, ...]:
+        return self._bias
+
+    def set_bias(self, bias: Sequence[float]) -> None:
+        values = tuple(float(b) for b in bias)
+        if len(values) != len(AXES) or not all(np.isfinite(values)):
+            raise ConfigError(f"a bias has {len(AXES)} finite values, got {bias!r}")
+        self._bias = values
+
+    def tare(
+        self,
+        n_samples: int = DEFAULT_TARE_SAMPLES,
+        *,
+        max_std: float | Sequence[float] = DEFAULT_TARE_MAX_STD,
+        timeout: float = 2.0,
+    ) -> TareResult:
+        """Estimate the bias from the next ``n_samples`` samples and apply it if accepted.
+
+        Blocks up to ``timeout`` seconds; a refused tare leaves the bias unchanged.
+        """
+        if not self.running:
+            raise DeviceError(f"cannot tare the {self.kind} sensor: it is not running")
+        self._tare_wanted = n_samples
+        self._tare_full.clear()
+        self._tare_rows = []
+        try:
+            self._tare_full.wait(timeout)
+            rows = list(self._tare_rows)
+        finally:
+            self._tare_rows = None
+        if len(rows) < n_samples:
+            return TareResult(False, None, (), len(rows), f"only {len(rows)} of {n_samples} samples arrived in {timeout:g} s")
+        result = estimate_bias(rows, max_std=max_std)
+        if result.accepted:
+            self._bias = result.bias
+        return result
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "running": self.running,
+            "error": self.error,
+            "samples_pushed": self.samples_pushed,
+            "samples_dropped": self.samples_dropped,
+            "last_sample_ns": self.last_sample_ns,
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration helpers shared by the readers
+
+
+def counts_per_unit(values: float | Sequence[float], axes: int) -> tuple[float, ...]:
+    """Per-axis sensitivities (counts/N, then counts/N·m): a scalar applies to every axis."""
+    if isinstance(values, int | float):
+        values = [values] * axes
+    try:
+        out = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ConfigError(f"counts_per_newton must be numbers, got {values!r}") from None
+    if len(out) != axes:
+        raise ConfigError(f"counts_per_newton needs {axes} values (one per axis), got {len(out)}")
+    if not all(np.isfinite(out)) or min(out) <= 0:
+        raise ConfigError(f"counts_per_newton must be positive, got {list(out)}")
+    return out
+
+
+def require_key(section: Mapping[str, Any], key: str) -> Any:
+    if key not in section:
+        raise ConfigError(f"[sensor] needs '{key}' for kind = \"{section.get('kind')}\"")
+    return section[key]
+
+
+# ---------------------------------------------------------------------------------------------
+# The registry of kinds
+
+SENSOR_KINDS: dict[str, tuple[str, str]] = {
+    "optoforce": ("admittance.drivers.optoforce", "OptoForceSerialReader"),
+    "can": ("admittance.drivers.can_sensor", "CanForceReader"),
+    "mock": ("admittance.mockbench.sensor", "ScriptedForceSensor"),
+}
+
+
+def sensor_class(kind: str) -> type[ForceSensor]:
+    """The reader class of a kind, imported on first use."""
+    try:
+        module_name, class_name = SENSOR_KINDS[kind]
+    except KeyError:
+        raise ConfigError(f"unknown sensor kind '{kind}' (known: {', '.join(SENSOR_KINDS)})") from None
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"sensor kind '{kind}' is unavailable: {exc}") from None
+    return getattr(module, class_name)
+
+
+def create_sensor(section: Mapping[str, Any], sink: Sink) -> ForceSensor:
+    """The reader described by a [sensor] table (daemon.md), not yet started."""
+    kind = section.get("kind")
+    if not isinstance(kind, str):
+        raise ConfigError("[sensor] needs kind = \"optoforce\", \"can\" or \"mock\"")
+    return sensor_class(kind).from_config(section, sink)

@@ -1,0 +1,226 @@
+"""Pendulum datasets (``shared/contracts/datasets.md``): a folder with ``manifest.toml`` and one
+file per trial.
+
+Everything is validated on load, so the fit never meets a NaN or a time series that goes
+backwards: each problem raises :class:`DataError` with one line naming the file (and the key or
+row) at fault. The load's inertia and gravity torque are worked out here from the geometry, so the
+rest of the pipeline sees only numbers per trial.
+
+Trial files are CSV by default. A ``[[trials]]`` entry may carry ``format = "..."`` (an extension
+of the contract) for the recorders' own formats; those are read by
+``admittance.ident.loaders.load_trial``, imported only when needed so a plain CSV dataset never
+pays for the loaders.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from admittance.errors import DataError
+
+GRAVITY = 9.80665  # m/s², standard gravity
+MIN_SAMPLES = 10  # fewer cannot pin an initial state and three parameters
+MANIFEST = "manifest.toml"
+
+
+@dataclass(frozen=True)
+class TrialData:
+    """One trial: time (s), angle (rad, 0 = hanging down), optional applied torque (N·m)."""
+
+    name: str
+    t: np.ndarray
+    theta: np.ndarray
+    tau: np.ndarray | None
+    load_inertia: float
+    gravity_torque: float
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.size)
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A validated dataset. ``mode`` is "geometry" when [rod] or [bob] is given, else "lumped"."""
+
+    mode: str
+    trials: tuple[TrialData, ...]
+    motor: str = ""
+    folder: Path | None = None
+    geometry: dict = field(default_factory=dict)
+
+    @property
+    def has_torque(self) -> bool:
+        return any(tr.tau is not None for tr in self.trials)
+
+
+def load_dataset(folder: str | Path) -> Dataset:
+    """Read ``folder/manifest.toml`` and every trial it lists."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: dataset folder not found")
+    manifest_path = folder / MANIFEST
+    manifest = _read_manifest(manifest_path)
+    rod = _geometry_table(manifest, "rod", ("mass", "length"), manifest_path)
+    bob = _geometry_table(manifest, "bob", ("mass",), manifest_path)
+    entries = manifest.get("trials")
+    if not isinstance(entries, list) or not entries:
+        raise DataError(f"{manifest_path}: no [[trials]] listed")
+    mode = "geometry" if (rod or bob) else "lumped"
+    trials = []
+    seen: set[str] = set()
+    for index, entry in enumerate(entries):
+        trial = _load_entry(folder, manifest_path, index, entry, rod, bob)
+        if trial.name in seen:
+            raise DataError(f"{manifest_path}: trials[{index}]: file {trial.name!r} listed twice")
+        seen.add(trial.name)
+        trials.append(trial)
+    motor = manifest.get("motor", "")
+    return Dataset(
+        mode=mode,
+        trials=tuple(trials),
+        motor=str(motor),
+        folder=folder,
+        geometry={"rod": rod, "bob": bob},
+    )
+
+
+def load_geometry(rod: dict | None, bob: dict | None, bob_distance: float | None) -> tuple[float, float]:
+    """(inertia about the axis, gravity torque amplitude m·g·l) of a rod pivoted at its end and a
+    point bob at ``bob_distance``."""
+    inertia = 0.0
+    gravity = 0.0
+    if rod:
+        inertia += rod["mass"] * rod["length"] ** 2 / 3.0
+        gravity += rod["mass"] * GRAVITY * rod["length"] / 2.0
+    if bob:
+        inertia += bob["mass"] * bob_distance**2
+        gravity += bob["mass"] * GRAVITY * bob_distance
+    return inertia, gravity
+
+
+def _read_manifest(path: Path) -> dict:
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise DataError(f"{path}: manifest not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DataError(f"{path}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _geometry_table(manifest: dict, name: str, keys: tuple[str, ...], path: Path) -> dict | None:
+    table = manifest.get(name)
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise DataError(f"{path}: [{name}] must be a table")
+    out = {}
+    for key in keys:
+        out[key] = _positive_number(table.get(key), f"{path}: [{name}] {key}")
+    return out
+
+
+def _positive_number(value: Any, where: str) -> float:
+    if value is None:
+        raise DataError(f"{where}: missing")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise DataError(f"{where}: expected a number, got {value!r}")
+    if not math.isfinite(value) or value <= 0:
+        raise DataError(f"{where}: must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def _load_entry(folder: Path, manifest_path: Path, index: int, entry: Any, rod, bob) -> TrialData:
+    where = f"{manifest_path}: trials[{index}]"
+    if not isinstance(entry, dict):
+        raise DataError(f"{where}: must be a table")
+    name = entry.get("file")
+    if not isinstance(name, str) or not name:
+        raise DataError(f"{where}: missing 'file'")
+    distance = None
+    if bob:
+        distance = _positive_number(entry.get("bob_distance"), f"{where} ({name}): bob_distance")
+    fmt = entry.get("format", "csv")
+    if not isinstance(fmt, str):
+        raise DataError(f"{where} ({name}): format must be a string, got {fmt!r}")
+    path = folder / name
+    if not path.is_file():
+        raise DataError(f"{path}: trial file not found (listed in {manifest_path.name})")
+    t, theta, tau = _read_series(path, fmt)
+    _check_series(path, t, theta, tau)
+    inertia, gravity = load_geometry(rod, bob, distance)
+    meta = {k: v for k, v in entry.items() if k != "file"}
+    meta.setdefault("format", fmt)
+    return TrialData(name=name, t=t, theta=theta, tau=tau, load_inertia=inertia, gravity_torque=gravity, meta=meta)
+
+
+def _read_series(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    if fmt == "csv":
+        return read_csv_trial(path)
+    from admittance.ident import loaders  # only datasets in recorder formats need it
+
+    t, theta, tau = loaders.load_trial(path, fmt)
+    as_array = lambda a: None if a is None else np.asarray(a, dtype=float)  # noqa: E731
+    return as_array(t), as_array(theta), as_array(tau)
+
+
+def read_csv_trial(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Columns ``t``, ``theta`` and optional ``tau``, by header name, in any order."""
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from None
+    if not rows:
+        raise DataError(f"{path}: empty file (no header row)")
+    header = [h.strip() for h in rows[0]]
+    for required in ("t", "theta"):
+        if required not in header:
+            raise DataError(f"{path}: missing column {required!r} (header: {','.join(header)})")
+    wanted = {name: header.index(name) for name in ("t", "theta", "tau") if name in header}
+    columns: dict[str, list[float]] = {name: [] for name in wanted}
+    for line_no, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        for name, col in wanted.items():
+            columns[name].append(_cell(path, line_no, name, row, col))
+    arrays = {name: np.asarray(values, dtype=float) for name, values in columns.items()}
+    return arrays["t"], arrays["theta"], arrays.get("tau")
+
+
+def _cell(path: Path, line_no: int, name: str, row: list[str], col: int) -> float:
+    if col >= len(row):
+        raise DataError(f"{path}: line {line_no}: missing value in column {name!r}")
+    text = row[col].strip()
+    try:
+        return float(text)
+    except ValueError:
+        raise DataError(f"{path}: line {line_no}: column {name!r}: not a number: {text!r}") from None
+
+
+def _check_series(path: Path, t: np.ndarray, theta: np.ndarray, tau: np.ndarray | None) -> None:
+    if t is None or theta is None or t.size == 0:
+        raise DataError(f"{path}: empty trial (no samples)")
+    if t.ndim != 1 or theta.shape != t.shape or (tau is not None and tau.shape != t.shape):
+        raise DataError(f"{path}: columns have different lengths")
+    if t.size < MIN_SAMPLES:
+        raise DataError(f"{path}: only {t.size} samples; at least {MIN_SAMPLES} are needed")
+    for name, values in (("t", t), ("theta", theta), ("tau", tau)):
+        if values is not None and not np.all(np.isfinite(values)):
+            bad = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise DataError(f"{path}: column {name!r}: NaN or infinite value at sample {bad}")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise DataError(f"{path}: time is not strictly increasing at sample {bad} (t = {t[bad]!r})")

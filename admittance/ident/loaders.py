@@ -1,0 +1,404 @@
+"""Trial loaders for foreign recording formats, and converters to contract datasets.
+
+A contract dataset (../shared/contracts/datasets.md) holds plain ``t, theta[, tau]`` CSVs. The
+recordings we meet are not in that form: the thesis's OptiTrack Motive exports (two markers;
+the angle is the direction of the line between them), Dynamixel encoder logs (Rhoban BAM's
+JSON, or a CSV of present-position ticks) and the DFKI pendulum's driver log. Each format gets
+one parser here that returns ``(t, theta, tau | None)`` in SI units; the dataset loader
+dispatches ``[[trials]] format = "..."`` entries to :func:`load_trial`, and
+:func:`write_dataset` turns parsed trials into a contract folder so ``admittance identify``
+(and anything else that reads datasets) runs on them unchanged.
+
+Design choices:
+- Time is taken from the file, never rebuilt from a nominal rate: BAM and DFKI logs are not
+  uniformly sampled, and Motive drops frames where a marker is occluded.
+- Missing marker cells are dropped frame by frame rather than interpolated: an invented angle
+  would enter the fit as if it were measured, whereas a gap is handled exactly by the
+  simulator (it integrates to the next sample time).
+- Angles are unwrapped so a swing through ±π is not a 2π jump.
+- Every check raises :class:`~admittance.errors.DataError` naming the file, so a bad file is a
+  one-line CLI error and nothing is half written.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from admittance.errors import DataError
+
+TrialArrays = tuple[np.ndarray, np.ndarray, np.ndarray | None]
+
+TICKS_PER_REV = 4096
+MOTIVE_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def load_trial(path: str | Path, format: str, **options: Any) -> TrialArrays:
+    """Parse one recording; ``options`` are the format's keyword options (see each loader)."""
+    loader = LOADERS.get(format)
+    if loader is None:
+        raise DataError(f"{path}: unknown trial format {format!r} (known: {', '.join(sorted(LOADERS))})")
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: trial file not found")
+    try:
+        t, theta, tau = loader(path, **options)
+    except TypeError as exc:  # an unknown or misspelt option
+        raise DataError(f"{path}: bad option for format {format!r}: {exc}") from None
+    return check_series(path, t, theta, tau)
+
+
+def check_series(path: Path, t, theta, tau=None) -> TrialArrays:
+    """Validate a parsed trial: same lengths, finite, time strictly increasing, ≥ 3 samples."""
+    t = np.asarray(t, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    tau = None if tau is None else np.asarray(tau, dtype=float)
+    if t.ndim != 1 or theta.shape != t.shape or (tau is not None and tau.shape != t.shape):
+        raise DataError(f"{path}: t, theta and tau must be 1-D series of the same length")
+    if t.size < 3:
+        raise DataError(f"{path}: {t.size} usable samples; at least 3 are needed")
+    for name, arr in (("t", t), ("theta", theta), ("tau", tau)):
+        if arr is not None and not np.all(np.isfinite(arr)):
+            raise DataError(f"{path}: {name} has NaN or infinite values (first at sample {_first_bad(arr)})")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        raise DataError(f"{path}: time is not strictly increasing (at sample {int(np.argmax(steps <= 0)) + 1})")
+    return t, theta, tau
+
+
+def _first_bad(arr: np.ndarray) -> int:
+    return int(np.argmax(~np.isfinite(arr)))
+
+
+# --------------------------------------------------------------------------- OptiTrack Motive
+
+
+@dataclass
+class MotiveTake:
+    """The position triples of a Motive CSV export: one (n, 3) array per labelled point."""
+
+    labels: list[str]
+    types: list[str]
+    frame: np.ndarray
+    time: np.ndarray
+    points: list[np.ndarray] = field(default_factory=list)
+
+
+def parse_motive(path: Path) -> MotiveTake:
+    """Parse the Motive 1.2x CSV layout.
+
+    Line 1 is ``Format Version,...`` metadata; then (after an optional blank line) the rows
+    ``,Type,...``, ``,Name,...``, ``,ID,...`` (and ``,Parent,...`` in newer versions), a row
+    naming the component of each column (``Position``, ``Rotation``, ``Mean Marker Error``),
+    and the axis row ``Frame,Time (Seconds),X,Y,Z,...``. Columns line up across these rows,
+    so each position triple is found by index, whatever objects precede it.
+    """
+    rows = _read_rows(path)
+    meta = _motive_metadata(rows[0]) if rows else {}
+    axis_at = next((i for i, r in enumerate(rows) if r and r[0].strip().lower() == "frame"), None)
+    if axis_at is None:
+        raise DataError(f"{path}: not a Motive CSV export (no 'Frame,Time (Seconds),X,Y,Z' header row)")
+    header = {_row_label(r): r for r in rows[1:axis_at] if _row_label(r)}
+    component = rows[axis_at - 1] if axis_at > 1 else []
+    axis_row = [c.strip().upper() for c in rows[axis_at]]
+    starts = _position_triples(axis_row, component)
+    if len(starts) < 2:
+        raise DataError(f"{path}: the export holds {len(starts)} marker position(s); two are needed")
+    wanted = [0, 1] + [j + k for j in starts for k in range(3)]
+    data = _numeric_block(path, rows[axis_at + 1 :], len(axis_row), wanted)
+    time = _motive_time(path, data, axis_row, meta)
+    names, types = header.get("name", []), header.get("type", [])
+    return MotiveTake(
+        labels=[_cell(names, j) or f"point {k}" for k, j in enumerate(starts)],
+        types=[_cell(types, j) for j in starts],
+        frame=data[:, 0],
+        time=time,
+        points=[data[:, j : j + 3] for j in starts],
+    )
+
+
+def load_motive(
+    path: Path,
+    markers: Sequence[str | int] | None = None,
+    axes: Sequence[str] = ("x", "z"),
+    sign: float = 1.0,
+    offset: float = 0.0,
+) -> TrialArrays:
+    """Angle of the line from marker A (the axis) to marker B (the bob), as appendix C does.
+
+    ``theta = sign·atan2(d[axes[1]], d[axes[0]]) − offset`` with ``d = B − A``; the thesis's
+    script uses the x and z columns (its Motive calibration put x along the hanging rod).
+    ``markers`` names or indexes the two points (default: the first two of type ``Marker``,
+    else the first two position triples). Frames where either marker is blank are dropped.
+    """
+    take = parse_motive(path)
+    a, b = _pick_markers(path, take, markers)
+    ia, ib = _motive_axes(path, axes)
+    d = take.points[b] - take.points[a]
+    ok = np.isfinite(d[:, ia]) & np.isfinite(d[:, ib]) & np.isfinite(take.time)
+    if ok.sum() < 3:
+        raise DataError(f"{path}: fewer than 3 frames where both markers are visible")
+    theta = sign * np.unwrap(np.arctan2(d[ok, ib], d[ok, ia])) - offset
+    return take.time[ok], theta, None
+
+
+def _read_rows(path: Path) -> list[list[str]]:
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            return [row for row in csv.reader(fh)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from None
+
+
+def _motive_metadata(first: list[str]) -> dict[str, str]:
+    return {first[i].strip().lower(): first[i + 1].strip() for i in range(0, len(first) - 1, 2)}
+
+
+def _row_label(row: list[str]) -> str:
+    """'type', 'name', 'id' or 'parent' for the header rows Motive labels in cell 0 or 1."""
+    for cell in row[:2]:
+        label = cell.strip().lower()
+        if label in ("type", "name", "id", "parent"):
+            return label
+    return ""
+
+
+def _cell(row: list[str], j: int) -> str:
+    return row[j].strip() if j < len(row) else ""
+
+
+def _position_triples(axis_row: list[str], component: list[str]) -> list[int]:
+    """Column indices where an X,Y,Z position triple starts (rotations and errors skipped)."""
+    starts = []
+    j = 2
+    while j + 2 < len(axis_row):
+        is_xyz = axis_row[j : j + 3] == ["X", "Y", "Z"]
+        comp = _cell(component, j).lower()
+        if is_xyz and comp in ("position", "") and not _is_rotation(axis_row, j):
+            starts.append(j)
+            j += 3
+        else:
+            j += 1
+    return starts
+
+
+def _is_rotation(axis_row: list[str], j: int) -> bool:
+    """A quaternion X,Y,Z,W block without a component row must not pass for a position."""
+    return j + 3 < len(axis_row) and axis_row[j + 3] == "W"
+
+
+def _numeric_block(path: Path, rows: list[list[str]], width: int, columns: list[int]) -> np.ndarray:
+    """The frame rows as floats; only ``columns`` are parsed (TimeCode and the like are not)."""
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise DataError(f"{path}: the export has a header but no frames")
+    out = np.full((len(rows), width), np.nan)
+    for i, row in enumerate(rows):
+        for j in columns:
+            cell = _cell(row, j)
+            if not cell:
+                continue  # an occluded marker: Motive leaves the cell blank
+            try:
+                out[i, j] = float(cell)
+            except ValueError:
+                raise DataError(f"{path}: frame row {i + 1}, column {j + 1}: not a number: {cell!r}") from None
+    return out
+
+
+def _motive_time(path: Path, data: np.ndarray, axis_row: list[str], meta: dict[str, str]) -> np.ndarray:
+    if len(axis_row) > 1 and axis_row[1].startswith("TIME") and np.all(np.isfinite(data[:, 1])):
+        return data[:, 1]
+    rate = meta.get("export frame rate") or meta.get("capture frame rate")
+    try:
+        fps = float(rate)
+    except (TypeError, ValueError):
+        raise DataError(f"{path}: no time column and no frame rate in the metadata row") from None
+    return data[:, 0] / fps
+
+
+def _pick_markers(path: Path, take: MotiveTake, markers) -> tuple[int, int]:
+    if markers is None:
+        plain = [k for k, kind in enumerate(take.types) if kind.lower() == "marker"]
+        chosen = plain[:2] if len(plain) >= 2 else [0, 1]
+        return chosen[0], chosen[1]
+    if len(markers) != 2:
+        raise DataError(f"{path}: markers must name two points (axis, bob), got {markers!r}")
+    return tuple(_marker_index(path, take, m) for m in markers)  # type: ignore[return-value]
+
+
+def _marker_index(path: Path, take: MotiveTake, marker: str | int) -> int:
+    if isinstance(marker, int) and not isinstance(marker, bool):
+        if 0 <= marker < len(take.points):
+            return marker
+    elif marker in take.labels:
+        return take.labels.index(marker)
+    raise DataError(f"{path}: no marker {marker!r} (points: {', '.join(take.labels)})")
+
+
+def _motive_axes(path: Path, axes: Sequence[str]) -> tuple[int, int]:
+    if len(axes) != 2 or any(str(a).lower() not in MOTIVE_AXES for a in axes) or axes[0] == axes[1]:
+        raise DataError(f"{path}: axes must be two distinct names of x, y, z, got {axes!r}")
+    return MOTIVE_AXES[str(axes[0]).lower()], MOTIVE_AXES[str(axes[1]).lower()]
+
+
+# --------------------------------------------------------------------------- Dynamixel logs
+
+
+def load_dynamixel(
+    path: Path,
+    segment: str = "torque_off",
+    zero_tick: float = 2048.0,
+    sign: float = 1.0,
+) -> TrialArrays:
+    """An encoder log: BAM's JSON (``.json``) or a CSV of time and present-position ticks.
+
+    BAM JSON: ``segment="torque_off"`` keeps the free swing after the torque is disabled
+    (time restarts at 0 at the release); ``"all"`` keeps everything (no torque is returned:
+    while the torque is on the servo drives itself, which this log does not measure).
+    CSV: columns ``t``/``time`` (s) and ``present_position``/``position``/``ticks``
+    (4096 per revolution); ``theta = sign·(ticks − zero_tick)·2π/4096``. An optional
+    ``tau`` column (N·m) is passed through.
+    """
+    if path.suffix.lower() == ".json":
+        return _load_bam_json(path, segment)
+    return _load_tick_csv(path, zero_tick, sign)
+
+
+def _load_bam_json(path: Path, segment: str) -> TrialArrays:
+    if segment not in ("torque_off", "all"):
+        raise DataError(f"{path}: segment must be 'torque_off' or 'all', got {segment!r}")
+    try:
+        entries = json.loads(path.read_text())["entries"]
+        t = np.array([float(e["timestamp"]) for e in entries])
+        theta = np.array([float(e["position"]) for e in entries])
+        enabled = np.array([bool(e.get("torque_enable", True)) for e in entries])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path}: not a BAM log (entries with timestamp, position): {exc}") from None
+    if segment == "all":
+        return t, theta, None
+    off = np.flatnonzero(~enabled)
+    if off.size == 0:
+        raise DataError(f"{path}: the torque is never disabled: there is no free swing")
+    start = int(off[0])
+    if np.any(enabled[start:]):
+        raise DataError(f"{path}: the torque is re-enabled after the release; the swing is not free")
+    return t[start:] - t[start], theta[start:], None
+
+
+def _load_tick_csv(path: Path, zero_tick: float, sign: float) -> TrialArrays:
+    cols = _csv_columns(path)
+    t = _column(path, cols, ("t", "time", "timestamp"))
+    ticks = _column(path, cols, ("present_position", "position", "ticks"))
+    tau = _column(path, cols, ("tau",), required=False)
+    return t, sign * (ticks - zero_tick) * (2.0 * math.pi / TICKS_PER_REV), tau
+
+
+# --------------------------------------------------------------------------- DFKI pendulum
+
+
+def load_dfki(path: Path, torque: bool = True) -> TrialArrays:
+    """The DFKI driver log ``time,position,velocity,torque`` (rad, 0 = hanging down, N·m).
+
+    The torque is the driver's current-based estimate at the shaft; ``torque=False`` drops it.
+    """
+    cols = _csv_columns(path)
+    t = _column(path, cols, ("time",))
+    theta = _column(path, cols, ("position",))
+    tau = _column(path, cols, ("torque",)) if torque else None
+    return t, theta, tau
+
+
+def _csv_columns(path: Path) -> dict[str, np.ndarray]:
+    rows = _read_rows(path)
+    if len(rows) < 2:
+        raise DataError(f"{path}: a header row and data rows are needed")
+    names = [c.strip().lower() for c in rows[0]]
+    body = [r for r in rows[1:] if any(c.strip() for c in r)]
+    short = next((i for i, r in enumerate(body) if len(r) != len(names)), None)
+    if short is not None:
+        raise DataError(f"{path}: data row {short + 1} has {len(body[short])} cells, the header {len(names)}")
+    try:
+        table = np.array([[float(c) if c.strip() else np.nan for c in r] for r in body], dtype=float)
+    except ValueError as exc:
+        raise DataError(f"{path}: non-numeric cell ({exc})") from None
+    if table.ndim != 2:
+        raise DataError(f"{path}: no data rows")
+    return {name: table[:, j] for j, name in enumerate(names)}
+
+
+def _column(path: Path, cols: dict[str, np.ndarray], names: Iterable[str], required: bool = True):
+    for name in names:
+        if name in cols:
+            return cols[name]
+    if required:
+        raise DataError(f"{path}: missing column (one of {', '.join(names)}); found {', '.join(cols)}")
+    return None
+
+
+LOADERS = {"motive": load_motive, "dynamixel": load_dynamixel, "dfki": load_dfki}
+
+
+# --------------------------------------------------------------------------- converters
+
+
+@dataclass
+class ConvertedTrial:
+    """One trial to write into a contract dataset; ``extra`` goes into its [[trials]] entry."""
+
+    name: str
+    t: np.ndarray
+    theta: np.ndarray
+    tau: np.ndarray | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def write_dataset(out_dir: str | Path, trials: Sequence[ConvertedTrial], header: dict[str, Any] | None = None) -> Path:
+    """Write ``manifest.toml`` and one ``t,theta[,tau]`` CSV per trial into ``out_dir``.
+
+    ``header`` holds the manifest's top-level keys and tables (``motor``, ``rod``, ``bob``).
+    """
+    import tomli_w
+
+    if not trials:
+        raise DataError("no trials to write")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for trial in trials:
+        t, theta, tau = check_series(Path(trial.name), trial.t, trial.theta, trial.tau)
+        file = f"{trial.name}.csv"
+        _write_csv(out / file, t, theta, tau)
+        entries.append({"file": file, **trial.extra})
+    manifest = dict(header or {})
+    manifest["trials"] = entries
+    (out / "manifest.toml").write_text(tomli_w.dumps(manifest))
+    return out
+
+
+def _write_csv(path: Path, t: np.ndarray, theta: np.ndarray, tau: np.ndarray | None) -> None:
+    cols = [t, theta] if tau is None else [t, theta, tau]
+    head = "t,theta" if tau is None else "t,theta,tau"
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=head, comments="", fmt="%.9g")
+
+
+def convert_files(
+    files: Sequence[str | Path],
+    format: str,
+    out_dir: str | Path,
+    header: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+    **options: Any,
+) -> Path:
+    """Parse each file with :func:`load_trial` and write them as one contract dataset."""
+    trials = []
+    for f in files:
+        t, theta, tau = load_trial(f, format, **options)
+        trials.append(ConvertedTrial(Path(f).stem, t, theta, tau, dict(extra or {})))
+    return write_dataset(out_dir, trials, header)

@@ -1,0 +1,132 @@
+"""Fitted parameter files (Contract 2): the TOML that ``identify`` writes and the daemon reads.
+
+A file has three tables: ``[model]`` (labels: motor, friction law, mode, source), ``[params]``
+(the plant parameters of Contract 1 by name, SI units; absent names keep their defaults) and
+``[fit]`` (provenance). The parameter names are checked against one list, so a typo in a
+hand-edited file is an error naming the file and key instead of a silently ignored value.
+
+The name list lives here rather than being read from ``_rtcore.PARAM_NAMES`` so that reading a
+parameter file never needs the compiled extension (the daemon's config check runs before it
+loads); ``tests/test_ident_paramfile.py`` checks that the two lists agree.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from admittance.errors import ConfigError
+
+# Contract 1's parameter order, with defaults (None: required).
+PARAM_DEFAULTS: dict[str, float | None] = {
+    "motor_inertia": None,
+    "damping": 0.0,
+    "coulomb": 0.0,
+    "coulomb_asym": 0.0,
+    "stribeck_torque": 0.0,
+    "stribeck_velocity": 0.1,
+    "load_coulomb": 0.0,
+    "angle_offset": 0.0,
+    "quadratic_drag": 0.0,
+    "cogging_amplitude": 0.0,
+    "cogging_period": 0.0,
+    "cogging_phase": 0.0,
+    "time_delay": 0.0,
+    "torque_bias": 0.0,
+    "torque_drift": 0.0,
+    "tanh_k": 100.0,
+}
+PARAM_NAMES: tuple[str, ...] = tuple(PARAM_DEFAULTS)
+FRICTION_LAWS = ("stick", "tanh")
+MODES = ("geometry", "lumped")
+
+
+def load(path: str | Path) -> dict[str, Any]:
+    """Read and validate a parameter file: ``{"model": {...}, "params": {...}, "fit": {...}}``."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: parameter file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    model = _table(doc, "model", path)
+    fit = _table(doc, "fit", path)
+    params = validate_params(_table(doc, "params", path), where=str(path))
+    _check_model(model, path)
+    return {"model": model, "params": params, "fit": fit}
+
+
+def dump(
+    path: str | Path,
+    params: dict[str, float],
+    model: dict[str, Any] | None = None,
+    fit: dict[str, Any] | None = None,
+) -> None:
+    """Write a parameter file; ``params`` is validated first, so a bad value never reaches disk."""
+    path = Path(path)
+    clean = validate_params(params, where=str(path))
+    model = dict(model or {})
+    _check_model(model, path)
+    doc: dict[str, Any] = {"model": model, "params": clean}
+    if fit:
+        doc["fit"] = _toml_safe(fit)
+    try:
+        path.write_text(tomli_w.dumps(doc))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def validate_params(params: dict[str, Any], where: str = "params") -> dict[str, float]:
+    """Check names and values; return ``{name: float}`` in Contract 1's order."""
+    out: dict[str, float] = {}
+    for key, value in params.items():
+        if key not in PARAM_DEFAULTS:
+            raise ConfigError(f"{where}: [params] {key}: unknown parameter (known: {', '.join(PARAM_NAMES)})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: [params] {key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: [params] {key}: value must be finite, got {value!r}")
+        out[key] = float(value)
+    return {name: out[name] for name in PARAM_NAMES if name in out}
+
+
+def full_vector(params: dict[str, float]) -> list[float]:
+    """All parameters in Contract 1's order, defaults filled in; ``motor_inertia`` is required."""
+    if "motor_inertia" not in params:
+        raise ConfigError("[params] motor_inertia: required")
+    return [float(params.get(name, default)) for name, default in PARAM_DEFAULTS.items()]
+
+
+def _table(doc: dict, name: str, path: Path) -> dict:
+    table = doc.get(name, {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: [{name}] must be a table")
+    return table
+
+
+def _check_model(model: dict, path: Path) -> None:
+    friction = model.get("friction", "stick")
+    if friction not in FRICTION_LAWS:
+        raise ConfigError(f"{path}: [model] friction: expected one of {FRICTION_LAWS}, got {friction!r}")
+    mode = model.get("mode", "geometry")
+    if mode not in MODES:
+        raise ConfigError(f"{path}: [model] mode: expected one of {MODES}, got {mode!r}")
+
+
+def _toml_safe(value: Any) -> Any:
+    """TOML has no null: drop None; turn NumPy scalars and tuples into plain types."""
+    if isinstance(value, dict):
+        return {str(k): _toml_safe(v) for k, v in value.items() if v is not None}
+    if isinstance(value, (list, tuple)):
+        return [_toml_safe(v) for v in value if v is not None]
+    if hasattr(value, "item"):  # NumPy scalars
+        return value.item()
+    return value

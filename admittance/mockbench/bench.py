@@ -1,0 +1,213 @@
+"""``MockBench``: a whole simulated test bench, servos and force sensor, on pseudo-terminals.
+
+The servos are the simulated Dynamixel bus of the Rust core (``_rtcore.MockBus``, Contract 4):
+each one is a plant (Contract 1) with the fitted parameters of its model, read from
+``config/params/<model>.toml`` (Contract 2), so the mock moves as the identified servo does.
+An *effect* (``cogging_amplitude=0.02``...) changes the simulated truth without changing the
+configuration the daemon reads: that is how a test checks what an unmodelled effect does to
+the loop, or whether identification finds it.
+
+The force sensor is a :mod:`admittance.mockbench.sensor` mock. One hand-torque profile drives
+both: the hand pushes on the sensor mounted on the horn, so at each sensor sample the same τ(t)
+goes to the sensor (as F = τ / lever_arm) and to the horn (``bus.set_external_torque``). Doing
+both in the sensor's thread keeps them consistent without a second 1 kHz thread.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from admittance.errors import ConfigError, DeviceError
+from admittance.mockbench.hand import Profile, make_profile
+from admittance.mockbench.sensor import (
+    DEFAULT_COUNTS_PER_NEWTON,
+    ForceModel,
+    SimulatedCanOptoForce,
+    SimulatedOptoForce,
+)
+
+PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
+SENSOR_KINDS = ("optoforce", "can")
+
+
+@dataclass
+class BenchConfig:
+    """What to simulate. ``servos`` is a count (IDs 1..N, all ``model``/``protocol``) or a list
+    of per-servo tables with keys id, model, protocol, params_file, load_inertia, gravity_torque."""
+
+    servos: int | Sequence[Mapping[str, Any]] = 1
+    model: str = "MX-64"
+    protocol: int = 2
+    params_file: str | None = None
+    effects: Mapping[str, float] = field(default_factory=dict)
+    load_inertia: float = 0.0
+    gravity_torque: float = 0.0
+    baudrate: int = 1_000_000
+    wire_delay: bool = True
+    profile: str = "push-release"
+    hand_servo_id: int | None = None  # default: the first servo
+    sensor: str = "optoforce"
+    sensor_rate_hz: float = 1000.0
+    lever_arm: float = 0.105
+    axis: str = "x"
+    counts_per_newton: float | Sequence[float] = DEFAULT_COUNTS_PER_NEWTON
+    noise_std_n: float = 0.0
+    bias_n: float = 0.0
+    can_interface: str = "virtual"
+    can_channel: str = "admittance-mock"
+    can_id: int = 0x100
+    seed: int = 0
+
+
+def params_path(model: str) -> Path:
+    """config/params/<model>.toml, the model name lower-cased without punctuation (MX-64 → mx64)."""
+    return PARAMS_DIR / (re.sub(r"[^a-z0-9]", "", model.lower()) + ".toml")
+
+
+def load_plant_params(model: str, params_file: str | None, effects: Mapping[str, float]) -> dict[str, float]:
+    """The fitted parameters of ``model`` (Contract 2) with ``effects`` laid over them."""
+    from admittance.ident import paramfile
+
+    path = Path(params_file) if params_file else params_path(model)
+    if not path.is_file():
+        raise ConfigError(f"no fitted parameters for {model}: {path} does not exist (give a parameter file)")
+    params = dict(paramfile.load(path)["params"])
+    params.update(paramfile.validate_params(dict(effects), where="mock-bench effect"))
+    return params
+
+
+def servo_specs(config: BenchConfig) -> list[dict[str, Any]]:
+    """The servo tables handed to ``_rtcore.MockBus`` (Contract 4)."""
+    if isinstance(config.servos, int):
+        if not 1 <= config.servos <= 252:
+            raise ConfigError(f"the mock bench has 1..252 servos, not {config.servos}")
+        wanted: Sequence[Mapping[str, Any]] = [{"id": i} for i in range(1, config.servos + 1)]
+    else:
+        wanted = config.servos
+    specs = []
+    for servo in wanted:
+        model = servo.get("model", config.model)
+        specs.append(
+            {
+                "id": int(servo["id"]),
+                "model": model,
+                "protocol": int(servo.get("protocol", config.protocol)),
+                "params": load_plant_params(model, servo.get("params_file", config.params_file), config.effects),
+                "load_inertia": float(servo.get("load_inertia", config.load_inertia)),
+                "gravity_torque": float(servo.get("gravity_torque", config.gravity_torque)),
+            }
+        )
+    ids = [s["id"] for s in specs]
+    if len(set(ids)) != len(ids):
+        raise ConfigError(f"servo IDs must be unique, got {ids}")
+    return specs
+
+
+class MockBench:
+    """The simulated bench; ``with MockBench() as bench:`` starts it and stops it."""
+
+    def __init__(self, config: BenchConfig | None = None, **options: Any):
+        self.config = config or BenchConfig(**options)
+        cfg = self.config
+        if cfg.sensor not in SENSOR_KINDS:
+            raise ConfigError(f"the mock bench's sensor is one of {', '.join(SENSOR_KINDS)}, not '{cfg.sensor}'")
+        specs = servo_specs(cfg)
+        self.servo_ids = [s["id"] for s in specs]
+        self.hand_servo_id = cfg.hand_servo_id if cfg.hand_servo_id is not None else self.servo_ids[0]
+        if self.hand_servo_id not in self.servo_ids:
+            raise ConfigError(f"the hand pushes on servo {self.hand_servo_id}, which is not on the bus {self.servo_ids}")
+        self.profile: Profile = make_profile(cfg.profile)
+        self.force_model = ForceModel(
+            lever_arm=cfg.lever_arm,
+            axis=cfg.axis,
+            counts_per_newton=_per_axis(cfg.counts_per_newton),
+            bias_n=cfg.bias_n,
+            noise_std_n=cfg.noise_std_n,
+        )
+        self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay)
+        self.sensor = self._make_sensor()
+        self._running = False
+
+    def _make_sensor(self) -> SimulatedOptoForce | SimulatedCanOptoForce:
+        cfg = self.config
+        if cfg.sensor == "can":
+            return SimulatedCanOptoForce(
+                self._hand_torque,
+                self.force_model,
+                channel=cfg.can_channel,
+                interface=cfg.can_interface,
+                can_id=cfg.can_id,
+                rate_hz=cfg.sensor_rate_hz,
+                seed=cfg.seed,
+            )
+        return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed)
+
+    def _hand_torque(self, t: float) -> float:
+        tau = self.profile(t)
+        self.bus.set_external_torque(self.hand_servo_id, tau)
+        return tau
+
+    @property
+    def bus_port(self) -> str:
+        return self.bus.port_path
+
+    @property
+    def sensor_port(self) -> str | None:
+        """The sensor's pty (None with the CAN sensor)."""
+        return getattr(self.sensor, "port_path", None)
+
+    @property
+    def can_channel(self) -> str | None:
+        """The python-can channel of the CAN sensor (None with the serial sensor)."""
+        return self.config.can_channel if self.config.sensor == "can" else None
+
+    def start(self) -> None:
+        if self._running:
+            return
+        self.bus.start()
+        self.sensor.start()
+        self._running = True
+
+    def stop(self) -> None:
+        """Stop the sensor and the bus; the bench cannot be started again (its ptys are closed)."""
+        self._running = False
+        self.sensor.stop()
+        self.bus.stop()
+
+    def __enter__(self) -> MockBench:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def ports(self) -> dict[str, Any]:
+        """The JSON object that ``admittance mock-bench --print-ports`` prints."""
+        ports: dict[str, Any] = {"bus": self.bus_port, "sensor": self.sensor_port}
+        if self.config.sensor == "can":
+            ports["can"] = {"interface": self.config.can_interface, "channel": self.can_channel, "can_id": self.config.can_id}
+        return ports
+
+    def stats(self) -> dict[str, Any]:
+        return {"bus": self.bus.stats(), "sensor": self.sensor.stats()}
+
+
+def _per_axis(counts_per_newton: float | Sequence[float]) -> tuple[float, ...]:
+    if isinstance(counts_per_newton, int | float):
+        return (float(counts_per_newton),) * 3
+    return tuple(float(c) for c in counts_per_newton)
+
+
+def _mock_bus(specs: list[dict[str, Any]], baudrate: int, wire_delay: bool) -> Any:
+    from admittance import _rtcore
+
+    if not hasattr(_rtcore, "MockBus"):
+        raise DeviceError("this build of admittance._rtcore has no MockBus: rebuild it with `make ext`")
+    try:
+        return _rtcore.MockBus(servos=specs, baudrate=baudrate, wire_delay=wire_delay)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ConfigError(f"the simulated bus refused the servos: {exc}") from None

@@ -1,0 +1,352 @@
+"""The simulated force sensor: a scripted hand pushing on an OptoForce DAQ.
+
+The hand torque τ(t) acts at ``lever_arm`` from the joint axis, so the sensor on the horn
+reads F = τ / lever_arm on its configured axis; that force becomes counts with the sensor's
+sensitivity (counts_per_newton), plus an optional constant bias and seeded Gaussian noise, and
+is clipped to int16 with the overload bit set, as the DAQ does.
+
+Three outputs share that model:
+
+- :class:`SimulatedOptoForce` streams OptoForce frames on a pseudo-terminal, so the real
+  serial reader (or any OptoForce client) reads it as it would a ``/dev/ttyACM*``. It follows
+  protocols.md §6: raw mode on the slave, the slave kept open for the mock's whole life, and
+  non-blocking writes; when the pty is full because nobody reads, whole samples are dropped
+  (never half a frame), exactly as a DAQ's USB buffer overflows.
+- :class:`SimulatedCanOptoForce` sends the same bytes over python-can (the in-process
+  ``virtual`` bus by default), split into 8-byte frames with the data identifier, and takes
+  configuration packets on the identifier after it (0x100 → 0x101).
+- :class:`ScriptedForceSensor` is the registry's ``"mock"`` kind: a ForceSensor that pushes
+  forces straight to a sink, with no wire at all.
+
+Both streaming mocks honour a configuration packet from the host (sample rate, tare; SPEED 0
+stops the stream) and answer it with an acknowledgement. Samples come from one thread on
+absolute deadlines; if the machine stalls the thread catches up with a burst (as a USB DAQ
+delivers a backlog) and, after 100 ms behind, skips ahead instead of flooding.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import math
+import os
+import random
+import threading
+import time
+import tty
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from admittance.drivers import optoforce as of
+from admittance.drivers.can_sensor import split_into_can_payloads
+from admittance.drivers.sensor import AXES, ForceSensor, Sink, counts_per_unit
+from admittance.errors import ConfigError, DeviceError
+from admittance.mockbench.hand import Profile, make_profile
+
+log = logging.getLogger(__name__)
+
+INT16_MAX = 32767
+MAX_CATCH_UP_S = 0.1
+DEFAULT_COUNTS_PER_NEWTON = 451.89  # an OMD-20-class sensitivity, counts/N
+
+
+@dataclass(frozen=True)
+class ForceModel:
+    """Hand torque → the counts a sensor on the horn reports."""
+
+    lever_arm: float = 0.105
+    axis: str = "x"
+    counts_per_newton: tuple[float, ...] = (DEFAULT_COUNTS_PER_NEWTON,) * 3
+    bias_n: float = 0.0
+    noise_std_n: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.lever_arm) and self.lever_arm > 0):
+            raise ConfigError(f"lever_arm must be a positive length in m, got {self.lever_arm}")
+        if self.axis not in ("x", "y", "z"):
+            raise ConfigError(f"the hand pushes along a force axis (x, y or z), not '{self.axis}'")
+        counts_per_unit(self.counts_per_newton, len(self.counts_per_newton))
+        if len(self.counts_per_newton) not in (3, 6):
+            raise ConfigError("counts_per_newton has 3 (3-axis) or 6 (6-axis) values")
+        if self.noise_std_n < 0:
+            raise ConfigError("noise_std_n must be ≥ 0")
+
+    @property
+    def axis_index(self) -> int:
+        return "xyz".index(self.axis)
+
+    def force(self, tau: float) -> float:
+        return tau / self.lever_arm
+
+    def counts(self, tau: float, rng: random.Random) -> tuple[list[int], int]:
+        """(counts per axis, status word with the overload bits of clipped axes)."""
+        forces = [0.0] * len(self.counts_per_newton)
+        forces[self.axis_index] = self.force(tau)
+        status = 0
+        counts = []
+        for i, (f, cpn) in enumerate(zip(forces, self.counts_per_newton)):
+            noise = rng.gauss(0.0, self.noise_std_n) if self.noise_std_n else 0.0
+            value = round((f + (self.bias_n if i < 3 else 0.0) + noise) * cpn)
+            if abs(value) > INT16_MAX:
+                status |= 1 << of.STATUS_OVERLOAD_BITS[AXES[i]]
+                value = max(-INT16_MAX, min(INT16_MAX, value))
+            counts.append(value)
+        return counts, status
+
+
+class _StreamingSensor(abc.ABC):
+    """The sample clock and DAQ behaviour shared by the pty and CAN outputs."""
+
+    def __init__(self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
+        if not rate_hz > 0:
+            raise ConfigError(f"the simulated sensor's rate must be positive, got {rate_hz}")
+        self._torque_source = torque_source
+        self.model = model
+        self.rate_hz = float(rate_hz)
+        self.streaming = True
+        self._rng = random.Random(seed)
+        self._parser = of.OptoForceParser()
+        self._tare_counts: list[int] | None = None
+        self._last_counts: list[int] = [0] * len(model.counts_per_newton)
+        self._counter = 0
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.samples_sent = 0
+        self.samples_dropped = 0
+        self.configs_received = 0
+        self.late_skips = 0
+        self.last_torque = 0.0
+
+    # -- output contract ------------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _send(self, data: bytes) -> bool:
+        """Send one whole frame; False if it had to be dropped."""
+
+    @abc.abstractmethod
+    def _receive(self) -> bytes:
+        """Bytes the host sent since the last call (non-blocking)."""
+
+    def _release(self) -> None:
+        """Free the output's resources once the thread has ended."""
+
+    # -- lifecycle -------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="mock-force-sensor", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._stop.set()
+            thread.join()
+        self._release()
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        t0 = time.monotonic()
+        deadline = t0
+        while not self._stop.is_set():
+            delay = deadline - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif -delay > MAX_CATCH_UP_S:
+                self.late_skips += 1
+                deadline = time.monotonic()
+            self._tick(deadline - t0)
+            self._handle_host_bytes()  # after the tick: a tare takes the load just sampled
+            deadline += 1.0 / self.rate_hz
+
+    def _tick(self, t: float) -> None:
+        tau = self._torque_source(t)
+        self.last_torque = tau
+        counts, status = self.model.counts(tau, self._rng)
+        self._last_counts = counts
+        if not self.streaming:
+            return
+        if self._tare_counts is not None:
+            counts = [c - z for c, z in zip(counts, self._tare_counts)]
+        frame = of.encode_sample(self._counter, status, counts)
+        self._counter = (self._counter + 1) & 0xFFFF
+        if self._send(frame):
+            self.samples_sent += 1
+        else:
+            self.samples_dropped += 1
+
+    def _handle_host_bytes(self) -> None:
+        data = self._receive()
+        if not data:
+            return
+        for record in self._parser.feed(data):
+            if type(record) is of.Config:
+                self._apply_config(record)
+
+    def _apply_config(self, config: of.Config) -> None:
+        self.configs_received += 1
+        if config.speed == 0:
+            self.streaming = False
+        else:
+            self.streaming = True
+            self.rate_hz = of.rate_of_speed_code(config.speed)
+        if config.zero == of.ZERO_TARE:
+            self._tare_counts = list(self._last_counts)
+        elif config.zero == of.ZERO_CLEAR:
+            self._tare_counts = None
+        self._send(of.encode_ack(0))
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "rate_hz": self.rate_hz,
+            "streaming": self.streaming,
+            "samples_sent": self.samples_sent,
+            "samples_dropped": self.samples_dropped,
+            "configs_received": self.configs_received,
+            "late_skips": self.late_skips,
+        }
+
+
+class SimulatedOptoForce(_StreamingSensor):
+    """OptoForce frames on a pseudo-terminal: open ``port_path`` as you would /dev/ttyACM0."""
+
+    def __init__(self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
+        super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.port_path = os.ttyname(self._slave)
+        self._backlog = b""
+
+    def _send(self, data: bytes) -> bool:
+        # A frame cut short by a full pty is finished before anything new is written, so the
+        # stream stays whole frames; a new frame that does not fit at all is dropped.
+        if self._backlog:
+            self._backlog = self._backlog[self._write(self._backlog) :]
+            if self._backlog:
+                return False
+        written = self._write(data)
+        self._backlog = data[written:] if written else b""
+        return written > 0
+
+    def _write(self, data: bytes) -> int:
+        try:
+            return os.write(self._master, data)
+        except OSError:  # EAGAIN when the pty is full
+            return 0
+
+    def _receive(self) -> bytes:
+        try:
+            return os.read(self._master, 4096)
+        except (BlockingIOError, OSError):
+            return b""
+
+    def _release(self) -> None:
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                os.close(fd)
+        self._master = self._slave = -1
+
+
+class SimulatedCanOptoForce(_StreamingSensor):
+    """The same frames over python-can: data on ``can_id``, configuration on ``can_id + 1``."""
+
+    def __init__(
+        self,
+        torque_source: Profile,
+        model: ForceModel,
+        *,
+        channel: str = "admittance-force",
+        interface: str = "virtual",
+        can_id: int = 0x100,
+        rate_hz: float = 1000.0,
+        seed: int = 0,
+    ):
+        super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
+        import can
+
+        self.channel = channel
+        self.interface = interface
+        self.can_id = can_id
+        try:
+            self._bus = can.Bus(interface=interface, channel=channel, ignore_config=True, receive_own_messages=False)
+        except (can.CanError, OSError, ImportError, NotImplementedError, ValueError) as exc:
+            raise DeviceError(f"cannot open the simulated CAN sensor on {interface} channel {channel!r}: {exc}") from None
+        self._message = can.Message
+
+    def _send(self, data: bytes) -> bool:
+        import can
+
+        try:
+            for payload in split_into_can_payloads(data):
+                self._bus.send(self._message(arbitration_id=self.can_id, data=payload, is_extended_id=False), timeout=0.01)
+        except can.CanError:
+            return False
+        return True
+
+    def _receive(self) -> bytes:
+        data = bytearray()
+        while (msg := self._bus.recv(0.0)) is not None:
+            if msg.arbitration_id == self.can_id + 1:
+                data += msg.data
+        return bytes(data)
+
+    def _release(self) -> None:
+        self._bus.shutdown()
+
+
+class ScriptedForceSensor(ForceSensor):
+    """The ``"mock"`` sensor kind: forces from a hand profile pushed straight to the sink."""
+
+    kind = "mock"
+
+    def __init__(self, sink: Sink, profile: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
+        super().__init__(sink)
+        if not rate_hz > 0:
+            raise ConfigError(f"the mock sensor's rate must be positive, got {rate_hz}")
+        self._profile = profile
+        self._model = model
+        self._period = 1.0 / rate_hz
+        self._rng = random.Random(seed)
+        self._scale = tuple(1.0 / c for c in model.counts_per_newton)
+        self._t0 = 0.0
+        self._deadline = 0.0
+
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any], sink: Sink) -> ScriptedForceSensor:
+        cpn = section.get("counts_per_newton", DEFAULT_COUNTS_PER_NEWTON)
+        model = ForceModel(
+            lever_arm=float(section.get("lever_arm", 0.105)),
+            axis=str(section.get("axis", "x")),
+            counts_per_newton=counts_per_unit(cpn, len(cpn) if isinstance(cpn, Sequence) else 3),
+            bias_n=float(section.get("bias_n", 0.0)),
+            noise_std_n=float(section.get("noise_std_n", 0.0)),
+        )
+        return cls(sink, make_profile(str(section.get("profile", "push-release"))), model, rate_hz=float(section.get("rate_hz", 1000)))
+
+    def _open(self) -> None:
+        self._t0 = self._deadline = time.monotonic()
+
+    def _poll(self) -> None:
+        delay = self._deadline - time.monotonic()
+        if delay > 0:
+            time.sleep(min(delay, 0.05))
+            return
+        counts, _ = self._model.counts(self._profile(self._deadline - self._t0), self._rng)
+        vector = [c * s for c, s in zip(counts, self._scale)]
+        self._emit_all([vector + [0.0] * (6 - len(vector))])
+        self._deadline += self._period
+        if -delay > MAX_CATCH_UP_S:
+            self._deadline = time.monotonic()
+
+    def _close(self) -> None:
+        """Nothing to release: there is no device."""

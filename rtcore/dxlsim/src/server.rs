@@ -1,0 +1,354 @@
+//! The bus thread: reads the pty, decodes, lets the servos answer, writes replies on time, and
+//! keeps the physics up with the wall clock.
+//!
+//! One thread owns the pty and the schedule; the servos sit behind one mutex so Python can set
+//! a hand torque or read a horn's state at any time. The thread holds the lock only to step the
+//! physics and answer a packet, never while it waits for bytes.
+//!
+//! Timing (with `wire_delay`): a pty delivers bytes instantly, so the mock adds what a real
+//! bus takes. A reply's first byte may start when the instruction's last byte would have
+//! arrived (instruction length × 10 bits / baud after it was read) plus the servo's Return
+//! Delay Time; the reply is written when its own last byte would have arrived. Chained replies
+//! (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its servo's
+//! Return Delay Time. Without `wire_delay` replies go out at once.
+//!
+//! Physics runs at a fixed substep (default 2 kHz) up to the wall clock, both on every wait
+//! timeout (≤ 1 ms) and before a packet is answered, so reads see current positions. If the
+//! thread was starved for more than `MAX_CATCH_UP`, the lost time is skipped (and counted)
+//! rather than simulated in one burst that would starve it again.
+use std::collections::VecDeque;
+use std::io;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use dxl::{protocol1, protocol2, DecodeError, Kind, Packet, Protocol};
+
+use crate::bus::{Bus, Counters, Reply};
+use crate::pty::Pty;
+
+/// The longest the thread sleeps between physics catch-ups.
+const MAX_WAIT: Duration = Duration::from_millis(1);
+/// The most simulated time one catch-up may run; beyond it time is skipped.
+const MAX_CATCH_UP: Duration = Duration::from_millis(250);
+/// Replies beyond this many unsent bytes are dropped (a client that stopped reading).
+const MAX_PENDING_OUTPUT: usize = 64 * 1024;
+
+/// How the bus runs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BusConfig {
+    pub baudrate: u32,
+    pub wire_delay: bool,
+    pub physics_rate_hz: f64,
+}
+
+/// I/O and timing counters of the thread, next to the bus's own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IoCounters {
+    pub bytes_in: u64,
+    pub bytes_out: u64,
+    pub garbage_bytes: u64,
+    pub framing_errors: u64,
+    pub foreign_status_packets: u64,
+    pub dropped_reply_bytes: u64,
+    pub physics_steps: u64,
+    pub skipped_steps: u64,
+}
+
+/// The state the thread and Python share.
+pub struct Shared {
+    pub bus: Bus,
+    pub io: IoCounters,
+}
+
+/// What `stats()` reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stats {
+    pub bus: Counters,
+    pub io: IoCounters,
+}
+
+/// A simulated bus on a pty, running in its own thread between `start` and `stop`.
+pub struct MockBus {
+    pty: Arc<Pty>,
+    shared: Arc<Mutex<Shared>>,
+    config: BusConfig,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<io::Result<()>>>,
+}
+
+impl MockBus {
+    /// Opens the pty; the servos stay still until `start`.
+    pub fn new(bus: Bus, config: BusConfig) -> io::Result<MockBus> {
+        Ok(MockBus {
+            pty: Arc::new(Pty::open()?),
+            shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default() })),
+            config,
+            stop: Arc::new(AtomicBool::new(false)),
+            thread: None,
+        })
+    }
+
+    pub fn port_path(&self) -> &str {
+        self.pty.path()
+    }
+
+    pub fn is_running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+
+    /// Starts the bus thread (a no-op when it runs already).
+    pub fn start(&mut self) -> io::Result<()> {
+        if self.thread.is_some() {
+            return Ok(());
+        }
+        self.stop.store(false, Ordering::SeqCst);
+        let mut worker = Worker::new(self.pty.clone(), self.shared.clone(), self.config, self.stop.clone());
+        let handle = std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?;
+        self.thread = Some(handle);
+        Ok(())
+    }
+
+    /// Stops the thread and waits for it; returns the I/O error that ended it early, if any.
+    pub fn stop(&mut self) -> io::Result<()> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.thread.take() {
+            Some(handle) => handle.join().map_err(|_| io::Error::other("the bus thread panicked"))?,
+            None => Ok(()),
+        }
+    }
+
+    /// The servos, locked (the lock survives a panicked thread: the data stays consistent
+    /// because every mutation is a single call).
+    pub fn lock(&self) -> MutexGuard<'_, Shared> {
+        self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    pub fn stats(&self) -> Stats {
+        let shared = self.lock();
+        Stats { bus: shared.bus.counters, io: shared.io }
+    }
+}
+
+impl Drop for MockBus {
+    fn drop(&mut self) {
+        let _ = self.stop();
+    }
+}
+
+/// A packet decoder for the bus's protocol (the two decoders are different types).
+enum Decoder {
+    V1(protocol1::Decoder),
+    V2(protocol2::Decoder),
+}
+
+impl Decoder {
+    fn new(protocol: Protocol) -> Decoder {
+        match protocol {
+            Protocol::V1 => Decoder::V1(protocol1::Decoder::new(protocol1::Expect::Instruction)),
+            Protocol::V2 => Decoder::V2(protocol2::Decoder::new()),
+        }
+    }
+
+    fn push(&mut self, bytes: &[u8]) -> usize {
+        match self {
+            Decoder::V1(d) => d.push(bytes),
+            Decoder::V2(d) => d.push(bytes),
+        }
+    }
+
+    fn next(&mut self) -> Option<Result<Packet<'_>, DecodeError>> {
+        match self {
+            Decoder::V1(d) => d.next(),
+            Decoder::V2(d) => d.next(),
+        }
+    }
+
+    fn skipped_bytes(&self) -> u64 {
+        match self {
+            Decoder::V1(d) => d.skipped_bytes(),
+            Decoder::V2(d) => d.skipped_bytes(),
+        }
+    }
+}
+
+/// The thread's own state.
+struct Worker {
+    pty: Arc<Pty>,
+    shared: Arc<Mutex<Shared>>,
+    stop: Arc<AtomicBool>,
+    decoder: Decoder,
+    config: BusConfig,
+    step: Duration,
+    epoch: Instant,
+    steps_done: u64,
+    /// Replies waiting for their due time, in wire order.
+    schedule: VecDeque<(Instant, Vec<u8>)>,
+    /// Bytes the pty did not take yet.
+    output: VecDeque<u8>,
+    /// When the bus is free again (the last scheduled reply's end).
+    bus_free: Instant,
+}
+
+impl Worker {
+    fn new(pty: Arc<Pty>, shared: Arc<Mutex<Shared>>, config: BusConfig, stop: Arc<AtomicBool>) -> Worker {
+        let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
+        let now = Instant::now();
+        Worker {
+            pty,
+            shared,
+            stop,
+            decoder: Decoder::new(protocol),
+            config,
+            step: Duration::from_secs_f64(1.0 / config.physics_rate_hz),
+            epoch: now,
+            steps_done: 0,
+            schedule: VecDeque::new(),
+            output: VecDeque::new(),
+            bus_free: now,
+        }
+    }
+
+    fn run(&mut self) -> io::Result<()> {
+        let mut buf = [0u8; 4096];
+        while !self.stop.load(Ordering::SeqCst) {
+            self.advance_physics();
+            self.flush_due()?;
+            if self.pty.wait_readable(self.wait_time())? {
+                let n = self.pty.read(&mut buf)?;
+                self.receive(&buf[..n]);
+            }
+        }
+        Ok(())
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Shared> {
+        self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// Steps every servo up to the wall clock.
+    fn advance_physics(&mut self) {
+        let due = (self.epoch.elapsed().as_nanos() / self.step.as_nanos()) as u64;
+        let max_burst = (MAX_CATCH_UP.as_nanos() / self.step.as_nanos()) as u64;
+        let mut n = due.saturating_sub(self.steps_done);
+        let h = self.step.as_secs_f64();
+        let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+        if n > max_burst {
+            shared.io.skipped_steps += n - max_burst;
+            self.steps_done += n - max_burst;
+            n = max_burst;
+        }
+        for _ in 0..n {
+            shared.bus.step(h);
+        }
+        self.steps_done += n;
+        shared.io.physics_steps += n;
+        shared.bus.publish();
+    }
+
+    /// How long to wait for bytes: until the next reply is due, at most `MAX_WAIT`.
+    fn wait_time(&self) -> Duration {
+        let now = Instant::now();
+        let next_reply = self.schedule.front().map(|(due, _)| due.saturating_duration_since(now));
+        let wait = next_reply.map_or(MAX_WAIT, |d| d.min(MAX_WAIT));
+        if self.output.is_empty() { wait } else { wait.min(Duration::from_micros(100)) }
+    }
+
+    /// Time `n` bytes take on the wire: 10 bits per byte (start, 8 data, stop).
+    fn wire_time(&self, n: usize) -> Duration {
+        if self.config.wire_delay && self.config.baudrate > 0 {
+            Duration::from_secs_f64(n as f64 * 10.0 / self.config.baudrate as f64)
+        } else {
+            Duration::ZERO
+        }
+    }
+
+    fn receive(&mut self, mut bytes: &[u8]) {
+        let arrival = Instant::now();
+        self.lock().io.bytes_in += bytes.len() as u64;
+        while !bytes.is_empty() {
+            let taken = self.decoder.push(bytes);
+            bytes = &bytes[taken..];
+            self.drain_packets(arrival);
+        }
+        let skipped = self.decoder.skipped_bytes();
+        self.lock().io.garbage_bytes = skipped;
+    }
+
+    /// Answers every whole packet the decoder holds.
+    fn drain_packets(&mut self, arrival: Instant) {
+        self.advance_physics();
+        loop {
+            let answered = {
+                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+                let protocol = shared.bus.protocol();
+                match self.decoder.next() {
+                    None => return,
+                    Some(Ok(Packet { id, kind: Kind::Instruction(code), params })) => {
+                        Some((shared.bus.handle(id, code, params), packet_len(protocol, params.len())))
+                    }
+                    Some(Ok(Packet { kind: Kind::Status(_), .. })) => {
+                        shared.io.foreign_status_packets += 1;
+                        None
+                    }
+                    Some(Err(DecodeError::Crc { id, .. } | DecodeError::Checksum { id, .. })) => {
+                        Some((shared.bus.handle_corrupt(id), packet_len(protocol, 0)))
+                    }
+                    Some(Err(DecodeError::Length { .. })) => {
+                        shared.io.framing_errors += 1;
+                        None
+                    }
+                }
+            };
+            if let Some((replies, length)) = answered {
+                self.schedule_replies(arrival + self.wire_time(length), replies);
+            }
+        }
+    }
+
+    /// Queues replies back to back after `start`, each after its servo's Return Delay Time.
+    fn schedule_replies(&mut self, start: Instant, replies: Vec<Reply>) {
+        let mut t = start.max(self.bus_free);
+        for reply in replies.into_iter().filter(|r| !r.bytes.is_empty()) {
+            if self.config.wire_delay {
+                t += Duration::from_micros(reply.delay_us);
+            }
+            t += self.wire_time(reply.bytes.len());
+            self.schedule.push_back((t, reply.bytes));
+        }
+        self.bus_free = t;
+    }
+
+    /// Writes every reply whose time has come, then whatever the pty accepts.
+    fn flush_due(&mut self) -> io::Result<()> {
+        let now = Instant::now();
+        while self.schedule.front().is_some_and(|(due, _)| *due <= now) {
+            let Some((_, bytes)) = self.schedule.pop_front() else { break };
+            if self.output.len() + bytes.len() > MAX_PENDING_OUTPUT {
+                self.lock().io.dropped_reply_bytes += bytes.len() as u64;
+            } else {
+                self.output.extend(bytes);
+            }
+        }
+        while !self.output.is_empty() {
+            let (front, _) = self.output.as_slices();
+            let n = self.pty.write(front)?;
+            if n == 0 {
+                break;
+            }
+            self.output.drain(..n);
+            self.lock().io.bytes_out += n as u64;
+        }
+        Ok(())
+    }
+}
+
+/// The size of an instruction packet with `n_params` parameter bytes (unstuffed; the
+/// difference stuffing makes is a few bytes of wire time at most).
+fn packet_len(protocol: Protocol, n_params: usize) -> usize {
+    match protocol {
+        Protocol::V1 => protocol1::PREFIX_LEN + 2 + n_params,
+        Protocol::V2 => protocol2::PREFIX_LEN + 3 + n_params,
+    }
+}

@@ -1,0 +1,388 @@
+//! One simulated servo: its control table, its firmware and the horn's physics.
+//!
+//! Each physics substep the firmware reads its goal registers, computes a PWM duty
+//! (`firmware`), the motor turns it into torque (`motor`), and the rtcore plant integrates the
+//! horn with the fitted friction of that motor (`plant::step`, the same code the identification
+//! and the admittance loop use) plus the external torque a hand applies. `publish` then writes
+//! the present values back into the table, so a client's READ sees the simulated state.
+//!
+//! Hardware errors use the P2 Hardware Error Status bit layout (bit 0 input voltage, 2
+//! overheating, 3 encoder, 4 electrical shock, 5 overload). P1's error byte has voltage,
+//! overheating and overload at the same bit positions, so one value serves both protocols.
+use dxl::packet::Protocol;
+use plant::{FrictionLaw, Load, Params, State};
+
+use crate::firmware::{Gains, Mode, PositionController};
+use crate::motor::{clip_duty, Motor, MAX_PWM};
+use crate::registers::Registers;
+use crate::table::{ControlTable, TableError};
+use crate::units::*;
+
+/// Hardware Error Status bit: overheating.
+pub const HW_OVERHEATING: u8 = 0x04;
+/// The hardware bits P1's error byte can carry (voltage, overheating, overload).
+pub const P1_HARDWARE_BITS: u8 = 0x25;
+/// Moving threshold (rad/s) when the model has no Moving Threshold item: P2's default of
+/// 10 × 0.229 rpm.
+const DEFAULT_MOVING_THRESHOLD: f64 = 10.0 * P2_VELOCITY_UNIT;
+/// Thermal model: winding-to-ambient resistance (K/W) and heat capacity (J/K). Illustrative
+/// values giving a 300 s time constant and about a minute of stall to reach 80 °C from 25 °C.
+const THERMAL_RESISTANCE: f64 = 5.0;
+const HEAT_CAPACITY: f64 = 60.0;
+
+/// Everything that defines a simulated servo besides its control-table layout.
+#[derive(Clone, Debug)]
+pub struct ServoSpec {
+    pub id: u8,
+    pub model: String,
+    pub protocol: Protocol,
+    pub params: Params,
+    pub load: Load,
+    pub friction: FrictionLaw,
+    pub motor: Motor,
+    pub initial_theta: f64,
+    pub ambient_temperature: f64,
+}
+
+/// What Python's `servo_state` reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Snapshot {
+    pub theta: f64,
+    pub omega: f64,
+    pub goal_tick: i64,
+    pub present_tick: i64,
+    pub torque_enabled: bool,
+    pub duty: f64,
+    pub motor_torque: f64,
+    pub external_torque: f64,
+    pub temperature: f64,
+    pub hardware_error: u8,
+    pub time: f64,
+}
+
+pub struct Servo {
+    pub spec: ServoSpec,
+    pub table: ControlTable,
+    reg: Registers,
+    state: State,
+    controller: PositionController,
+    mode: Option<Mode>,
+    torque_was_on: bool,
+    external_torque: f64,
+    duty: f64,
+    motor_torque: f64,
+    current: f64,
+    temperature: f64,
+    hardware_error: u8,
+    time: f64,
+    /// A REG_WRITE waiting for ACTION: (address, data).
+    pub registered: Option<(u16, Vec<u8>)>,
+}
+
+impl Servo {
+    /// A servo at rest at `spec.initial_theta`, its table at the model's defaults with `spec.id`.
+    pub fn new(spec: ServoSpec, mut table: ControlTable) -> Servo {
+        let reg = Registers::resolve(&table);
+        if let Some(k) = reg.id {
+            table.store(k, spec.id as i64);
+        }
+        let state = State { theta: spec.initial_theta, omega: 0.0 };
+        let temperature = spec.ambient_temperature;
+        let mut servo = Servo {
+            spec,
+            table,
+            reg,
+            state,
+            controller: PositionController::default(),
+            mode: None,
+            torque_was_on: false,
+            external_torque: 0.0,
+            duty: 0.0,
+            motor_torque: 0.0,
+            current: 0.0,
+            temperature,
+            hardware_error: 0,
+            time: 0.0,
+            registered: None,
+        };
+        servo.publish();
+        servo.hold_present_position();
+        servo
+    }
+
+    /// Goal Position := Present Position, as a servo does at power-up and after a reboot, so
+    /// enabling torque holds the horn where it is.
+    fn hold_present_position(&mut self) {
+        if let (Some(goal), Some(present)) = (self.reg.goal_position, self.reg.present_position) {
+            let tick = self.table.value(present);
+            self.table.store(goal, tick);
+        }
+    }
+
+    /// The ID the servo answers to now (a client may have rewritten it).
+    pub fn id(&self) -> u8 {
+        self.reg.id.map_or(self.spec.id, |k| self.table.value(k) as u8)
+    }
+
+    pub fn protocol(&self) -> Protocol {
+        self.spec.protocol
+    }
+
+    /// 0 = reply to PING only, 1 = PING and READ, 2 = everything.
+    pub fn status_return_level(&self) -> i64 {
+        self.reg.status_return_level.map_or(2, |k| self.table.value(k))
+    }
+
+    /// Return Delay Time in µs (the register counts 2 µs units).
+    pub fn return_delay_us(&self) -> u64 {
+        self.reg.return_delay_time.map_or(0, |k| 2 * self.table.value(k).max(0) as u64)
+    }
+
+    pub fn model_number(&self) -> u16 {
+        self.reg.model_number.map_or(0, |k| self.table.value(k) as u16)
+    }
+
+    pub fn firmware_version(&self) -> u8 {
+        self.reg.firmware_version.map_or(0, |k| self.table.value(k) as u8)
+    }
+
+    pub fn hardware_error(&self) -> u8 {
+        self.hardware_error
+    }
+
+    fn torque_enabled(&self) -> bool {
+        self.reg.torque_enable.is_some_and(|k| self.table.value(k) != 0)
+    }
+
+    /// A client write, with the table's rules; P2 locks EEPROM while torque is on.
+    pub fn write(&mut self, address: u16, data: &[u8]) -> Result<(), TableError> {
+        let locked = self.spec.protocol == Protocol::V2 && self.torque_enabled();
+        self.table.write(address, data, locked)
+    }
+
+    pub fn set_external_torque(&mut self, tau: f64) {
+        self.external_torque = tau;
+    }
+
+    /// Raises hardware error bits (P2 layout); a bit in the Shutdown mask turns torque off.
+    pub fn set_hardware_error(&mut self, bits: u8) {
+        self.hardware_error = bits;
+        self.enforce_shutdown();
+        self.publish();
+    }
+
+    /// REBOOT: RAM back to defaults (torque off), hardware errors cleared, EEPROM and the
+    /// horn's physical state kept.
+    pub fn reboot(&mut self) {
+        self.table.reload_ram();
+        self.hardware_error = 0;
+        self.registered = None;
+        self.publish();
+        self.hold_present_position();
+    }
+
+    /// Advances the horn by one substep of `h` seconds.
+    pub fn step(&mut self, h: f64) {
+        self.update_thermal_alarm();
+        self.enforce_shutdown();
+        let duty = if self.torque_enabled() { self.firmware_duty(h) } else { 0.0 };
+        let omega = self.state.omega;
+        self.duty = duty;
+        // An open H-bridge carries no current: no torque and no back-EMF braking.
+        let (torque, current) = if self.torque_enabled() {
+            (self.spec.motor.torque(duty, omega), self.spec.motor.current(duty, omega))
+        } else {
+            (0.0, 0.0)
+        };
+        self.motor_torque = torque;
+        self.current = current;
+        let tau = torque + self.external_torque;
+        plant::step(&mut self.state, &self.spec.params, &self.spec.load, self.spec.friction, tau, self.time, h);
+        self.heat(h);
+        self.time += h;
+    }
+
+    /// The duty the firmware applies this substep, clipped to its limit.
+    fn firmware_duty(&mut self, h: f64) -> f64 {
+        let mode = self.mode();
+        let theta = self.state.theta;
+        if !self.torque_was_on || self.mode != Some(mode) {
+            self.controller.reset(theta);
+            self.mode = Some(mode);
+        }
+        self.torque_was_on = true;
+        let limit = self.duty_limit();
+        let raw = match mode {
+            Mode::Position => {
+                let gains = self.gains();
+                let goal = self.position_goal();
+                let rate = self.profile_rate();
+                self.controller.duty(goal, rate, theta, gains, limit, h)
+            }
+            Mode::Velocity => self.velocity_duty(),
+            Mode::Pwm => self.value(self.reg.goal_pwm) as f64 / P2_PWM_FULL,
+            Mode::Current => {
+                let amps = self.value(self.reg.goal_current) as f64 * P2_CURRENT_UNIT;
+                self.spec.motor.duty_for_current(amps, self.state.omega)
+            }
+            Mode::Wheel => from_sign_magnitude(self.value(self.reg.goal_velocity)) / P1_MAGNITUDE_MAX as f64,
+        };
+        clip_duty(raw, limit)
+    }
+
+    fn value(&self, index: Option<usize>) -> i64 {
+        index.map_or(0, |k| self.table.value(k))
+    }
+
+    fn mode(&self) -> Mode {
+        match self.spec.protocol {
+            Protocol::V2 => Mode::from_p2(self.reg.operating_mode.map_or(3, |k| self.table.value(k))),
+            Protocol::V1 => {
+                let wheel = self.value(self.reg.cw_angle_limit) == 0 && self.value(self.reg.ccw_angle_limit) == 0;
+                if wheel && self.reg.cw_angle_limit.is_some() {
+                    Mode::Wheel
+                } else {
+                    Mode::Position
+                }
+            }
+        }
+    }
+
+    fn gains(&self) -> Gains {
+        let (p, i, d) = (self.value(self.reg.p_gain), self.value(self.reg.i_gain), self.value(self.reg.d_gain));
+        match self.spec.protocol {
+            Protocol::V1 => Gains::from_p1(p, i, d),
+            Protocol::V2 => Gains::from_p2(p, i, d),
+        }
+    }
+
+    /// Goal Position in rad, clamped to the position limits in single-turn position mode.
+    fn position_goal(&self) -> f64 {
+        let goal = self.value(self.reg.goal_position);
+        let limits = match self.spec.protocol {
+            Protocol::V2 if self.reg.operating_mode.map_or(3, |k| self.table.value(k)) == 3 => {
+                (self.reg.min_position_limit, self.reg.max_position_limit)
+            }
+            Protocol::V1 if !self.multi_turn_p1() => (self.reg.cw_angle_limit, self.reg.ccw_angle_limit),
+            _ => (None, None),
+        };
+        let goal = match limits {
+            (Some(lo), Some(hi)) => goal.clamp(self.table.value(lo), self.table.value(hi).max(self.table.value(lo))),
+            _ => goal,
+        };
+        tick_to_rad(goal)
+    }
+
+    fn multi_turn_p1(&self) -> bool {
+        self.value(self.reg.cw_angle_limit) == 4095 && self.value(self.reg.ccw_angle_limit) == 4095
+    }
+
+    /// The setpoint's speed limit in rad/s (None = unlimited).
+    fn profile_rate(&self) -> Option<f64> {
+        let rate = match self.spec.protocol {
+            Protocol::V2 => self.value(self.reg.profile_velocity) as f64 * P2_VELOCITY_UNIT,
+            Protocol::V1 => self.value(self.reg.goal_velocity) as f64 * P1_SPEED_UNIT,
+        };
+        (rate > 0.0).then_some(rate)
+    }
+
+    fn velocity_duty(&self) -> f64 {
+        let goal = self.value(self.reg.goal_velocity) as f64 * P2_VELOCITY_UNIT;
+        let kp = self.value(self.reg.velocity_p_gain) as f64 / 128.0;
+        8.0 * crate::motor::ERROR_GAIN * kp * (goal - self.state.omega)
+    }
+
+    /// BAM's duty cap, scaled down by P2 PWM Limit or P1 Torque Limit.
+    fn duty_limit(&self) -> f64 {
+        let fraction = match (self.reg.pwm_limit, self.reg.torque_limit) {
+            (Some(k), _) => self.table.value(k) as f64 / P2_PWM_FULL,
+            (None, Some(k)) => self.table.value(k) as f64 / P1_MAGNITUDE_MAX as f64,
+            (None, None) => 1.0,
+        };
+        MAX_PWM * fraction.clamp(0.0, 1.0)
+    }
+
+    fn heat(&mut self, h: f64) {
+        let loss = self.current * self.current * self.spec.motor.resistance;
+        let cooling = (self.temperature - self.spec.ambient_temperature) / THERMAL_RESISTANCE;
+        self.temperature += h * (loss - cooling) / HEAT_CAPACITY;
+    }
+
+    fn update_thermal_alarm(&mut self) {
+        if let Some(k) = self.reg.temperature_limit {
+            if self.temperature > self.table.value(k) as f64 {
+                self.hardware_error |= HW_OVERHEATING;
+            }
+        }
+    }
+
+    /// A hardware error in the Shutdown mask keeps torque off until a reboot (P2) or until the
+    /// error is cleared (P1, which has no reboot).
+    fn enforce_shutdown(&mut self) {
+        let mask = self.reg.shutdown.map_or(0, |k| self.table.value(k)) as u8;
+        if self.hardware_error & mask != 0 {
+            if let Some(k) = self.reg.torque_enable {
+                self.table.store(k, 0);
+            }
+        }
+        if !self.torque_enabled() {
+            self.torque_was_on = false;
+        }
+    }
+
+    /// Writes the simulated state into the present-value items.
+    pub fn publish(&mut self) {
+        let (theta, omega) = (self.state.theta, self.state.omega);
+        let p1 = self.spec.protocol == Protocol::V1;
+        let tick = rad_to_tick(theta);
+        let load = self.motor_torque / self.spec.motor.stall_torque() * PER_MILLE;
+        let values = [
+            (self.reg.present_position, if p1 { tick.rem_euclid(4096) } else { tick }),
+            (
+                self.reg.present_velocity,
+                if p1 { sign_magnitude(omega / P1_SPEED_UNIT) } else { (omega / P2_VELOCITY_UNIT).round() as i64 },
+            ),
+            (self.reg.present_load, if p1 { sign_magnitude(load) } else { load.round() as i64 }),
+            (
+                self.reg.present_current,
+                if p1 {
+                    2048 + (self.current / P1_CURRENT_UNIT).round() as i64
+                } else {
+                    (self.current / P2_CURRENT_UNIT).round() as i64
+                },
+            ),
+            (self.reg.present_pwm, (self.duty * P2_PWM_FULL).round() as i64),
+            (self.reg.present_voltage, (self.spec.motor.vin * 10.0).round() as i64),
+            (self.reg.present_temperature, self.temperature.round() as i64),
+            (self.reg.moving, (omega.abs() > self.moving_threshold()) as i64),
+            (self.reg.realtime_tick, ((self.time * 1000.0) as i64).rem_euclid(32768)),
+            (self.reg.hardware_error, self.hardware_error as i64),
+            (self.reg.registered, self.registered.is_some() as i64),
+        ];
+        for (index, value) in values {
+            if let Some(k) = index {
+                self.table.store(k, value);
+            }
+        }
+    }
+
+    fn moving_threshold(&self) -> f64 {
+        self.reg.moving_threshold.map_or(DEFAULT_MOVING_THRESHOLD, |k| self.table.value(k) as f64 * P2_VELOCITY_UNIT)
+    }
+
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            theta: self.state.theta,
+            omega: self.state.omega,
+            goal_tick: self.value(self.reg.goal_position),
+            present_tick: self.value(self.reg.present_position),
+            torque_enabled: self.torque_enabled(),
+            duty: self.duty,
+            motor_torque: self.motor_torque,
+            external_torque: self.external_torque,
+            temperature: self.temperature,
+            hardware_error: self.hardware_error,
+            time: self.time,
+        }
+    }
+}

@@ -1,0 +1,47 @@
+//! One substep of the pendulum plant (Contract 1).
+//!
+//! `step` takes the applied torque as a number: the trial simulator (`crate::trial`)
+//! interpolates and delays it, the mock bus passes its motor + hand torque directly. The
+//! torque-measurement corrections (bias, drift·t) are applied here so every caller that uses
+//! them gets the same definition; callers without a measured torque leave them at 0.
+use crate::friction::{self, FrictionLaw};
+use crate::params::Params;
+
+/// What hangs on the joint: its inertia about the axis and its gravity torque amplitude m·g·l.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Load {
+    pub inertia: f64,
+    pub gravity_torque: f64,
+}
+
+/// Joint angle θ (rad, 0 = hanging down) and velocity ω (rad/s).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct State {
+    pub theta: f64,
+    pub omega: f64,
+}
+
+/// Advances `state` by one semi-implicit Euler substep of length `h` (velocity first, then
+/// position with the new velocity), under applied torque `tau` at time `t` (the time only
+/// enters through `torque_drift`). Damping and quadratic drag act at the new velocity
+/// (`friction::advance_velocity`), everything else at the start of the substep.
+///
+/// Expects validated parameters (`Params::validate`) and `h > 0`; it does not check them
+/// because it runs millions of times per identification.
+#[inline]
+pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
+    let inertia = p.motor_inertia + load.inertia;
+    let tau_corrected = tau - p.torque_bias - p.torque_drift * t;
+    let gravity = load.gravity_torque * (state.theta - p.angle_offset).sin();
+    let cogging = if p.cogging_amplitude != 0.0 {
+        p.cogging_amplitude * (p.cogging_period * state.theta + p.cogging_phase).sin()
+    } else {
+        0.0
+    };
+    let omega = state.omega;
+    let dissipation = p.damping + p.quadratic_drag * omega.abs();
+    let drive = tau_corrected - gravity - cogging;
+    let level = friction::level(p, omega, drive, gravity - tau_corrected);
+    state.omega = friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
+    state.theta += h * state.omega;
+}

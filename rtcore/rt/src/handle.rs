@@ -1,0 +1,348 @@
+//! A loop seen from outside: build it from a configuration, start it, steer it, stop it.
+//!
+//! Every method takes `&self` and is safe to call from any (non-RT) thread: the parts the RT
+//! thread owns were moved into it at `start`; what is left here are the producer ends (force
+//! ring behind a mutex only Python threads take, the triple buffer's input), the telemetry
+//! consumer and the shared atomics.
+//!
+//! `start` reads every servo's present position first (bumpless start), then spawns the thread
+//! and waits until it has applied its real-time settings, so `stats()["rt"]` and `warnings()`
+//! are already meaningful when `start` returns. A failed start gives the controller back, so
+//! `start` may be retried.
+use crate::bus::{BusError, JointBus, Transport};
+use crate::clock::{monotonic_ns, MonotonicClock};
+use crate::config::LoopConfig;
+use crate::cycle::{Controller, ControllerParts};
+use crate::params::{LoopParams, ParamValue};
+use crate::port::SerialTransport;
+use crate::sched;
+use crate::sensor::ForceSample;
+use crate::shared::Shared;
+use crate::telemetry::{Record, StatsSnapshot};
+use std::fmt;
+use std::sync::atomic::Ordering;
+use std::sync::{mpsc, Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// What `stop` does to the servos.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopPolicy {
+    /// The last goal stays: the servos hold where the model was.
+    Hold,
+    /// Torque Enable = 0 on every joint (one SyncWrite).
+    TorqueOff,
+}
+
+#[derive(Debug)]
+pub enum StartError {
+    AlreadyStarted,
+    /// The serial device could not be opened.
+    Port(String),
+    /// The servos did not report their present positions.
+    NoAnswer(String),
+    Thread(String),
+}
+
+impl fmt::Display for StartError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            StartError::AlreadyStarted => write!(f, "the loop was already started; build a new one to run again"),
+            StartError::Port(e) | StartError::NoAnswer(e) | StartError::Thread(e) => f.write_str(e),
+        }
+    }
+}
+
+impl std::error::Error for StartError {}
+
+/// The force-sample producer handed to sensor readers.
+#[derive(Clone)]
+pub struct ForceSink(Arc<Mutex<rtrb::Producer<ForceSample>>>);
+
+impl ForceSink {
+    /// False when the ring is full (the sample is dropped).
+    pub fn push(&self, sample: ForceSample) -> bool {
+        self.0.lock().map(|mut p| p.push(sample).is_ok()).unwrap_or(false)
+    }
+}
+
+struct ParamsWriter {
+    input: triple_buffer::Input<LoopParams>,
+    current: LoopParams,
+}
+
+type Running = JoinHandle<(Controller, Box<dyn Transport>)>;
+
+pub struct LoopHandle {
+    config: LoopConfig,
+    ids: Vec<u8>,
+    shared: Arc<Shared>,
+    params: Mutex<ParamsWriter>,
+    sink: ForceSink,
+    telemetry: Mutex<rtrb::Consumer<Record>>,
+    idle: Mutex<Option<Controller>>,
+    thread: Mutex<Option<Running>>,
+}
+
+impl LoopHandle {
+    /// Validates the configuration and builds every buffer the loop will use.
+    pub fn new(config: LoopConfig) -> Result<LoopHandle, String> {
+        config.validate()?;
+        let shared = Arc::new(Shared::default());
+        let initial = config.initial_params();
+        let (force_tx, force_rx) = rtrb::RingBuffer::new(config.force_capacity);
+        let (telemetry_tx, telemetry_rx) = rtrb::RingBuffer::new(config.telemetry_capacity);
+        let (params_in, params_out) = triple_buffer::triple_buffer(&initial);
+        let ids = config.ids();
+        let controller = Controller::new(ControllerParts {
+            rate_hz: config.rate_hz,
+            joints: config.wiring(),
+            initial: initial.clone(),
+            bus: JointBus::new(config.protocol, config.registers(), &ids),
+            sync_read_divisor: config.sync_read_divisor,
+            force_ring: force_rx,
+            params: params_out,
+            telemetry: telemetry_tx,
+            shared: shared.clone(),
+        });
+        Ok(LoopHandle {
+            ids,
+            shared,
+            params: Mutex::new(ParamsWriter { input: params_in, current: initial }),
+            sink: ForceSink(Arc::new(Mutex::new(force_tx))),
+            telemetry: Mutex::new(telemetry_rx),
+            idle: Mutex::new(Some(controller)),
+            thread: Mutex::new(None),
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &LoopConfig {
+        &self.config
+    }
+
+    /// Opens the configured serial port and starts the loop on it.
+    pub fn start(&self) -> Result<(), StartError> {
+        if self.running() {
+            return Err(StartError::AlreadyStarted);
+        }
+        let (transport, warnings) = SerialTransport::open(&self.config.port, self.config.baudrate)
+            .map_err(|e| StartError::Port(format!("cannot open the Dynamixel bus: {e}")))?;
+        warnings.into_iter().for_each(|w| self.shared.warn(w));
+        self.start_with(Box::new(transport))
+    }
+
+    /// Starts the loop on any transport (the tests' in-memory bus, a serial port).
+    pub fn start_with(&self, mut transport: Box<dyn Transport>) -> Result<(), StartError> {
+        let mut idle = self.idle.lock().map_err(|_| StartError::Thread("loop state poisoned".into()))?;
+        let mut controller = idle.take().ok_or(StartError::AlreadyStarted)?;
+        let deadline = monotonic_ns() + (self.config.start_timeout_ms * 1e6) as u64;
+        if let Err(e) = controller.start_at_present(transport.as_mut(), deadline) {
+            *idle = Some(controller);
+            return Err(StartError::NoAnswer(self.no_answer_message(&e)));
+        }
+        let (ready_tx, ready_rx) = mpsc::channel();
+        let shared = self.shared.clone();
+        let request = self.config.rt;
+        let spawned = std::thread::Builder::new()
+            .name("admittance-rt".into())
+            .spawn(move || rt_thread(controller, transport, shared, request, ready_tx));
+        let handle = spawned.map_err(|e| StartError::Thread(format!("cannot spawn the loop thread: {e}")))?;
+        ready_rx
+            .recv_timeout(Duration::from_secs(5))
+            .map_err(|_| StartError::Thread("the loop thread did not come up within 5 s".into()))?;
+        *self.thread.lock().map_err(|_| StartError::Thread("loop state poisoned".into()))? = Some(handle);
+        Ok(())
+    }
+
+    fn no_answer_message(&self, e: &BusError) -> String {
+        format!(
+            "no present position from servo id(s) {:?} on '{}' within {} ms ({e}); check power, \
+             IDs, baud rate ({}) and protocol ({})",
+            self.ids,
+            self.config.port,
+            self.config.start_timeout_ms,
+            self.config.baudrate,
+            self.config.protocol.number()
+        )
+    }
+
+    /// Stops the loop and applies `policy`; a no-op when it is not running.
+    pub fn stop(&self, policy: StopPolicy) -> Result<(), String> {
+        let handle = self.thread.lock().map_err(|_| "loop state poisoned".to_string())?.take();
+        let Some(handle) = handle else { return Ok(()) };
+        self.shared.stop.store(true, Ordering::Relaxed);
+        let (mut controller, mut transport) = handle.join().map_err(|_| "the loop thread panicked".to_string())?;
+        if self.shared.stats.rt.lock().map(|r| r.memory_locked).unwrap_or(false) {
+            sched::release_memory_lock();
+        }
+        match policy {
+            StopPolicy::Hold => Ok(()),
+            StopPolicy::TorqueOff => controller
+                .torque_off(transport.as_mut())
+                .map_err(|e| format!("torque off failed on '{}': {e}", self.config.port)),
+        }
+    }
+
+    pub fn force_sink(&self) -> ForceSink {
+        self.sink.clone()
+    }
+
+    /// Validates `changes` as a whole against the current set; publishes all of them or none.
+    pub fn set_params(&self, changes: &[(String, ParamValue)]) -> Result<(), String> {
+        let mut writer = self.params.lock().map_err(|_| "parameter state poisoned".to_string())?;
+        let mut candidate = writer.current.clone();
+        for (name, value) in changes {
+            candidate.set(&self.ids, name, *value)?;
+        }
+        candidate.validate(&self.ids, self.config.rate_hz)?;
+        writer.input.write(candidate.clone());
+        writer.current = candidate;
+        Ok(())
+    }
+
+    /// The accepted parameters (the gains' ramp targets), with the bias the loop uses now.
+    pub fn params(&self) -> LoopParams {
+        let mut p = self.params.lock().map(|w| w.current.clone()).unwrap_or_else(|e| e.into_inner().current.clone());
+        p.bias = self.shared.bias();
+        p
+    }
+
+    pub fn ids(&self) -> &[u8] {
+        &self.ids
+    }
+
+    /// Asks the loop to average the next `samples` force samples into the bias.
+    pub fn tare(&self, samples: u32) {
+        self.shared.tare_request.store(samples.max(1), Ordering::Relaxed);
+    }
+
+    /// Moves every queued telemetry record into `out`.
+    pub fn drain_telemetry(&self, out: &mut Vec<Record>) {
+        if let Ok(mut rx) = self.telemetry.lock() {
+            out.reserve(rx.slots());
+            while let Ok(r) = rx.pop() {
+                out.push(r);
+            }
+        }
+    }
+
+    pub fn stats(&self) -> StatsSnapshot {
+        self.shared.stats.snapshot(self.config.rate_hz)
+    }
+
+    pub fn warnings(&self) -> Vec<String> {
+        self.shared.warnings()
+    }
+
+    /// Cycles so far: a watchdog checks that it advances.
+    pub fn heartbeat(&self) -> u64 {
+        self.shared.stats.cycles.load(Ordering::Relaxed)
+    }
+
+    pub fn running(&self) -> bool {
+        self.shared.running.load(Ordering::Relaxed)
+    }
+}
+
+impl Drop for LoopHandle {
+    fn drop(&mut self) {
+        let _ = self.stop(StopPolicy::Hold);
+    }
+}
+
+fn rt_thread(
+    mut controller: Controller,
+    mut transport: Box<dyn Transport>,
+    shared: Arc<Shared>,
+    request: sched::RtRequest,
+    ready: mpsc::Sender<()>,
+) -> (Controller, Box<dyn Transport>) {
+    sched::prefault_stack();
+    let (report, warnings) = sched::apply_to_current_thread(&request);
+    warnings.into_iter().for_each(|w| shared.warn(w));
+    if let Ok(mut rt) = shared.stats.rt.lock() {
+        *rt = report;
+    }
+    shared.running.store(true, Ordering::Relaxed);
+    let _ = ready.send(());
+    crate::runner::run(&mut controller, transport.as_mut(), &mut MonotonicClock, &shared, || true);
+    shared.running.store(false, Ordering::Relaxed);
+    (controller, transport)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::memory::MemoryTransport;
+    use crate::config::JointConfig;
+    use crate::sched::{Policy, RtRequest};
+    use dxl::Protocol;
+
+    fn handle(ids: &[u8]) -> LoopHandle {
+        let config = LoopConfig {
+            port: "memory".into(),
+            joints: ids.iter().map(|&id| JointConfig::new(id, Protocol::V2)).collect(),
+            rt: RtRequest { policy: Policy::Other, priority: 0, lock_memory: false, cpu: None },
+            ..Default::default()
+        };
+        LoopHandle::new(config).unwrap()
+    }
+
+    #[test]
+    fn a_set_with_one_bad_value_changes_nothing() {
+        let h = handle(&[1, 2]);
+        let before = h.params();
+        let changes = [
+            ("1.virtual_damping".to_string(), ParamValue::Scalar(0.2)),
+            ("deadband".to_string(), ParamValue::Scalar(1.0)),
+            ("2.virtual_inertia".to_string(), ParamValue::Scalar(-1.0)),
+        ];
+        let reason = h.set_params(&changes).unwrap_err();
+        assert!(reason.contains("joint 2") && reason.contains("inertia"), "{reason}");
+        assert_eq!(h.params(), before);
+        let unstable = [("virtual_damping".to_string(), ParamValue::Scalar(50.0))];
+        assert!(h.set_params(&unstable).unwrap_err().contains("h·B/I"));
+        assert_eq!(h.params(), before);
+        h.set_params(&changes[..2]).unwrap();
+        let after = h.params();
+        assert_eq!(after.joints[0].gains.damping, 0.2);
+        assert_eq!(after.joints[1].gains.damping, before.joints[1].gains.damping);
+        assert_eq!(after.sensor.deadband, 1.0);
+    }
+
+    #[test]
+    fn a_started_loop_runs_reports_and_turns_torque_off_at_stop() {
+        let h = handle(&[1]);
+        let bus = MemoryTransport::new(true, &[(1, 2048)]);
+        h.start_with(Box::new(bus.clone())).unwrap();
+        assert!(h.running());
+        assert!(matches!(h.start_with(Box::new(bus.clone())), Err(StartError::AlreadyStarted)));
+        let sink = h.force_sink();
+        while h.heartbeat() < 20 {
+            sink.push(ForceSample { t_ns: monotonic_ns(), forces: [1.0, 0.0, 0.0, 0.0, 0.0, 0.0] });
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        h.stop(StopPolicy::TorqueOff).unwrap();
+        assert!(!h.running());
+        let stats = h.stats();
+        assert!(stats.cycles >= 20 && stats.sensor_samples > 0);
+        assert_eq!(stats.rt.policy, "SCHED_OTHER");
+        let mut records = Vec::new();
+        h.drain_telemetry(&mut records);
+        assert_eq!(records.len() as u64, stats.cycles);
+        let last = bus.written().pop().unwrap();
+        assert_eq!(&last[8..12], &[64, 0, 1, 0], "SyncWrite of Torque Enable (address 64, 1 byte)");
+    }
+
+    #[test]
+    fn a_silent_bus_fails_the_start_and_the_start_can_be_retried() {
+        let h = handle(&[1, 2]);
+        let silent = MemoryTransport::new(true, &[(1, 2048)]);
+        let e = h.start_with(Box::new(silent)).unwrap_err().to_string();
+        assert!(e.contains("[1, 2]") && e.contains("did not answer"), "{e}");
+        assert!(!h.running());
+        h.start_with(Box::new(MemoryTransport::new(true, &[(1, 2048), (2, 10)]))).unwrap();
+        h.stop(StopPolicy::Hold).unwrap();
+    }
+}

@@ -1,0 +1,267 @@
+"""The supervisor's start order, undo on failure, stop on signal or duration, and its outputs,
+with fakes standing in for the bench, the servos, the sensor, the RT loop and Zenoh."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import tomli_w
+
+from admittance.daemon import config
+from admittance.daemon.messages import STATS_KEYS
+from admittance.daemon.supervisor import Backends, GatedSink, RunOptions, Supervisor
+from admittance.errors import DeviceError
+
+REPO = Path(__file__).resolve().parents[1]
+RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns") else "<f8" if name in
+                          ("force", "torque", "theta", "omega") else "<i8")
+                         for name in ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
+                                      "present_tick", "period_error_ns", "latency_ns")])
+PCT = {"p50": 1.0, "p99": 2.0, "p999": 3.0, "max": 4.0}
+
+
+class FakeLoop:
+    def __init__(self, events, ids):
+        self.events, self.ids = events, ids
+        self.cycle = 0
+        self.stopped_with = None
+        self.samples = []
+        self.values = {"1.virtual_damping": 0.05}
+
+    def force_sink(self):
+        return SimpleNamespace(push=lambda t, f: self.samples.append((t, f)) or True)
+
+    def start(self):
+        self.events.append("loop.start")
+
+    def drain_telemetry(self):
+        n = 10
+        rec = np.zeros(n * len(self.ids), RECORD_DTYPE)
+        for k in range(n):
+            self.cycle += 1
+            for j, jid in enumerate(self.ids):
+                r = rec[k * len(self.ids) + j]
+                r["cycle"], r["t_ns"], r["id"] = self.cycle, 10**9 + self.cycle * 10**6, jid
+                r["torque"], r["theta"], r["goal_tick"] = 0.1, 0.001 * self.cycle, 2048 + self.cycle
+                r["present_tick"] = 2048 + self.cycle if self.cycle % 5 == 0 else -1
+        return rec
+
+    def stats(self):
+        return {"cycles": self.cycle, "overruns": 0, "rate_hz": 1000.0, "period_us": PCT, "latency_us": PCT,
+                "bus_errors": 0, "sensor_samples": len(self.samples), "sensor_stale_events": 0,
+                "rt": {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False}}
+
+    def warnings(self):
+        return ["SCHED_FIFO refused"]
+
+    def heartbeat(self):
+        return self.cycle
+
+    def params(self):
+        return dict(self.values)
+
+    def set_params(self, request):
+        self.values.update(request)
+        return True, ""
+
+    def stop(self, torque_policy="hold"):
+        self.events.append(f"loop.stop:{torque_policy}")
+        self.stopped_with = torque_policy
+
+
+class FakeSensor:
+    def __init__(self, events, sink, tare_ok=True):
+        self.events, self.sink, self.tare_ok = events, sink, tare_ok
+        self.error = None
+
+    def start(self):
+        self.events.append("sensor.start")
+        self.sink.push(1, [0.0] * 6)  # before the loop runs: must not reach it
+
+    def tare(self, n, timeout):
+        self.events.append(f"sensor.tare:{n}")
+        return SimpleNamespace(accepted=self.tare_ok, reason="the sensor is not still")
+
+    def stop(self):
+        self.events.append("sensor.stop")
+
+    def stats(self):
+        return {"kind": "fake"}
+
+
+class FakeNotifier:
+    def __init__(self, events):
+        self.events = events
+        self.enabled = False
+        self.watchdog_usec = 0
+
+    def status(self, text):
+        return True
+
+    def ready(self, status=""):
+        self.events.append("READY")
+        return True
+
+    def stopping(self, status=""):
+        self.events.append("STOPPING")
+        return True
+
+    def send(self, *lines):
+        return True
+
+
+class Harness:
+    def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None):
+        doc = {"bus": {"port": "/dev/fake"},
+               "joints": [{"id": 1, "model": "MX-64"}, {"id": 2, "model": "MX-28"}],
+               "sensor": {"kind": "optoforce", "port": "/dev/fakesensor", "lever_arm": 0.1},
+               "stop": {"torque_policy": policy}}
+        if record:
+            doc["record"] = {"path": record}
+        path = tmp_path / "daemon.toml"
+        path.write_text(tomli_w.dumps(doc))
+        self.cfg = config.load_config(path)
+        self.events: list[str] = []
+        self.fail_at = fail_at
+        self.tare_ok = tare_ok
+        self.loop = None
+        self.published = []
+        self.logs = []
+
+        @contextlib.contextmanager
+        def bench(cfg):
+            self.events.append("bench")
+            self._maybe_fail("bench")
+            try:
+                yield "/dev/fake", "/dev/fakesensor"
+            finally:
+                self.events.append("bench.stop")
+
+        def check(cfg, port):
+            self.events.append("servos")
+            self._maybe_fail("servos")
+            return ["latency timer is 16 ms"]
+
+        def make_loop(cfg, port):
+            self._maybe_fail("loop")
+            self.loop = FakeLoop(self.events, [j.id for j in cfg.joints])
+            return self.loop
+
+        def make_sensor(cfg, port, sink):
+            self._maybe_fail("sensor")
+            return FakeSensor(self.events, sink, self.tare_ok)
+
+        def make_interface(zcfg, codec, get, set_):
+            self.events.append("zenoh")
+            self._maybe_fail("zenoh")
+            return SimpleNamespace(publish_state=self.published.append, publish_stats=self.published.append,
+                                   poll=lambda: 0, close=lambda: self.events.append("zenoh.close"), queries=0)
+
+        self.backends = Backends(start_bench=bench, check_servos=check,
+                                 release_servos=lambda cfg, port: self.events.append("release"),
+                                 make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface)
+        self.stats_path = tmp_path / "stats.json"
+        options = RunOptions(duration=stop_after, stats_json=self.stats_path, log=self.logs.append)
+        self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
+
+    def _maybe_fail(self, step):
+        if self.fail_at == step:
+            raise DeviceError(f"{step} failed")
+
+
+def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
+    h = Harness(tmp_path, stop_after=0.2)
+    assert h.supervisor.run() == 0
+    start = h.events[: h.events.index("READY") + 1]
+    assert start == ["bench", "servos", "sensor.start", "sensor.tare:100", "loop.start", "zenoh", "READY"]
+    assert h.events[-5:] == ["STOPPING", "loop.stop:hold", "zenoh.close", "sensor.stop", "bench.stop"]
+    stats = json.loads(h.stats_path.read_text())
+    assert set(STATS_KEYS) <= set(stats) and "daemon" in stats
+    assert any("latency timer" in line for line in h.logs) and any("SCHED_FIFO" in line for line in h.logs)
+    assert h.published, "state and stats are published while running"
+
+
+def test_the_gate_keeps_pre_tare_samples_from_the_loop(tmp_path):
+    h = Harness(tmp_path, stop_after=0.05)
+    h.supervisor.run()
+    assert h.loop.samples == []  # the sample pushed at sensor start was dropped by the gate
+    target = []
+    gate = GatedSink(SimpleNamespace(push=lambda t, f: target.append(t) or True))
+    assert gate.push(1, [0] * 6) and gate.dropped_before_open == 1
+    gate.open()
+    gate.push(2, [0] * 6)
+    assert target == [2]
+
+
+@pytest.mark.parametrize("step, undone", [
+    ("bench", []),
+    ("servos", ["bench.stop"]),
+    ("loop", ["bench.stop"]),
+    ("sensor", ["bench.stop"]),
+    ("zenoh", ["loop.stop:hold", "sensor.stop", "bench.stop"]),
+])
+def test_a_failing_step_raises_its_device_error_and_undoes_the_earlier_ones(tmp_path, step, undone):
+    h = Harness(tmp_path, fail_at=step, stop_after=1.0)
+    with pytest.raises(DeviceError, match=f"{step} failed"):
+        h.supervisor.run()
+    assert [e for e in h.events if e in ("bench.stop", "sensor.stop", "loop.stop:hold")] == undone
+    assert "READY" not in h.events and not h.stats_path.exists()
+
+
+def test_a_refused_tare_stops_the_start(tmp_path):
+    h = Harness(tmp_path, tare_ok=False)
+    with pytest.raises(DeviceError, match="tare refused: the sensor is not still"):
+        h.supervisor.run()
+    assert "loop.start" not in h.events and "sensor.stop" in h.events
+
+
+def test_torque_off_policy_releases_the_servos_when_the_start_fails_before_the_loop(tmp_path):
+    h = Harness(tmp_path, fail_at="sensor", policy="torque_off")
+    with pytest.raises(DeviceError):
+        h.supervisor.run()
+    assert "release" in h.events
+    h = Harness(tmp_path, policy="torque_off", stop_after=0.05)
+    h.supervisor.run()
+    assert "release" not in h.events and "loop.stop:torque_off" in h.events
+
+
+def test_sigterm_stops_cleanly_with_the_torque_policy(tmp_path):
+    h = Harness(tmp_path, policy="torque_off")
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        assert h.supervisor.run() == 0
+    finally:
+        timer.cancel()
+    assert h.loop.stopped_with == "torque_off"
+    assert json.loads(h.stats_path.read_text())["cycles"] > 0
+    assert signal.getsignal(signal.SIGTERM) is not h.supervisor.request_stop  # handlers restored
+
+
+def test_recording_writes_a_dataset_of_the_rows_with_a_present_position(tmp_path):
+    from admittance.ident.dataset import load_dataset
+
+    h = Harness(tmp_path, record="rec", stop_after=0.2)
+    h.supervisor.run()
+    dataset = load_dataset(tmp_path / "rec")
+    assert dataset.mode == "geometry" and len(dataset.trials) == 2
+    trial = dataset.trials[0]
+    assert trial.tau is not None and np.all(trial.tau == 0.1)
+    # only every 5th fake cycle read the present position
+    assert trial.n_samples == h.loop.cycle // 5
+    assert trial.load_inertia < 1e-9 and trial.gravity_torque < 1e-6
+
+
+def test_params_are_flattened_and_sets_are_forwarded(tmp_path):
+    h = Harness(tmp_path, stop_after=0.05)
+    h.supervisor.run()
+    assert h.supervisor.set_params({"virtual_damping": 0.1}) == (True, "")
+    assert h.supervisor.get_params()["virtual_damping"] == 0.1

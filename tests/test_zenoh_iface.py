@@ -1,0 +1,133 @@
+"""The daemon's Zenoh keys over real loopback sessions: params get/set, state, stats, liveliness,
+and the `admittance set` / `monitor` commands against them."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import pytest
+
+from admittance.cli import main
+from admittance.daemon.config import ZenohConfig
+from admittance.daemon.messages import Codec, JointState, State, decode
+from admittance.daemon.zenoh_iface import Client, DaemonInterface
+from admittance.errors import DeviceError
+
+
+def free_endpoint() -> str:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+
+
+class FakeParams:
+    """All-or-nothing like the loop: any negative value rejects the whole request."""
+
+    def __init__(self):
+        self.values = {"1.virtual_damping": 0.05, "1.virtual_inertia": 0.02}
+        self.requests = []
+
+    def get(self):
+        return dict(self.values)
+
+    def set(self, request):
+        self.requests.append(request)
+        bad = [k for k, v in request.items() if isinstance(v, float) and v < 0]
+        if bad:
+            return False, f"{bad[0]} must be >= 0"
+        self.values.update({f"1.{k}" if "." not in k else k: v for k, v in request.items()})
+        return True, ""
+
+
+@pytest.fixture(params=["json", "msgpack"])
+def daemon(request):
+    endpoint = free_endpoint()
+    params = FakeParams()
+    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param),
+                            params.get, params.set)
+    stop = threading.Event()
+    state = State(cycle=7, joints=[JointState(id=1, t=1.0, force=2.0, tau=0.2, theta=0.1, omega=0.0,
+                                              goal_tick=2100, present_tick=2099)])
+
+    def pump():  # the supervisor's main loop, reduced to what the interface needs
+        while not stop.is_set():
+            iface.poll()
+            iface.publish_state(state)
+            stop.wait(0.01)
+
+    thread = threading.Thread(target=pump, daemon=True)
+    thread.start()
+    yield endpoint, params, iface
+    stop.set()
+    thread.join()
+    iface.close()
+
+
+def test_params_get_set_and_all_or_nothing_rejection(daemon):
+    endpoint, params, _ = daemon
+    with Client([endpoint]) as client:
+        assert client.alive("test/arm")
+        assert client.query_params("test/arm") == {"params": params.values}
+        assert client.query_params("test/arm", {"virtual_damping": 0.1}) == {"accepted": True}
+        assert params.values["1.virtual_damping"] == 0.1
+        reply = client.query_params("test/arm", {"virtual_inertia": 0.5, "virtual_damping": -1.0})
+        assert reply == {"accepted": False, "reason": "virtual_damping must be >= 0"}
+        assert params.values["1.virtual_inertia"] == 0.02
+
+
+def test_malformed_requests_are_rejected_with_a_reason(daemon):
+    endpoint, params, _ = daemon
+    with Client([endpoint]) as client:
+        for payload in (b'{"virtual_damping": "soft"}', b"\xff\x00"):
+            replies = list(client._session.get("test/arm/params", payload=payload, timeout=3.0))
+            reply = decode(replies[0].ok.payload.to_bytes(), dict)
+            assert reply["accepted"] is False and reply["reason"]
+    assert params.requests == []
+
+
+def test_state_is_published_and_decoded(daemon):
+    endpoint, _, _ = daemon
+    with Client([endpoint]) as client:
+        sub = client.try_stream("test/arm")
+        messages = []
+        for _ in range(300):
+            messages += sub.drain()
+            if messages:
+                break
+            time.sleep(0.01)
+        sub.close()
+    kind, state = messages[0]
+    assert kind == "state" and state["cycle"] == 7 and state["joints"][0]["present_tick"] == 2099
+
+
+def test_no_daemon_is_a_clear_device_error():
+    with Client([free_endpoint()]) as client, pytest.raises(DeviceError, match="no daemon answered"):
+        client.query_params("nobody/here", timeout=0.5)
+
+
+def test_set_command_shows_the_reply_and_fails_when_rejected(daemon, capsys):
+    endpoint, params, _ = daemon
+    assert main(["set", "virtual_damping=0.2", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    assert json.loads(capsys.readouterr().out) == {"accepted": True}
+    assert main(["set", "virtual_damping=-2", "--prefix", "test/arm", "--connect", endpoint]) == 1
+    captured = capsys.readouterr()
+    assert "rejected: virtual_damping must be >= 0" in captured.err
+    assert params.values["1.virtual_damping"] == 0.2
+
+
+def test_set_command_without_a_daemon_exits_non_zero(capsys):
+    code = main(["set", "virtual_damping=0.2", "--prefix", "nobody", "--connect", free_endpoint(),
+                 "--timeout", "0.5"])
+    assert code != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no daemon answered" in err
+
+
+def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
+    endpoint, _, _ = daemon
+    assert main(["monitor", "--prefix", "test/arm", "--connect", endpoint, "--duration", "0.6"]) == 0
+    out = capsys.readouterr().out
+    assert "joint   1" in out and "\x1b[" not in out
