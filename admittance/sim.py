@@ -21,6 +21,12 @@ import numpy as np
 from admittance import _rtcore
 from admittance.errors import ConfigError, DataError
 
+__all__ = [
+    "DEFAULT_MAX_STEP", "FRICTION_LAWS", "PARAM_DEFAULTS", "PARAM_NAMES", "REQUIRED_PARAMS", "Trial",
+    "make_trial", "pack_params", "simulate", "simulate_batch", "simulate_many", "simulate_reference",
+    "unpack_params",
+]
+
 PARAM_NAMES: tuple[str, ...] = tuple(_rtcore.PARAM_NAMES)
 PARAM_DEFAULTS: dict[str, float] = dict(zip(PARAM_NAMES, _rtcore.PARAM_DEFAULTS))
 REQUIRED_PARAMS: tuple[str, ...] = ("motor_inertia",)

@@ -141,7 +141,7 @@ class Harness:
             self.events.append("bench")
             self._maybe_fail("bench")
             try:
-                yield "/dev/fake", "/dev/fakesensor"
+                yield "/dev/fake", "/dev/fakesensor", lambda: self.events.append("hand")
             finally:
                 self.events.append("bench.stop")
 
@@ -182,6 +182,7 @@ def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
     assert h.supervisor.run() == 0
     start = h.events[: h.events.index("READY") + 1]
     assert start == ["bench", "servos", "sensor.start", "sensor.tare:100", "loop.start", "zenoh", "READY"]
+    assert h.events[len(start)] == "hand"  # the simulated hand only starts once the loop runs
     assert h.events[-5:] == ["STOPPING", "loop.stop:hold", "zenoh.close", "sensor.stop", "bench.stop"]
     stats = json.loads(h.stats_path.read_text())
     assert set(STATS_KEYS) <= set(stats) and "daemon" in stats
@@ -265,3 +266,29 @@ def test_params_are_flattened_and_sets_are_forwarded(tmp_path):
     h.supervisor.run()
     assert h.supervisor.set_params({"virtual_damping": 0.1}) == (True, "")
     assert h.supervisor.get_params()["virtual_damping"] == 0.1
+
+
+def test_ready_status_and_watchdog_reach_a_real_notify_socket(tmp_path):
+    """READY=1 once running, WATCHDOG=1 while the loop's heartbeat advances, STOPPING=1 at the end."""
+    import socket
+
+    from admittance.daemon.notify import Notifier
+
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(tmp_path / "notify"))
+    try:
+        h = Harness(tmp_path, stop_after=0.5)
+        h.supervisor.notifier = Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "100000"})
+        assert h.supervisor.run() == 0
+        sock.setblocking(False)
+        messages = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                messages.append(sock.recv(4096).decode())
+    finally:
+        sock.close()
+    ready = next(i for i, m in enumerate(messages) if m.startswith("READY=1"))
+    assert "STATUS=running MX-64#1, MX-28#2 at 1000 Hz" in messages[ready]
+    pings = [i for i, m in enumerate(messages) if m == "WATCHDOG=1"]
+    assert len(pings) >= 3 and min(pings) > ready  # every 50 ms over 0.5 s, after READY
+    assert messages[-1].startswith("STOPPING=1")

@@ -10,9 +10,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from admittance.drivers import sensor as fs
-from admittance.errors import ConfigError, DeviceError
+from admittance.errors import ConfigError, DataError, DeviceError
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, ScriptedForceSensor
+
+from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
 
 
 def test_bias_is_the_mean_of_still_samples():
@@ -22,6 +24,11 @@ def test_bias_is_the_mean_of_still_samples():
     assert result.accepted and result.reason == ""
     assert np.allclose(result.bias, samples.mean(axis=0))
     assert result.n_samples == 200
+
+
+def test_samples_must_be_rows_of_six():
+    with pytest.raises(DataError, match="rows of 6"):
+        fs.estimate_bias([[0.0, 0.0, 0.0]] * 20)
 
 
 def test_a_moving_sensor_is_refused_with_the_axis_and_its_spread():
@@ -87,19 +94,9 @@ class _FullSink:
 
 def test_a_full_sink_drops_samples_and_counts_them():
     with _mock_sensor(_FullSink(), "still", rate_hz=1000) as sensor:
-        assert _wait(lambda: sensor.samples_dropped >= 5)
+        assert wait_until(lambda: sensor.samples_dropped >= 5)
     assert sensor.stats()["samples_pushed"] == 0
 
-
-def _wait(condition, timeout: float = 10.0) -> bool:
-    import time
-
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_start_and_stop_are_idempotent_and_restartable():

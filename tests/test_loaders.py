@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from admittance.errors import DataError
-from admittance.ident.loaders import ConvertedTrial, convert_files, load_trial, parse_motive, write_dataset
+from admittance.ident.loaders import ConvertedTrial, convert_files, load_trial, parse_motive, trial_names, write_dataset
 
 
 def motive_csv(path, t, axis_xyz, bob_xyz, *, rigid_body=False, timecode=False, names=("Pend:Axis", "Pend:Bob")):
@@ -209,19 +209,17 @@ def test_tick_csv(tmp_path):
     np.testing.assert_allclose(th[0], -math.pi / 2)
 
 
-def test_tick_csv_errors(tmp_path):
-    missing = tmp_path / "m.csv"
-    missing.write_text("time,speed\n0,1\n1,2\n2,3\n")
-    with pytest.raises(DataError, match="missing column"):
-        load_trial(missing, "dynamixel")
-    ragged = tmp_path / "r.csv"
-    ragged.write_text("t,ticks\n0,1\n1\n2,3\n")
-    with pytest.raises(DataError, match="row 2"):
-        load_trial(ragged, "dynamixel")
-    nan = tmp_path / "n.csv"
-    nan.write_text("t,ticks\n0,1\n1,\n2,3\n")
-    with pytest.raises(DataError, match="NaN"):
-        load_trial(nan, "dynamixel")
+@pytest.mark.parametrize("text,match", [
+    ("time,speed\n0,1\n1,2\n2,3\n", "missing column"),
+    ("t,ticks\n0,1\n1\n2,3\n", "row 2"),
+    ("t,ticks\n0,1\n1,\n2,3\n", "NaN"),
+    ("t,ticks\n0,1\n1,x\n2,3\n", "non-numeric"),
+])
+def test_tick_csv_errors(tmp_path, text, match):
+    path = tmp_path / "ticks.csv"
+    path.write_text(text)
+    with pytest.raises(DataError, match=match):
+        load_trial(path, "dynamixel")
 
 
 def test_dfki_csv(tmp_path):
@@ -267,3 +265,57 @@ def test_convert_files_and_bad_trial_writes_nothing(tmp_path):
     with pytest.raises(DataError):
         write_dataset(tmp_path / "bad", [ConvertedTrial("x", [0, 1, 1], [0, 0, 0])])
     assert not (tmp_path / "bad" / "manifest.toml").exists()
+
+
+def test_window_and_subsampling_options(tmp_path):
+    path = tmp_path / "data_measured.csv"
+    rows = "\n".join(f"{0.01 * k},{0.1 * k},0,{k}" for k in range(100))
+    path.write_text("time,position,velocity,torque\n" + rows + "\n")
+    t, th, tau = load_trial(path, "dfki", t_start=0.2, t_stop=0.5, every=2)
+    np.testing.assert_allclose(t, 0.01 * np.arange(20, 51, 2))
+    np.testing.assert_allclose(tau, np.arange(20, 51, 2))
+    with pytest.raises(DataError, match="every"):
+        load_trial(path, "dfki", every=0)
+    with pytest.raises(DataError, match="usable samples"):
+        load_trial(path, "dfki", t_start=5.0)
+
+
+def test_trial_names_disambiguate_repeated_stems(tmp_path):
+    names = trial_names([tmp_path / "pd" / "data_measured.csv", tmp_path / "ddp" / "data_measured.csv",
+                         tmp_path / "other.csv"])
+    assert names == ["pd_data_measured", "ddp_data_measured", "other"]
+    with pytest.raises(DataError, match="same trial name"):
+        trial_names([tmp_path / "a" / "x.csv", tmp_path / "a" / "x.json"])
+
+
+def test_convert_cli_writes_a_geometry_dataset(tmp_path, capsys):
+    from admittance.cli import main
+
+    src = tmp_path / "run" / "data_measured.csv"
+    src.parent.mkdir()
+    rows = "\n".join(f"{0.01 * k},{0.1 * k},0,{k}" for k in range(50))
+    src.write_text("time,position,velocity,torque\n" + rows + "\n")
+    out = tmp_path / "ds"
+    argv = ["convert", "dfki", str(src), "--out", str(out), "--motor", "AK80-6", "--bob", "0.546", "0.5",
+            "--rod", "0.13", "0.5", "--option", "t_stop=0.2"]
+    assert main(argv) == 0
+    assert "wrote 1 trial" in capsys.readouterr().out
+    manifest = tomllib.loads((out / "manifest.toml").read_text())
+    assert manifest["bob"] == {"mass": 0.546} and manifest["rod"] == {"mass": 0.13, "length": 0.5}
+    assert manifest["trials"] == [{"file": "data_measured.csv", "bob_distance": 0.5}]
+    assert main(["convert", "dfki", str(src), "--out", str(out), "--option", "colour"]) == 2
+    assert "KEY=VALUE" in capsys.readouterr().err
+
+
+def test_dataset_loader_dispatches_trial_formats(tmp_path):
+    from admittance.ident.dataset import load_dataset
+
+    t = np.arange(60) * 0.005
+    bam_json(tmp_path / "drop.json", t, np.cos(t), t < 0.05)
+    (tmp_path / "manifest.toml").write_text(
+        'motor = "XL330"\n[bob]\nmass = 0.49\n'
+        '[[trials]]\nfile = "drop.json"\nformat = "dynamixel"\nbob_distance = 0.1\n')
+    (trial,) = load_dataset(tmp_path).trials
+    assert trial.t[0] == 0.0 and trial.n_samples == 50
+    np.testing.assert_allclose(trial.theta, np.cos(t[10:]))
+    assert trial.gravity_torque == pytest.approx(0.49 * 9.80665 * 0.1)

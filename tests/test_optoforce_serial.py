@@ -14,16 +14,10 @@ from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce
 
+from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
+
 CPN = (400.0, 500.0, 250.0)
 
-
-def _wait(condition, timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 @pytest.fixture
@@ -51,9 +45,9 @@ def test_the_config_packet_sets_the_rate_and_is_acknowledged(simulated):
     buffer = SampleBuffer()
     reader = of.OptoForceSerialReader(simulated.port_path, CPN, buffer, settings=of.DaqSettings(rate_hz=333, tare=True))
     with reader:
-        assert _wait(lambda: reader.stats()["acks"] == 1)
+        assert wait_until(lambda: reader.stats()["acks"] == 1)
         # The DAQ's own tare zeroes the 2 N load: the samples after the ack read 0.
-        assert _wait(lambda: buffer.snapshot()[-1][1] == [0.0] * 6)
+        assert wait_until(lambda: buffer.snapshot()[-1][1] == [0.0] * 6)
     assert simulated.stats()["rate_hz"] == pytest.approx(1000 / 3)
     assert reader.stats()["ack_errors"] == 0
 
@@ -61,7 +55,7 @@ def test_the_config_packet_sets_the_rate_and_is_acknowledged(simulated):
 def test_speed_zero_stops_the_stream(simulated):
     buffer = SampleBuffer()
     with of.OptoForceSerialReader(simulated.port_path, CPN, buffer, settings=of.DaqSettings(rate_hz=0)) as reader:
-        assert _wait(lambda: reader.stats()["acks"] == 1)
+        assert wait_until(lambda: reader.stats()["acks"] == 1)
     assert not simulated.stats()["streaming"]
 
 
@@ -76,7 +70,7 @@ def test_a_full_pty_drops_whole_samples_never_half_frames():
     sim = SimulatedOptoForce(make_profile("sine:amplitude=0.1,frequency=3"), ForceModel(), rate_hz=1000)
     with sim:
         # Nobody reads: the pty fills up (a few KiB) and the mock drops samples.
-        assert _wait(lambda: sim.stats()["samples_dropped"] > 0)
+        assert wait_until(lambda: sim.stats()["samples_dropped"] > 0)
         # The mock set the pty raw already (setting it again here would flush the input).
         with os.fdopen(os.open(sim.port_path, os.O_RDONLY | os.O_NOCTTY), "rb", buffering=0) as raw:
             data = bytearray()
@@ -103,3 +97,18 @@ def test_the_reader_survives_garbage_on_the_line():
     assert [f for _, f in buffer.snapshot()] == [[1.0, 2.0, -3.0, 0.0, 0.0, 0.0], [0.01, 0.02, 0.03, 0.0, 0.0, 0.0]]
     stats = reader.stats()
     assert stats["resyncs"] >= 1 and stats["checksum_errors"] >= 1
+
+
+def test_a_vanished_device_ends_the_reader_with_an_error():
+    sim = SimulatedOptoForce(make_profile("still"), ForceModel(), rate_hz=333)
+    sim.start()
+    buffer = SampleBuffer()
+    reader = of.OptoForceSerialReader(sim.port_path, 100.0, buffer)
+    reader.start()
+    try:
+        assert buffer.wait_for(3, timeout=10)
+        sim.stop()  # closes the pty: the "USB cable" is pulled
+        assert wait_until(lambda: reader.error is not None)
+        assert not reader.running and reader.stats()["error"] == reader.error
+    finally:
+        reader.stop()

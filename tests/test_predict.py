@@ -99,20 +99,28 @@ def test_model_torque_stick_sign_and_corrections():
     np.testing.assert_allclose(predict.corrected_torque(t, np.ones(5), p), 0.95)
 
 
-def test_lumped_file_and_missing_torque_are_refused(tmp_path):
+def test_lumped_file_is_refused(tmp_path):
     lumped = tmp_path / "lumped.toml"
     paramfile.dump(lumped, {"motor_inertia": 1.0}, {"mode": "lumped"})
     with pytest.raises(ConfigError, match="lumped"):
         predict.load_params(lumped)
-    free = SimpleNamespace(name="free", t=np.arange(10.0), theta=np.zeros(10), tau=None)
-    with pytest.raises(DataError, match="no tau"):
-        predict.predict_trial(free, full(TRUTH), "tanh")
+
+
+def test_free_swing_gets_the_position_check_only():
+    trial = driven_trial(duration=3.0)
+    free = SimpleNamespace(**{**vars(trial), "tau": None})
+    rt = sim.make_trial(free.t, None, LOAD_INERTIA, GRAVITY)
+    free.theta = sim.simulate(rt, TRUTH, 1.0, 0.0, max_step=1e-4, friction="tanh")
+    pred = predict.predict_trial(free, full(TRUTH), "tanh")
+    assert pred.metrics.position_rmse < 0.01
+    assert pred.tau is None and pred.metrics.torque_lag is None
+    assert "| – |" in predict.metrics_table([pred])
 
 
 def test_cli_writes_metrics_and_appendix_b_plots(tmp_path, capsys):
     trial = driven_trial(duration=3.0)
-    folder = write_dataset(tmp_path / "ds", [ConvertedTrial("push", trial.t, trial.theta, trial.tau, {"bob_distance": 0.3})],
-                           {"motor": "MX-64", "bob": {"mass": 0.05}})
+    pushed = ConvertedTrial("push", trial.t, trial.theta, trial.tau, {"bob_distance": 0.3})
+    folder = write_dataset(tmp_path / "ds", [pushed], {"motor": "MX-64", "bob": {"mass": 0.05}})
     params = tmp_path / "p.toml"
     paramfile.dump(params, TRUTH, {"motor": "MX-64", "friction": "tanh"})
     out = tmp_path / "out"

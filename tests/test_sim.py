@@ -160,3 +160,9 @@ def test_stick_holds_exactly_through_the_binding():
 def test_admittance_gate_from_python():
     assert _rtcore.admittance_check_stable(0.01, 0.05, 0.02, 1e-3) is None
     assert "h·B/I" in _rtcore.admittance_check_stable(0.001, 2.0, 0.0, 1e-3)
+
+
+def test_degenerate_batches():
+    single = sim.make_trial([0.5])
+    assert sim.simulate(single, BASE, 0.2, 0.1).tolist() == [0.2]
+    assert sim.simulate_many([], sim.pack_params(BASE)[None, :], np.zeros((1, 0, 2))) == []

@@ -32,8 +32,9 @@ def tanh_dataset(folder, distances=(0.3,), duration=4.0, noise=0.0, motor="MX-64
         sign = 1 if k % 2 == 0 else -1
         theta = sim.simulate(rt, TRUTH, sign * 1.5, 0.0, max_step=1e-4, friction="tanh")
         direction = "cw" if sign > 0 else "ccw"
-        trials.append(ConvertedTrial(f"d{round(d * 100)}_{direction}_{k}", t, theta + rng.normal(0, noise, t.size) if noise else theta,
-                                     None, {"bob_distance": d, "direction": direction}))
+        theta = theta + rng.normal(0, noise, t.size) if noise else theta
+        trials.append(ConvertedTrial(f"d{round(d * 100)}_{direction}_{k}", t, theta, None,
+                                     {"bob_distance": d, "direction": direction}))
     return write_dataset(folder, trials, {"motor": motor, "rod": ROD, "bob": BOB})
 
 

@@ -9,8 +9,9 @@ apart from the supervisor's sequencing, is what lets the sequence be tested with
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
-from typing import Any
+import os
+from collections.abc import Callable, Iterator
+from typing import Any, NamedTuple
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
 from admittance.daemon.loopconfig import loop_config
@@ -26,32 +27,49 @@ def real_backends() -> Backends:
 
 
 @contextlib.contextmanager
-def start_bench(cfg: DaemonConfig) -> Iterator[tuple[str, str]]:
-    """Yield (bus port, sensor port): the configured devices, or the embedded simulated bench's."""
+def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
+    """Yield the ports: the configured devices, or the embedded simulated bench's."""
     if cfg.bus.port != MOCK_PORT:
-        yield cfg.bus.port, cfg.sensor.port
+        yield BenchPorts(cfg.bus.port, cfg.sensor.port, lambda: None)
         return
-    bench = _make_bench(cfg)
+    bench, hand = _make_bench(cfg)
     bench.start()
     try:
-        sensor_port = bench.sensor_port if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
-        yield bench.bus_port, sensor_port
+        sensor_port = bench.sensor_port or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
+        yield BenchPorts(bench.bus_port, sensor_port, hand.go)
     finally:
         bench.stop()
 
 
+class BenchPorts(NamedTuple):
+    bus: str
+    sensor: str
+    start_hand: Callable[[], None]  # called once the loop runs (a no-op on real hardware)
+
+
 class DelayedHand:
-    """A hand profile that starts ``delay`` seconds late: the joint is untouched during the tare."""
+    """A hand that keeps off the joint until :meth:`go`, then follows ``profile`` after ``delay``.
+
+    The simulated user must not touch the sensor while it is tared, and a loaded machine can
+    take seconds to get there, so the hand waits for the supervisor's word rather than a clock.
+    """
 
     def __init__(self, profile: Any, delay: float) -> None:
         self.profile = profile
         self.delay = delay
+        self._start: float | None = None
+        self._last_t = 0.0
+
+    def go(self) -> None:
+        self._start = self._last_t + self.delay
 
     def __call__(self, t: float) -> float:
-        return 0.0 if t < self.delay else self.profile(t - self.delay)
+        self._last_t = t
+        start = self._start
+        return 0.0 if start is None or t < start else self.profile(t - start)
 
 
-def _make_bench(cfg: DaemonConfig) -> Any:
+def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
     """The simulated bench matching the configuration: same IDs, models, plant files and sensor."""
     from admittance.mockbench.bench import BenchConfig, MockBench
 
@@ -62,8 +80,23 @@ def _make_bench(cfg: DaemonConfig) -> Any:
         servos=servos, baudrate=cfg.bus.baudrate, profile=cfg.bench.profile,
         sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
         counts_per_newton=list(s.counts_per_newton), noise_std_n=cfg.bench.noise_std_n, can_id=s.can_id))
-    bench.profile = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
-    return bench
+    hand = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
+    bench.profile = hand
+    return bench, hand
+
+
+PTY_REPLY_SLACK_MS = 200.0
+
+
+def reply_slack_ms(port: str) -> float:
+    """How long a setup transaction may wait beyond the wire time.
+
+    A pseudo-terminal is always a simulated bus: its servos are a thread of another process
+    that a loaded machine may not schedule for tens of milliseconds, unlike a servo's firmware.
+    Setup is not time-critical, so the simulated bus gets a generous slack and hardware the
+    driver's default.
+    """
+    return PTY_REPLY_SLACK_MS if os.path.realpath(port).startswith("/dev/pts/") else 10.0
 
 
 def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
@@ -76,7 +109,8 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
     from admittance.drivers.dynamixel import ServoBus
 
     warnings: list[str] = []
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol) as bus:
+    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
+                  reply_slack_ms=reply_slack_ms(port)) as bus:
         if bus.warning:
             warnings.append(bus.warning)
         for joint in cfg.joints:
@@ -93,7 +127,8 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
     """Torque off every joint (a start that failed after torque-on, with policy torque_off)."""
     from admittance.drivers.dynamixel import ServoBus
 
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol) as bus:
+    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
+                  reply_slack_ms=reply_slack_ms(port)) as bus:
         for joint in cfg.joints:
             bus.set_torque(joint.id, False)
 

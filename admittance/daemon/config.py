@@ -117,6 +117,7 @@ class ZenohConfig:
 @dataclass(frozen=True, kw_only=True)
 class RecordConfig:
     path: str = key("str", "", doc="record the session into this dataset folder; empty = no recording")
+    segment_s: float = key("float", 10.0, unit="s", lo=0.5, hi=3600.0, doc="one trial file per joint per this long")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -124,8 +125,8 @@ class BenchConfig:
     """The embedded simulated bench (only with [bus].port = "mock")."""
 
     profile: str = key("str", "push-release", doc="the scripted hand: a mock-bench profile (NAME[:k=v,...] or CSV)")
-    hand_delay_s: float = key("float", 1.5, unit="s", lo=0.0, hi=3600.0,
-                              doc="the hand stays off this long after the bench starts (the tare needs stillness)")
+    hand_delay_s: float = key("float", 0.5, unit="s", lo=0.0, hi=3600.0,
+                              doc="the hand starts this long after the loop runs (it keeps off during the tare)")
     noise_std_n: float = key("float", 0.0, unit="N", lo=0.0, hi=10.0, doc="sensor noise of the simulated sensor")
 
 
@@ -173,7 +174,7 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
         if name not in doc:
             raise ConfigError(f"{where}: [{name}] is required")
     tables = {name: build(cls, doc.get(name, {}), f"{where}: [{name}]") for name, cls in TABLES.items()}
-    joints = _parse_joints(doc["joints"], path)
+    joints = _parse_joints(doc["joints"], path, tables["bus"].protocol)
     lever_arm = tables["sensor"].lever_arm
     joints = tuple(j if j.lever_arm is not None else dataclasses.replace(j, lever_arm=lever_arm) for j in joints)
     _check_cross(tables, joints, where)
@@ -182,9 +183,10 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
     return DaemonConfig(joints=joints, source=path, **tables)
 
 
-def _parse_joints(raw: Any, path: Path) -> tuple[JointConfig, ...]:
+def _parse_joints(raw: Any, path: Path, protocol: int) -> tuple[JointConfig, ...]:
     if not isinstance(raw, list) or not raw:
         raise ConfigError(f"{path}: [[joints]] must be a non-empty array of tables")
+    models = known_models(protocol)
     joints, seen = [], set()
     for i, table in enumerate(raw):
         where = f"{path}: [[joints]] #{i + 1}"
@@ -192,6 +194,9 @@ def _parse_joints(raw: Any, path: Path) -> tuple[JointConfig, ...]:
         if joint.id in seen:
             raise ConfigError(f"{where}.id: duplicate joint id {joint.id}")
         seen.add(joint.id)
+        if joint.model not in models:
+            raise ConfigError(f"{where}.model: {joint.model!r} is not a Protocol {protocol}.0 model"
+                              f"{did_you_mean(joint.model, models)}")
         joints.append(_resolve_joint(joint, path, f"{path}: [joints.{joint.id}]"))
     return tuple(joints)
 
@@ -259,9 +264,13 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     if not all(_KEY_CHUNK.match(c) for c in chunks):
         raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
-    for joint in joints:
-        if bus.protocol == 1 and joint.model.startswith(("XM", "XL")):
-            raise ConfigError(f"{where}: [joints.{joint.id}].model: {joint.model} speaks protocol 2 only")
+
+
+def known_models(protocol: int) -> list[str]:
+    """The model table's names on one protocol (the same table the codec and the mock use)."""
+    from admittance import _rtcore
+
+    return sorted({m["name"] for m in _rtcore.model_table() if int(m["protocol"]) == protocol})
 
 
 def load_default() -> DaemonConfig:
@@ -291,7 +300,7 @@ def summary(cfg: DaemonConfig) -> str:
 def with_overrides(cfg: DaemonConfig, *, record: str | None = None, listen: list[str] | None = None) -> DaemonConfig:
     """A copy with command-line overrides applied (they win over the file)."""
     if record is not None:
-        cfg = dataclasses.replace(cfg, record=RecordConfig(path=str(Path(record).resolve())))
+        cfg = dataclasses.replace(cfg, record=dataclasses.replace(cfg.record, path=str(Path(record).resolve())))
     if listen is not None:
         cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=listen))
     return cfg

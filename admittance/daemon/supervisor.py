@@ -54,7 +54,7 @@ class RunOptions:
 class Backends:
     """Factories for the parts other engineers own (see admittance.daemon.backends)."""
 
-    start_bench: Callable[[DaemonConfig], Any]  # -> context manager yielding (bus_port, sensor_port)
+    start_bench: Callable[[DaemonConfig], Any]  # -> context manager of (bus, sensor, start_hand)
     check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
@@ -131,7 +131,7 @@ class Supervisor:
     def _start(self, stack: contextlib.ExitStack) -> None:
         b, cfg = self.backends, self.cfg
         self.notifier.status("starting: bus")
-        bus_port, sensor_port = stack.enter_context(b.start_bench(cfg))
+        bus_port, sensor_port, start_hand = stack.enter_context(b.start_bench(cfg))
         for warning in b.check_servos(cfg, bus_port):
             self._warn(warning)
         if cfg.stop.torque_policy == "torque_off":
@@ -144,17 +144,18 @@ class Supervisor:
         stack.callback(self.sensor.stop)
         self._tare()
         self.notifier.status("starting: loop")
+        self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         try:
             self.loop.start()
         except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
             raise DeviceError(f"RT loop: cannot start on {bus_port}: {exc}") from None
         stack.callback(self._stop_loop)
         gate.open()
-        self._t0 = time.monotonic()
         self._start_recorder(stack)
         self._start_interface(stack)
         self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
         self.notifier.ready(self._status_line())
+        start_hand()
 
     def _tare(self) -> None:
         n = self.cfg.sensor.tare_samples
@@ -170,7 +171,7 @@ class Supervisor:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
         self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
-                                 t0=self._t0)
+                                 t0=self._t0, segment_s=self.cfg.record.segment_s)
         stack.callback(self.recorder.close)
 
     def _start_interface(self, stack: contextlib.ExitStack) -> None:

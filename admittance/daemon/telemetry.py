@@ -44,6 +44,7 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "omega_model": rows["omega"].astype(float),
             "theta_goal": tick_to_rad(rows["goal_tick"], joint),
             "theta_present": tick_to_rad(present, joint),
+            "cycle": rows["cycle"].astype(float),
         }
     return out
 

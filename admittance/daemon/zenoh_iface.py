@@ -16,6 +16,7 @@ off): a bench daemon should not appear on a lab network unless its configuration
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -49,7 +50,14 @@ def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:
-        raise DeviceError(f"zenoh: cannot open a session for {what}: {exc}") from None
+        raise DeviceError(f"zenoh: cannot open a session {what}: {_short(str(exc))}") from None
+
+
+def _short(message: str) -> str:
+    """Zenoh's errors carry Rust source locations and nested brackets; keep the cause."""
+    if "Address already in use" in message:
+        return "address already in use (another daemon on this endpoint? change [zenoh].listen)"
+    return re.sub(r"\s+at \S+\.rs:\d+\.?", "", message).replace("[", "").replace("]", "").strip()
 
 
 class DaemonInterface:

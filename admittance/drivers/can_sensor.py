@@ -5,7 +5,7 @@ over consecutive 8-byte data frames with one identifier ``can_id`` (a 16-byte 3-
 two frames, a 34-byte 4-channel sample five). The payloads are therefore just a byte stream,
 and the reader feeds them to the serial parser unchanged: it reassembles samples by their
 header and checks the checksum exactly as on serial. A lost CAN frame costs one checksum
-error and a resync, never a wrong sample.
+error and a resync, never a wrong force reading.
 
 The bus is created with ``can.Bus(interface=..., channel=..., bitrate=..., ignore_config=True)``
 so that no environment variable or ~/.canrc silently changes it, with an acceptance filter on

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from admittance.drivers.control_table import ControlTable, Item, table_for_number
+from admittance.drivers.ports import open_error_message
 from admittance.drivers.usb_latency import latency_warning, read_latency_timer
 from admittance.errors import ConfigError, DeviceError
 
@@ -140,7 +141,9 @@ class ServoBus:
     """One serial port with Dynamixel servos on it, opened on construction.
 
     ``reply_slack_ms`` is added to the wire and latency time of every reply (the servo's
-    Return Delay Time and the host's scheduling).
+    Return Delay Time and the host's scheduling). An addressed operation that gets no reply is
+    tried ``1 + retries`` times in all (a reply lost to noise or a busy host is worth one more
+    try at setup); the pings of a scan are tried once, since most IDs are simply absent.
     """
 
     def __init__(
@@ -150,7 +153,8 @@ class ServoBus:
         baudrate: int = 1_000_000,
         protocol: int = 2,
         auto_recover: bool = True,
-        reply_slack_ms: float = 10.0,
+        reply_slack_ms: float = 20.0,
+        retries: int = 1,
         sysfs_root: str = "/sys",
     ):
         if protocol not in (1, 2):
@@ -162,6 +166,7 @@ class ServoBus:
         self.baudrate = baudrate
         self.protocol = protocol
         self.auto_recover = auto_recover
+        self.attempts = 1 + max(0, retries)
         self.warning = latency_warning(port, sysfs_root=sysfs_root)
         if self.warning:
             log.warning("%s", self.warning)
@@ -170,7 +175,7 @@ class ServoBus:
         try:
             supported = self._port.setBaudRate(baudrate)
         except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"cannot open the Dynamixel port {port}: {exc}") from None
+            raise DeviceError(open_error_message("the Dynamixel port", port, exc)) from None
         if not supported:
             raise ConfigError(f"baud rate {baudrate} is not one dynamixel-sdk can set on {port}")
         self._packet = PacketHandler(float(protocol))
@@ -189,14 +194,13 @@ class ServoBus:
 
     # -- the transaction core ---------------------------------------------------------------------
 
-    def _call(self, servo_id: int, what: str, fn: Callable[..., tuple], *args: Any, alert_ok: bool = False) -> Any:
+    def _call(
+        self, servo_id: int, what: str, fn: Callable[..., tuple], *args: Any, alert_ok: bool = False, attempts: int | None = None
+    ) -> Any:
         """Run one SDK transaction; return its value (or None) or raise the typed error."""
         from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS
 
-        try:
-            out = fn(self._port, servo_id, *args)
-        except OSError as exc:
-            raise ServoCommError(f"{what} on servo {servo_id}: the port {self.port} failed ({exc})") from None
+        out = self._transact(servo_id, what, fn, args, attempts or self.attempts)
         result, error = out[-2], out[-1]
         if result == COMM_RX_TIMEOUT:
             raise ServoTimeout(f"servo {servo_id} did not answer {what} on {self.port} (ID, baud rate {self.baudrate}, protocol {self.protocol}?)")
@@ -205,6 +209,19 @@ class ServoBus:
         self._last_error = error
         self._check_status(servo_id, what, error, alert_ok)
         return out[0] if len(out) == 3 else None
+
+    def _transact(self, servo_id: int, what: str, fn: Callable[..., tuple], args: tuple, attempts: int) -> tuple:
+        """The SDK call, repeated while no reply comes (up to ``attempts`` times)."""
+        from dynamixel_sdk import COMM_RX_TIMEOUT
+
+        for _ in range(attempts):
+            try:
+                out = fn(self._port, servo_id, *args)
+            except OSError as exc:
+                raise ServoCommError(f"{what} on servo {servo_id}: the port {self.port} failed ({exc})") from None
+            if out[-2] != COMM_RX_TIMEOUT:
+                break
+        return out
 
     def _check_status(self, servo_id: int, what: str, error: int, alert_ok: bool) -> None:
         if self.protocol == 2:
@@ -235,10 +252,10 @@ class ServoBus:
 
     # -- discovery ---------------------------------------------------------------------------------
 
-    def ping(self, servo_id: int) -> ServoInfo | None:
+    def ping(self, servo_id: int, *, attempts: int | None = None) -> ServoInfo | None:
         """The servo at ``servo_id``, or None if nobody answers."""
         try:
-            number = self._call(servo_id, "PING", self._packet.ping, alert_ok=True)
+            number = self._call(servo_id, "PING", self._packet.ping, alert_ok=True, attempts=attempts)
         except ServoTimeout:
             return None
         return self._identify(servo_id, number)
@@ -247,7 +264,7 @@ class ServoBus:
         """Every servo that answers: a broadcast ping on P2 when ``ids`` is None, else one ping per ID."""
         if ids is None and self.protocol == 2:
             return self._broadcast_scan()
-        found = (self.ping(i) for i in (range(MAX_ID[self.protocol] + 1) if ids is None else ids))
+        found = (self.ping(i, attempts=1) for i in (range(MAX_ID[self.protocol] + 1) if ids is None else ids))
         return [info for info in found if info is not None]
 
     def _broadcast_scan(self) -> list[ServoInfo]:
@@ -284,9 +301,14 @@ class ServoBus:
         return self.table(servo_id).item(name)
 
     def read_raw(self, servo_id: int, name: str, *, alert_ok: bool = False) -> int:
+        """A register value; ``alert_ok`` reads it even from a servo in alert (no recovery)."""
         item = self._item(servo_id, name)
-        data = self._call(servo_id, f"READ {item.name}", self._packet.readTxRx, item.address, item.size, alert_ok=alert_ok)
-        return item.decode(data)
+
+        def read() -> int:
+            data = self._call(servo_id, f"READ {item.name}", self._packet.readTxRx, item.address, item.size, alert_ok=alert_ok)
+            return item.decode(data)
+
+        return read() if alert_ok else self._recovering(servo_id, read)
 
     def write_raw(self, servo_id: int, name: str, raw: int) -> None:
         item = self._item(servo_id, name)
@@ -297,8 +319,7 @@ class ServoBus:
 
     def read(self, servo_id: int, name: str) -> float:
         """An item in SI units (rad, rad/s, s, V, A, °C; % and plain numbers as is)."""
-        item = self._item(servo_id, name)
-        return item.unit.to_si(self._recovering(servo_id, lambda: self.read_raw(servo_id, name)))
+        return self._item(servo_id, name).unit.to_si(self.read_raw(servo_id, name))
 
     def write(self, servo_id: int, name: str, value: float) -> None:
         self.write_raw(servo_id, name, self._item(servo_id, name).unit.from_si(value))
@@ -339,7 +360,7 @@ class ServoBus:
         while time.monotonic() < deadline:
             time.sleep(0.05)
             try:
-                self._call(servo_id, "PING", self._packet.ping, alert_ok=True)
+                self._call(servo_id, "PING", self._packet.ping, alert_ok=True, attempts=1)
                 return
             except ServoTimeout:
                 continue

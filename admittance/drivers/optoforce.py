@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import logging
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from admittance.drivers.ports import open_error_message
 from admittance.drivers.sensor import ForceSensor, Sink, counts_per_unit, require_key
 from admittance.errors import ConfigError, DeviceError
 
@@ -94,31 +95,41 @@ class FrameKind:
     header: bytes
     size: int
     body: struct.Struct  # the fields between header and checksum
+    build: Callable[[tuple], Record]  # fields → record
 
-    def decode(self, buf: bytearray, pos: int) -> Record:
-        fields = self.body.unpack_from(buf, pos + HEADER_SIZE)
-        if self.header[1] == 0x07:
-            return Sample(fields[0], fields[1], fields[2:])
-        if self.header[2] == 0x50:
-            return Ack(fields[0])
-        if self.header[2] == 0x32:
-            return Config(*fields)
-        return SerialNumber(fields[0].decode("ascii", errors="replace").rstrip("\x00 "))
+    @property
+    def key(self) -> int:
+        return int.from_bytes(self.header, "big")
 
 
-def _kind(header: bytes, body: str) -> FrameKind:
+# tuple.__new__ builds the NamedTuple without going through its Python-level __new__
+# (0.45 µs instead of 0.58 µs per sample on the dev VM, measured with timeit).
+_new_tuple = tuple.__new__
+
+
+def _sample(fields: tuple) -> Sample:
+    return _new_tuple(Sample, (fields[0], fields[1], fields[2:]))
+
+
+def _serial_number(fields: tuple) -> SerialNumber:
+    return SerialNumber(fields[0].decode("ascii", errors="replace").rstrip("\x00 "))
+
+
+def _kind(header: bytes, body: str, build: Callable[[tuple], Record]) -> FrameKind:
     fmt = struct.Struct(">" + body)
-    return FrameKind(header, HEADER_SIZE + fmt.size + CHECKSUM_SIZE, fmt)
+    return FrameKind(header, HEADER_SIZE + fmt.size + CHECKSUM_SIZE, fmt, build)
 
 
-SAMPLE_3AXIS = _kind(b"\xaa\x07\x08\x0a", "HH3h")
-SAMPLE_6AXIS = _kind(b"\xaa\x07\x08\x10", "HH6h")
-SAMPLE_4CHANNEL = _kind(b"\xaa\x07\x08\x1c", "HH12h")
-ACK = _kind(b"\xaa\x00\x50\x01", "B")
-CONFIG = _kind(b"\xaa\x00\x32\x03", "3B")
-SERIAL_NUMBER = _kind(b"\xaa\x00\x12\x08", "8s")
+SAMPLE_3AXIS = _kind(b"\xaa\x07\x08\x0a", "HH3h", _sample)
+SAMPLE_6AXIS = _kind(b"\xaa\x07\x08\x10", "HH6h", _sample)
+SAMPLE_4CHANNEL = _kind(b"\xaa\x07\x08\x1c", "HH12h", _sample)
+ACK = _kind(b"\xaa\x00\x50\x01", "B", Ack._make)
+CONFIG = _kind(b"\xaa\x00\x32\x03", "3B", Config._make)
+SERIAL_NUMBER = _kind(b"\xaa\x00\x12\x08", "8s", _serial_number)
 
 FRAME_KINDS = {k.header: k for k in (SAMPLE_3AXIS, SAMPLE_6AXIS, SAMPLE_4CHANNEL, ACK, CONFIG, SERIAL_NUMBER)}
+_KIND_BY_KEY = {k.key: k for k in FRAME_KINDS.values()}
+_HEADER_KEY = struct.Struct(">I")
 SAMPLE_KIND_BY_VALUES = {3: SAMPLE_3AXIS, 6: SAMPLE_6AXIS, 12: SAMPLE_4CHANNEL}
 MAX_FRAME_SIZE = max(k.size for k in FRAME_KINDS.values())
 
@@ -209,22 +220,22 @@ class OptoForceParser:
         self.skipped_bytes = 0
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Record]:
+        # One flat loop with local names: at 16 bytes a frame, per-frame Python calls are
+        # the whole cost, so header lookup, checksum and decode are inlined here.
         buf = self._buf
         buf += data
         records: list[Record] = []
+        append = records.append
+        kinds, key_at = _KIND_BY_KEY, _HEADER_KEY.unpack_from
         pos, end = 0, len(buf)
-        while pos < end:
-            start = buf.find(HEADER_BYTE, pos)
-            if start < 0:
-                self._skip(end - pos)
-                pos = end
-                break
-            if start > pos:
+        while end - pos >= HEADER_SIZE:
+            if buf[pos] != HEADER_BYTE:
+                start = buf.find(HEADER_BYTE, pos)
+                start = end if start < 0 else start
                 self._skip(start - pos)
                 pos = start
-            if end - pos < HEADER_SIZE:
-                break
-            kind = FRAME_KINDS.get(bytes(buf[pos : pos + HEADER_SIZE]))
+                continue
+            kind = kinds.get(key_at(buf, pos)[0])
             if kind is None:
                 self._skip(1)
                 pos += 1
@@ -232,25 +243,30 @@ class OptoForceParser:
             stop = pos + kind.size
             if stop > end:
                 break
-            if checksum(buf[pos : stop - 2]) != (buf[stop - 2] << 8 | buf[stop - 1]):
+            if sum(buf[pos : stop - 2]) & 0xFFFF != (buf[stop - 2] << 8 | buf[stop - 1]):
                 self.checksum_errors += 1
                 self._skip(1)
                 pos += 1
                 continue
-            records.append(self._accept(kind, pos))
+            append(kind.build(kind.body.unpack_from(buf, pos + HEADER_SIZE)))
+            self._skipping = False
             pos = stop
+        start = buf.find(HEADER_BYTE, pos)  # a short tail keeps only what may start a frame
+        start = end if start < 0 else start
+        if start > pos:
+            self._skip(start - pos)
+            pos = start
         del buf[:pos]
+        self._count(records)
         return records
 
-    def _accept(self, kind: FrameKind, pos: int) -> Record:
-        self._skipping = False
-        self.frames += 1
-        record = kind.decode(self._buf, pos)
-        if type(record) is Sample:
-            self.samples += 1
-        elif type(record) is Ack:
-            self.acks += 1
-        return record
+    def _count(self, records: list[Record]) -> None:
+        self.frames += len(records)
+        for record in records:
+            if type(record) is Sample:
+                self.samples += 1
+            elif type(record) is Ack:
+                self.acks += 1
 
     def _skip(self, n: int) -> None:
         if not self._skipping:
@@ -407,7 +423,7 @@ class OptoForceSerialReader(ForceSensor):
         try:
             self._serial = serial.Serial(self.port, self.baudrate, timeout=self.read_timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open the OptoForce sensor port {self.port}: {exc}") from None
+            raise DeviceError(open_error_message("the OptoForce sensor port", self.port, exc)) from None
         self._serial.reset_input_buffer()
         if self._config_packet:
             self._serial.write(self._config_packet)

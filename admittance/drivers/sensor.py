@@ -32,7 +32,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from admittance.errors import ConfigError, DeviceError
+from admittance.errors import ConfigError, DataError, DeviceError
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +99,9 @@ def estimate_bias(
     ``max_std`` bounds each axis's standard deviation (N for forces, N·m for torques); a
     scalar applies to every axis.
     """
-    data = np.asarray(samples, dtype=float).reshape(-1, len(AXES)) if len(samples) else np.zeros((0, len(AXES)))
+    data = np.asarray(samples, dtype=float) if len(samples) else np.zeros((0, len(AXES)))
+    if data.ndim != 2 or data.shape[1] != len(AXES):
+        raise DataError(f"a tare needs rows of {len(AXES)} values [fx, fy, fz, tx, ty, tz], got shape {data.shape}")
     n = data.shape[0]
     if n < max(2, min_samples):
         return TareResult(False, None, (), n, f"too few samples for a tare: {n} < {max(2, min_samples)}")
@@ -312,7 +314,7 @@ def require_key(section: Mapping[str, Any], key: str) -> Any:
 SENSOR_KINDS: dict[str, tuple[str, str]] = {
     "optoforce": ("admittance.drivers.optoforce", "OptoForceSerialReader"),
     "can": ("admittance.drivers.can_sensor", "CanForceReader"),
-    "mock": ("admittance.mockbench.sensor", "ScriptedForceSensor"),
+    "mock": ("admittance.mockbench.sensor", "ScriptedForceSensor"),  # lives with the other simulations
 }
 
 

@@ -43,7 +43,8 @@ def simulate_ode3(
 
     def accel(time: float, theta: float, omega: float) -> float:
         applied = 0.0 if tau is None else float(np.interp(time, t, tau))
-        return (applied - gravity_torque * math.sin(theta) - damping * omega - friction * math.tanh(tanh_k * omega)) * inv_i
+        drag = damping * omega + friction * math.tanh(tanh_k * omega)
+        return (applied - gravity_torque * math.sin(theta) - drag) * inv_i
 
     theta, omega = float(x0[0]), float(x0[1])
     out = np.empty(len(t))

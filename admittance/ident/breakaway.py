@@ -132,7 +132,8 @@ def summarise(results: Sequence[Breakaway]) -> dict:
 
 def to_markdown(summary: dict) -> str:
     lines = ["| Trial | Direction | Breakaway torque (N·m) | Onset (s) |", "|---|---|---|---|"]
-    lines += [f"| {r['trial']} | {r['direction']} | {r['torque']:.5f} | {r['onset_time']:.3f} |" for r in summary["trials"]]
+    lines += [f"| {r['trial']} | {r['direction']} | {r['torque']:.5f} | {r['onset_time']:.3f} |"
+              for r in summary["trials"]]
     lines += [f"| **Average for {d}** | {d} | {v:.5f} | |" for d, v in summary["average_by_direction"].items()]
     if summary["average"] is not None:
         lines.append(f"| **Overall average** | | {summary['average']:.5f} | |")

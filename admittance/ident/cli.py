@@ -1,5 +1,119 @@
-"""Subcommand registration (skeleton, replaced by the area's owner)."""
+"""``admittance identify`` and ``admittance synth`` (Contract 6).
+
+Registration stays import-light (NumPy and the Rust core load only when a command runs), so
+``admittance --help`` is instant. Errors a user can cause (a bad dataset, a bad option value)
+are raised as ``DataError``/``ConfigError`` and printed as one line by ``admittance.cli``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from admittance.errors import ConfigError, DataError
 
 
 def register(subparsers) -> None:
-    return None
+    p = subparsers.add_parser(
+        "identify",
+        help="fit I, B, F and the effects the data supports from a pendulum dataset",
+        description="Fit the base model by output error, add the effects held-back trials confirm, "
+        "and report the simulation error on held-out trials (shared/contracts/datasets.md).",
+    )
+    p.add_argument("dataset", metavar="DATASET_DIR", help="folder with manifest.toml and the trial files")
+    p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="write the result here")
+    p.add_argument("--params-out", metavar="FILE.toml", help="also write the final model as a parameter file")
+    p.add_argument("--report", metavar="DIR", help="write a Markdown report with plots into DIR")
+    p.add_argument("--friction", choices=("stick", "tanh"), default="stick",
+                   help="Coulomb law: exact stick-slip (default) or the thesis's tanh")
+    p.add_argument("--max-effects", type=int, default=4, metavar="N", help="add at most N effects (default 4)")
+    p.add_argument("--min-gain", type=float, default=0.05, metavar="FRACTION",
+                   help="relative validation improvement an effect must bring (default 0.05)")
+    p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    p.set_defaults(func=run_identify)
+
+    s = subparsers.add_parser(
+        "synth",
+        help="write a synthetic pendulum dataset (known truth, optional hidden effects)",
+        description="Thesis-like MX-64 pendulum drops in the dataset format, with undeclared effects.",
+    )
+    s.add_argument("out_dir", metavar="OUT_DIR")
+    s.add_argument("--effect", action="append", metavar="NAME=VALUE",
+                   help="inject an effect (e.g. stribeck=0.04, cogging=0.01) or set a parameter; repeatable")
+    s.add_argument("--trials", type=int, default=10, metavar="N")
+    s.add_argument("--duration", type=float, default=8.0, metavar="SECONDS")
+    s.add_argument("--noise", type=float, default=0.002, metavar="RAD", help="angle noise σ (default 0.002)")
+    s.add_argument("--jitter", type=float, default=0.1, metavar="FRACTION", help="sampling-time jitter")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--with-torque", action="store_true", help="torque-driven trials with a tau column")
+    s.add_argument("--lumped", action="store_true", help="leave the geometry out of the manifest")
+    s.set_defaults(func=run_synth)
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    from admittance.ident.dataset import load_dataset
+    from admittance.ident.identify import IdentifySettings, identify_dataset
+
+    if args.max_effects < 0:
+        raise ConfigError(f"--max-effects must be >= 0, got {args.max_effects}")
+    if not (0.0 <= args.min_gain < 1.0):
+        raise ConfigError(f"--min-gain must be in [0, 1), got {args.min_gain}")
+    json_path = _writable(args.json_out, "--json")
+    dataset = load_dataset(args.dataset)
+    settings = IdentifySettings(friction=args.friction, max_effects=args.max_effects, min_gain=args.min_gain,
+                                quiet=args.quiet)
+    result = identify_dataset(dataset, settings)
+    json_path.write_text(json.dumps(_finite(result.to_json()), indent=2) + "\n")
+    if args.params_out:
+        result.write_params(_writable(args.params_out, "--params-out"),
+                            source=f"admittance identify {args.dataset} --friction {args.friction}")
+    if args.report:
+        from admittance.ident.report import write_report
+
+        write_report(result, args.report)
+    if not args.quiet:
+        _print_summary(result)
+    return 0
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    from admittance.ident.synthetic import SynthSpec, generate, parse_effect_args
+
+    if args.trials < 1:
+        raise ConfigError(f"--trials must be >= 1, got {args.trials}")
+    if args.duration <= 0 or args.noise < 0:
+        raise ConfigError("--duration must be > 0 and --noise >= 0")
+    spec = SynthSpec(n_trials=args.trials, duration=args.duration, noise=args.noise, jitter=args.jitter,
+                     effects=parse_effect_args(args.effect), with_torque=args.with_torque,
+                     geometry=not args.lumped, seed=args.seed)
+    out = generate(args.out_dir, spec)
+    print(f"wrote {args.trials} trials to {out}")
+    return 0
+
+
+def _writable(path: str, option: str) -> Path:
+    p = Path(path)
+    if p.parent and not p.parent.is_dir():
+        raise DataError(f"{option} {path}: folder {p.parent} does not exist")
+    return p
+
+
+def _finite(value):
+    """JSON has no NaN/Infinity: write null instead, so strict parsers accept the file."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _print_summary(result) -> None:
+    effects = ", ".join(result.effects) or "none"
+    print(f"mode {result.mode}; effects: {effects}; held-out RMSE "
+          f"{1e3 * result.before.rmse:.2f} → {1e3 * result.after.rmse:.2f} mrad "
+          f"({result.timings.get('total', 0.0):.1f} s)", file=sys.stderr)

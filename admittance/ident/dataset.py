@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from admittance.errors import DataError
+from admittance.ident.paramfile import read_toml
 
 GRAVITY = 9.80665  # m/s², standard gravity
 MIN_SAMPLES = 10  # fewer cannot pin an initial state and three parameters
@@ -68,7 +68,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     if not folder.is_dir():
         raise DataError(f"{folder}: dataset folder not found")
     manifest_path = folder / MANIFEST
-    manifest = _read_manifest(manifest_path)
+    manifest = read_toml(manifest_path, DataError, "manifest")
     rod = _geometry_table(manifest, "rod", ("mass", "length"), manifest_path)
     bob = _geometry_table(manifest, "bob", ("mass",), manifest_path)
     entries = manifest.get("trials")
@@ -105,18 +105,6 @@ def load_geometry(rod: dict | None, bob: dict | None, bob_distance: float | None
         inertia += bob["mass"] * bob_distance**2
         gravity += bob["mass"] * GRAVITY * bob_distance
     return inertia, gravity
-
-
-def _read_manifest(path: Path) -> dict:
-    try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise DataError(f"{path}: manifest not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise DataError(f"{path}: not valid TOML ({exc})") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def _geometry_table(manifest: dict, name: str, keys: tuple[str, ...], path: Path) -> dict | None:
@@ -171,8 +159,11 @@ def _read_series(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
     from admittance.ident import loaders  # only datasets in recorder formats need it
 
     t, theta, tau = loaders.load_trial(path, fmt)
-    as_array = lambda a: None if a is None else np.asarray(a, dtype=float)  # noqa: E731
-    return as_array(t), as_array(theta), as_array(tau)
+    return _floats(t), _floats(theta), _floats(tau)
+
+
+def _floats(values) -> np.ndarray | None:
+    return None if values is None else np.asarray(values, dtype=float)
 
 
 def read_csv_trial(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -16,7 +16,8 @@ means "not this effect" and scores zero.
 with it lowers the output error on *validation* trials (held back from this fit, and distinct
 from the reported held-out trials) by more than ``min_gain`` relative, and (2) one of its
 evidence parameters is at least ``min_sigma`` standard errors from zero, with σ corrected for
-the residual's autocorrelation (fit.py). Both are needed: a better validation score alone can
+the residual's autocorrelation (fit.py) and the threshold raised for effects whose shape was
+searched on a grid (:func:`required_sigma`). Both are needed: a better validation score alone can
 be luck on few trials, and significance alone follows from having thousands of samples. On
 data without the effect neither holds, so nothing is claimed.
 """
@@ -24,17 +25,30 @@ data without the effect neither holds, so nothing is claimed.
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
-from admittance.ident.fit import FitResult, Progress, fit_initial_states, fit_output_error, normal_equations, rmse
-from admittance.ident.model import EFFECTS, INDEX, Simulator, free_params
+from admittance.ident.fit import FitResult, Progress, fit_initial_states, fit_output_error, normal_equations
+from admittance.ident.model import EFFECTS, INDEX, Simulator
+from admittance.ident.residual import ljung_box, noise_estimate
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
 COGGING_PERIODS = tuple(range(2, 33))  # cycles/rev: 1 would be gravity itself
 MIN_EXPLAINED = 0.002  # below this fraction of the residual a refit is not worth its time
+# Shape parameters are held at their grid values for a first refit, then freed: fitted free
+# from the base model's optimum, a Stribeck velocity runs to its bound (a pure breakaway level
+# is a nearby local optimum), while with the shape fixed the rest is nearly linear.
+SHAPE_PARAMS = {"stribeck": ("stribeck_velocity",), "cogging": ("cogging_period",)}
+SHAPE_STARTS = 3  # best variants (by explained fraction) refitted with their shape fixed
+WHITE_P = 0.01  # Ljung–Box p above which the residual counts as white
+NOISE_RATIO = 1.1  # RMSE within this factor of the noise estimate: at the noise floor
+TIE = 0.02  # validation RMSEs within 2 % are a tie
+PREFERENCE = ("angle_offset", "torque_bias", "time_delay", "asymmetric_coulomb", "quadratic_drag",
+              "load_dependent_coulomb", "stribeck", "cogging")
+RANK_RESOLUTION = 0.01  # explained fractions closer than this rank as equal
 
 
 @dataclass(frozen=True)
@@ -52,6 +66,7 @@ class Variant:
     label: str
     columns: tuple[Column, ...]
     shape: tuple[tuple[str, float], ...] = ()  # shape values that seed the refit
+    params: tuple[str, ...] = ()  # what the refit frees; empty: all of the effect's parameters
 
 
 @dataclass
@@ -62,7 +77,9 @@ class Evidence:
     variant: str = ""
     explained: float = 0.0  # fraction of the residual sum of squares
     plausible: bool = True
+    params: tuple[str, ...] = ()  # the parameters this variant frees
     start: dict[str, float] = field(default_factory=dict)
+    alternatives: list[dict[str, float]] = field(default_factory=list)  # other variants' starts
     validation_gain: float | None = None  # relative drop of validation RMSE
     significance: float | None = None  # |value| / σ of the best evidence parameter
     values: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> (value, σ)
@@ -108,8 +125,10 @@ def variants(effect: str, torque_scale: float) -> list[Variant]:
         "time_delay": ("time_delay", 5e-3),
     }
     if effect == "torque_bias":
-        cols = (Column((), "torque_bias", torque_step), Column((), "torque_drift", 1e-4 * torque_scale))
-        return [Variant(effect, "bias and drift", cols)]
+        bias = Column((), "torque_bias", torque_step)
+        drift = Column((), "torque_drift", 1e-4 * torque_scale)
+        return [Variant(effect, "offset", (bias,), params=("torque_bias",)),
+                Variant(effect, "offset and drift", (bias, drift))]
     param, step = steps[effect]
     return [Variant(effect, param, (Column((), param, step),))]
 
@@ -128,17 +147,22 @@ def rank_candidates(sim: Simulator, fit: FitResult, candidates: Sequence[str], t
     sens = _sensitivities(sim, fit, columns)
     total = sum(float(r @ r) for r in fit.residuals)
     base_explained = _explained(fit.jacobian, [], fit.residuals, len(fit.free))[0]
-    best: dict[str, Evidence] = {}
+    found: dict[str, list[Evidence]] = {}
     offset = 0
     for variant in probes:
         n_c = len(variant.columns)
         cols = [s[offset : offset + n_c] for s in sens]
         offset += n_c
         explained, coef = _explained(fit.jacobian, cols, fit.residuals, len(fit.free))
-        evidence = _evidence(variant, coef, (explained - base_explained) / max(total, 1e-300))
-        if variant.effect not in best or evidence.explained > best[variant.effect].explained:
-            best[variant.effect] = evidence
-    return sorted(best.values(), key=lambda e: e.explained, reverse=True)
+        found.setdefault(variant.effect, []).append(
+            _evidence(variant, coef, (explained - base_explained) / max(total, 1e-300)))
+    best = []
+    for options in found.values():
+        # The simplest variant unless a richer one explains clearly more (drift beyond offset).
+        options.sort(key=lambda e: (round(e.explained / RANK_RESOLUTION), -len(e.params)), reverse=True)
+        options[0].alternatives = [e.start for e in options[1:SHAPE_STARTS] if e.plausible]
+        best.append(options[0])
+    return sorted(best, key=lambda e: e.explained, reverse=True)
 
 
 def _sensitivities(sim: Simulator, fit: FitResult, columns: Sequence[Column]) -> list[np.ndarray]:
@@ -180,6 +204,7 @@ def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
         variant=variant.label,
         explained=max(explained, 0.0) if plausible else 0.0,
         plausible=plausible,
+        params=variant.params or EFFECTS[variant.effect].params,
         start=start,
     )
 
@@ -189,13 +214,13 @@ class SearchSettings:
     max_effects: int = 4
     min_gain: float = 0.05  # relative validation-RMSE improvement
     min_sigma: float = 3.0
-    top_k: int = 3  # candidates refitted per round
+    top_k: int = 8  # candidates refitted per round (all of them: the linear ranking is only a guide)
 
 
 @dataclass
 class SearchOutcome:
     effects: list[str]
-    fit: FitResult  # the fit (on the fitting split) with the admitted effects
+    fit: FitResult  # the fit (on the fitting split) with the admitted effects; fit.free says what is free
     rounds: list[list[Evidence]]
     validation_rmse: list[float]  # before any effect, then after each admitted one
 
@@ -210,7 +235,6 @@ def search_effects(
     val_sim: Simulator,
     base: FitResult,
     val_x0: np.ndarray,
-    mode: str,
     torque_scale: float,
     settings: SearchSettings,
     progress: Progress | None = None,
@@ -221,57 +245,132 @@ def search_effects(
     current = base
     val_rmse = [score(val_sim, current, val_x0).rmse]
     rounds: list[list[Evidence]] = []
-    while len(effects) < settings.max_effects:
+    while len(effects) < settings.max_effects and not nothing_left(current):
         ranking = rank_candidates(fit_sim, current, candidate_effects(effects, with_tau), torque_scale)
         rounds.append(ranking)
-        tried = [e for e in ranking if e.plausible and e.explained >= MIN_EXPLAINED][: settings.top_k]
-        for evidence in ranking:
-            if evidence not in tried:
-                evidence.reason = "explains too little of the residual" if evidence.plausible else "wrong sign"
-        best: tuple[Evidence, FitResult, float] | None = None
-        for evidence in tried:
+        results = []
+        for evidence in _worth_trying(ranking, current, settings.top_k):
             if progress:
                 progress(f"trying {evidence.effect} ({evidence.variant})")
-            trial_fit, trial_rmse = _try_effect(fit_sim, val_sim, current, effects, evidence, val_x0, mode,
-                                                with_tau, torque_scale, val_rmse[-1], settings)
-            if evidence.accepted and (best is None or trial_rmse < best[2]):
-                best = (evidence, trial_fit, trial_rmse)
-        if best is None:
+            refit, val = _try_effect(fit_sim, val_sim, current, evidence, val_x0, torque_scale, val_rmse[-1],
+                                     settings)
+            if evidence.accepted:
+                results.append((evidence, refit, val))
+        if not results:
             break
-        for evidence in tried:
-            if evidence is not best[0] and evidence.accepted:
-                evidence.accepted = False
-                evidence.reason = f"qualified, but {best[0].effect} improved validation more"
-        effects.append(best[0].effect)
-        current = best[1]
-        val_rmse.append(best[2])
+        chosen, current, val = _choose(results)
+        effects.append(chosen.effect)
+        val_rmse.append(val)
     return SearchOutcome(effects, current, rounds, val_rmse)
 
 
-def _try_effect(fit_sim, val_sim, current, effects, evidence, val_x0, mode, with_tau, torque_scale, val_before,
+def nothing_left(fit: FitResult) -> bool:
+    """True when the residual is white and at the noise level: there is nothing to explain, and
+    any effect "found" would be fitted noise."""
+    _, p_white = ljung_box(fit.residuals)
+    noise = noise_estimate(fit.residuals)
+    return p_white > WHITE_P and noise > 0 and fit.rmse < NOISE_RATIO * noise
+
+
+def _worth_trying(ranking: list[Evidence], current: FitResult, top_k: int) -> list[Evidence]:
+    """The top candidates by explained fraction, plus Stribeck when its linear test failed.
+
+    The base fit absorbs breakaway friction into a higher Coulomb level, so at the base optimum
+    adding a Stribeck term looks harmful to first order (the "wrong sign") although the two
+    together fit far better. It is then tried from a start that keeps the static level:
+    Coulomb 0.7·F plus Stribeck 0.3·F."""
+    tried = [e for e in ranking if e.plausible and e.explained >= MIN_EXPLAINED][:top_k]
+    for evidence in ranking:
+        if evidence.effect == "stribeck" and not evidence.plausible:
+            level = current.value("coulomb")
+            starts = [{"stribeck_velocity": v, "stribeck_torque": 0.3 * level, "coulomb": 0.7 * level}
+                      for v in STRIBECK_VELOCITIES]
+            evidence.start, evidence.alternatives = starts[1], [starts[0], starts[2]]
+            evidence.variant = "static level kept"
+            tried.append(evidence)
+    tried_ids = {id(e) for e in tried}
+    for evidence in ranking:
+        if id(evidence) not in tried_ids:
+            evidence.reason = "explains too little of the residual" if evidence.plausible else "wrong sign"
+    return tried
+
+
+def _choose(results: list[tuple[Evidence, FitResult, float]]) -> tuple[Evidence, FitResult, float]:
+    """The best validation RMSE; candidates within TIE of it count as equal, and among those the
+    one with fewest parameters wins, then the better score. Effects can act alike (a Stribeck
+    term with a large velocity and more damping mimics quadratic drag; a torque bias and an
+    asymmetric Coulomb level look the same on driven trials), and a flexible effect should not
+    win on noise. Some pairs are not just alike but the same equation: on driven trials a
+    constant torque bias b and an asymmetric Coulomb level a = b give identical motion under the
+    stick law (moving: −F·sgn ω − b either way; at rest: the same breakaway thresholds). Data
+    cannot choose there, so PREFERENCE does: measurement errors (offset, bias, delay) first,
+    being the commoner cause, then friction terms, the most flexible (cogging) last."""
+    best_rmse = min(r[2] for r in results)
+    close = [r for r in results if r[2] <= best_rmse * (1.0 + TIE)]
+    chosen = min(close, key=lambda r: (len(r[0].params), PREFERENCE.index(r[0].effect), r[2]))
+    for evidence, _, val in results:
+        if evidence is not chosen[0]:
+            evidence.accepted = False
+            tied = " (a tie)" if val <= best_rmse * (1.0 + TIE) else ""
+            evidence.reason = f"qualified, but {chosen[0].effect} was preferred{tied}"
+    return chosen
+
+
+def refit_with(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float) -> FitResult:
+    """Fit the current model plus ``evidence``'s parameters from its start values; shape
+    parameters go through their grid first (see SHAPE_PARAMS)."""
+    free = (*current.free, *[p for p in evidence.params if p not in current.free])
+    sim = sim.with_tau_scale(current.tau_scale)
+    shape = SHAPE_PARAMS.get(evidence.effect, ())
+    starts = [evidence.start, *evidence.alternatives] if shape else [evidence.start]
+    best = None
+    for start in starts:
+        vector = current.vector.copy()
+        for name, value in start.items():
+            vector[INDEX[name]] = value
+        held = [n for n in free if n not in shape]
+        fit = fit_output_error(sim, _clip_start(vector, free), held, current.x0, torque_scale=torque_scale,
+                               label=f"fit +{evidence.effect}")
+        if best is None or fit.rmse < best.rmse:
+            best = fit
+    if not shape:
+        return best
+    return fit_output_error(sim, best.vector, free, best.x0, torque_scale=torque_scale,
+                            label=f"fit +{evidence.effect}")
+
+
+def _try_effect(fit_sim, val_sim, current, evidence, val_x0, torque_scale, val_before,
                 settings: SearchSettings) -> tuple[FitResult, float]:
-    vector = current.vector.copy()
-    for name, value in evidence.start.items():
-        vector[INDEX[name]] = value
-    free = free_params(mode, [*effects, evidence.effect], with_tau)
-    sim = fit_sim.with_tau_scale(current.tau_scale)
-    refit = fit_output_error(sim, _clip_start(vector, free), free, current.x0, torque_scale=torque_scale,
-                             label=f"fit +{evidence.effect}")
+    refit = refit_with(fit_sim, current, evidence, torque_scale)
     val = score(val_sim, refit, val_x0).rmse
     evidence.validation_gain = float(1.0 - val / val_before) if val_before > 0 else 0.0
     main = EFFECTS[evidence.effect].evidence
-    evidence.values = {n: (refit.value(n), refit.sigma.get(n, math.nan)) for n in EFFECTS[evidence.effect].params}
-    evidence.significance = float(max(abs(refit.value(n)) / max(refit.sigma.get(n, math.inf), 1e-300) for n in main))
+    evidence.values = {n: (refit.value(n), refit.sigma.get(n, math.nan)) for n in evidence.params}
+    evidence.significance = float(max(abs(refit.value(n)) / max(refit.sigma.get(n, math.inf), 1e-300)
+                                      for n in main if n in evidence.params))
     gain_ok = evidence.validation_gain > settings.min_gain
-    sig_ok = evidence.significance >= settings.min_sigma
+    needed = required_sigma(settings.min_sigma, len(variants(evidence.effect, torque_scale)))
+    sig_ok = evidence.significance >= needed
     evidence.accepted = gain_ok and sig_ok
     if evidence.accepted:
         evidence.reason = "validation improved and the parameter is significant"
     elif not gain_ok:
         evidence.reason = f"validation gain {100 * evidence.validation_gain:.1f} % ≤ {100 * settings.min_gain:.0f} %"
     else:
-        evidence.reason = f"parameter only {evidence.significance:.1f} σ from zero"
+        evidence.reason = f"parameter only {evidence.significance:.1f} σ from zero (needs {needed:.1f} σ)"
     return refit, val
+
+
+def required_sigma(min_sigma: float, looks: int) -> float:
+    """The significance an effect needs after searching ``looks`` grid variants for it.
+
+    Picking the best of many variants (31 cogging periods) finds a large-looking value in noise
+    more easily than a single look does (the look-elsewhere effect), so the two-sided tail
+    probability of ``min_sigma`` is shared among the looks (Bonferroni): 3 σ for one look,
+    3.4 σ for the 4 Stribeck velocities, 3.9 σ for the 31 cogging periods."""
+    normal = NormalDist()
+    tail = 2.0 * (1.0 - normal.cdf(min_sigma)) / max(looks, 1)
+    return normal.inv_cdf(1.0 - tail / 2.0)
 
 
 def _clip_start(vector: np.ndarray, free: Sequence[str]) -> np.ndarray:
@@ -283,5 +382,3 @@ def _clip_start(vector: np.ndarray, free: Sequence[str]) -> np.ndarray:
             out[INDEX[name]] = min(max(out[INDEX[name]], LOWER.get(name, -np.inf)), UPPER.get(name, np.inf))
     return out
 
-
-__all__ = ["Evidence", "SearchSettings", "SearchOutcome", "rank_candidates", "search_effects", "score", "rmse"]

@@ -8,10 +8,10 @@ least squares gives a start without any guess.
 Derivatives of a noisy angle are the weak point (identification-anchors.md §5: plain finite
 differences of mrad noise give accelerations noisier than the whole friction torque). So the
 angle is first put on a uniform grid (the sampling may be non-uniform) and then differentiated
-by a Savitzky–Golay filter: a local cubic fit over ~0.1 s, which keeps the pendulum's swing
+by a Savitzky–Golay filter (smoothing.py): a local cubic fit over ~0.1 s, which keeps the pendulum's swing
 (periods ≥ 0.5 s) and removes the sensor noise. Samples near zero speed are left out of the
 regression, because there the sign of θ' is unknown and a sticking joint breaks the equation.
-The parameters are bounded (I > 0, B ≥ 0, F ≥ 0) with ``scipy.optimize.lsq_linear``: an
+The parameters are bounded (I > 0, B ≥ 0, F ≥ 0) by an exact small bounded least squares: an
 unbounded solve readily returns a negative friction on short or poorly excited data.
 """
 
@@ -25,6 +25,7 @@ import numpy as np
 from admittance.errors import DataError
 from admittance.ident.dataset import TrialData
 from admittance.ident.model import INDEX, default_vector
+from admittance.ident.smoothing import nonneg_lstsq, savgol
 
 SMOOTH_WINDOW_S = 0.1  # s: well below a pendulum period, well above the sample interval
 POLY_ORDER = 3
@@ -44,8 +45,6 @@ class Derivatives:
 
 def derivatives(trial: TrialData, window_s: float = SMOOTH_WINDOW_S) -> Derivatives:
     """Smoothed θ, θ', θ'' of a trial on a uniform grid at its median sample interval."""
-    from scipy.signal import savgol_filter
-
     t = trial.t
     dt = float(np.median(np.diff(t)))
     grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt)) + 1)
@@ -56,14 +55,8 @@ def derivatives(trial: TrialData, window_s: float = SMOOTH_WINDOW_S) -> Derivati
         # Too few samples to smooth: central differences are all that is left.
         omega = np.gradient(theta, dt)
         return Derivatives(grid, theta, omega, np.gradient(omega, dt), tau)
-    kw = dict(window_length=window, polyorder=POLY_ORDER, delta=dt, mode="interp")
-    return Derivatives(
-        grid,
-        savgol_filter(theta, deriv=0, **kw),
-        savgol_filter(theta, deriv=1, **kw),
-        savgol_filter(theta, deriv=2, **kw),
-        tau,
-    )
+    smooth = [savgol(theta, window, POLY_ORDER, deriv, dt) for deriv in (0, 1, 2)]
+    return Derivatives(grid, *smooth, tau)
 
 
 def _odd_window(samples: float, n: int) -> int:
@@ -89,8 +82,6 @@ def fit_equation_error(trials: Sequence[TrialData], mode: str) -> tuple[np.ndarr
     Lumped mode solves ``α = κ·τ − Γ·sin θ − β·ω − φ·sgn ω`` for (Γ, β, φ[, κ]) and returns
     them scaled as the simulator needs them (I = 1/Γ, torques / Γ, tau scale κ/Γ).
     """
-    from scipy.optimize import lsq_linear
-
     with_tau = any(tr.tau is not None for tr in trials)
     rows, targets = [], []
     for trial in trials:
@@ -102,8 +93,8 @@ def fit_equation_error(trials: Sequence[TrialData], mode: str) -> tuple[np.ndarr
     if a.shape[0] < a.shape[1] * 3:
         raise DataError("too little motion to identify the model (the trials barely move)")
     scale = np.maximum(np.abs(a).max(axis=0), 1e-12)  # column scaling: the unknowns differ by 1e3
-    lower = np.array([1e-9 * scale[0]] + [0.0] * (a.shape[1] - 1))
-    sol = lsq_linear(a / scale, y, bounds=(lower, np.inf), method="bvls").x / scale
+    lower = np.array([1e-9] + [0.0] * (a.shape[1] - 1))
+    sol = nonneg_lstsq(a / scale, y, lower) / scale
     return _to_sim_vector(sol, mode, with_tau)
 
 

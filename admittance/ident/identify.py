@@ -27,7 +27,7 @@ from admittance.errors import ConfigError
 from admittance.ident import paramfile
 from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, SearchOutcome, SearchSettings, candidate_effects, rank_candidates
-from admittance.ident.effects import score, search_effects
+from admittance.ident.effects import nothing_left, score, search_effects
 from admittance.ident.equation_error import fit_equation_error, initial_states
 from admittance.ident.fit import FitResult, fit_output_error, rmse
 from admittance.ident.model import (
@@ -43,7 +43,7 @@ from admittance.ident.paramfile import PARAM_DEFAULTS
 from admittance.ident.residual import analyse
 from admittance.ident.split import stratified_pick
 
-FIT_MAX_STEP = 1e-3  # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms
+FIT_MAX_STEP = 1e-3  # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM iterations) and less accurate
 
 
 @dataclass
@@ -160,22 +160,31 @@ class IdentifyResult:
 
 
 class _Progress:
-    """One self-overwriting line on stderr."""
+    """One self-overwriting line on a terminal; on a pipe or a log file, one line per phase
+    (an iteration counter rewritten with carriage returns would be unreadable there)."""
 
     def __init__(self, quiet: bool):
         self.quiet = quiet
         self.width = 0
+        self.tty = sys.stderr.isatty()
+        self.phase = ""
 
     def __call__(self, message: str) -> None:
         if self.quiet:
             return
         line = f"identify: {message}"
+        if not self.tty:
+            phase = message.split(":")[0]
+            if phase != self.phase:
+                print(line, file=sys.stderr)
+                self.phase = phase
+            return
         sys.stderr.write("\r" + line.ljust(self.width))
         sys.stderr.flush()
         self.width = len(line)
 
     def done(self) -> None:
-        if not self.quiet and self.width:
+        if self.tty and not self.quiet and self.width:
             sys.stderr.write("\r" + " " * self.width + "\r")
             sys.stderr.flush()
 
@@ -226,9 +235,13 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
     tick = time.perf_counter()
     final = base
     if search and search.effects:
-        free = free_params(mode, search.effects, with_tau)
-        final = fit_output_error(sim_train.with_tau_scale(search.fit.tau_scale), search.fit.vector, free, base.x0,
-                                 torque_scale=torque_scale, progress=progress, label="final fit")
+        free = search.fit.free
+        sim_final = sim_train.with_tau_scale(search.fit.tau_scale)
+        # The initial states belong to the base model; refit them to the new model first (cheap,
+        # three simulations per trial and iteration) so the joint fit starts near its optimum.
+        x0 = fit_output_error(sim_final, search.fit.vector, (), base.x0, label="final fit").x0
+        final = fit_output_error(sim_final, search.fit.vector, free, x0, torque_scale=torque_scale,
+                                 progress=progress, label="final fit")
     before = score(sim_held, base, x0_all[heldout], progress=progress)
     after = before if final is base else score(sim_held, final, before.x0, progress=progress)
     timings["final_fit_and_scoring"] = time.perf_counter() - tick
@@ -236,7 +249,9 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
     tick = time.perf_counter()
     progress("residual analysis")
     effects = search.effects if search else []
-    remaining = rank_candidates(sim_train, final, candidate_effects(effects, with_tau), torque_scale)
+    # Ranking what is left only matters when something is left (it is the costliest batch).
+    remaining = [] if nothing_left(final) else rank_candidates(
+        sim_train, final, candidate_effects(effects, with_tau), torque_scale)
     residual = analyse(sim_train, final)
     timings["residual_analysis"] = time.perf_counter() - tick
     return IdentifyResult(dataset, settings, heldout, training, validation, base, final, before, after, search,
@@ -257,6 +272,6 @@ def _search(sim_train: Simulator, training: list[int], base: FitResult, mode: st
     inner = fit_output_error(fit_sim.with_tau_scale(base.tau_scale), base.vector, base.free, base.x0[fit_local],
                              torque_scale=torque_scale, progress=progress, label="search-split fit")
     search_settings = SearchSettings(settings.max_effects, settings.min_gain, settings.min_sigma)
-    outcome = search_effects(fit_sim, val_sim, inner, base.x0[val_local], mode, torque_scale, search_settings,
+    outcome = search_effects(fit_sim, val_sim, inner, base.x0[val_local], torque_scale, search_settings,
                              progress)
     return outcome, [training[i] for i in val_local]

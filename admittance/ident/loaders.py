@@ -23,6 +23,7 @@ Design choices:
 from __future__ import annotations
 
 import csv
+import inspect
 import json
 import math
 from collections.abc import Iterable, Sequence
@@ -40,8 +41,19 @@ TICKS_PER_REV = 4096
 MOTIVE_AXES = {"x": 0, "y": 1, "z": 2}
 
 
-def load_trial(path: str | Path, format: str, **options: Any) -> TrialArrays:
-    """Parse one recording; ``options`` are the format's keyword options (see each loader)."""
+def load_trial(
+    path: str | Path,
+    format: str,
+    t_start: float | None = None,
+    t_stop: float | None = None,
+    every: int = 1,
+    **options: Any,
+) -> TrialArrays:
+    """Parse one recording; ``options`` are the format's keyword options (see each loader).
+
+    Every format also takes a window on the file's own time axis (``t_start <= t <= t_stop``)
+    and ``every`` (keep every k-th sample), to cut a long log down to the part worth fitting.
+    """
     loader = LOADERS.get(format)
     if loader is None:
         raise DataError(f"{path}: unknown trial format {format!r} (known: {', '.join(sorted(LOADERS))})")
@@ -49,10 +61,25 @@ def load_trial(path: str | Path, format: str, **options: Any) -> TrialArrays:
     if not path.is_file():
         raise DataError(f"{path}: trial file not found")
     try:
-        t, theta, tau = loader(path, **options)
+        inspect.signature(loader).bind(path, **options)
     except TypeError as exc:  # an unknown or misspelt option
         raise DataError(f"{path}: bad option for format {format!r}: {exc}") from None
-    return check_series(path, t, theta, tau)
+    t, theta, tau = loader(path, **options)
+    return check_series(path, *_window(path, t, theta, tau, t_start, t_stop, every))
+
+
+def _window(path: Path, t, theta, tau, t_start, t_stop, every) -> TrialArrays:
+    if not isinstance(every, int) or every < 1:
+        raise DataError(f"{path}: every must be a positive integer, got {every!r}")
+    t = np.asarray(t, dtype=float)
+    keep = np.ones(t.size, dtype=bool)
+    if t_start is not None:
+        keep &= t >= t_start
+    if t_stop is not None:
+        keep &= t <= t_stop
+    index = np.flatnonzero(keep)[::every]
+    pick = lambda a: None if a is None else np.asarray(a, dtype=float)[index]  # noqa: E731
+    return t[index], pick(theta), pick(tau)
 
 
 def check_series(path: Path, t, theta, tau=None) -> TrialArrays:
@@ -398,7 +425,17 @@ def convert_files(
 ) -> Path:
     """Parse each file with :func:`load_trial` and write them as one contract dataset."""
     trials = []
-    for f in files:
+    for f, name in zip(files, trial_names(files)):
         t, theta, tau = load_trial(f, format, **options)
-        trials.append(ConvertedTrial(Path(f).stem, t, theta, tau, dict(extra or {})))
+        trials.append(ConvertedTrial(name, t, theta, tau, dict(extra or {})))
     return write_dataset(out_dir, trials, header)
+
+
+def trial_names(files: Sequence[str | Path]) -> list[str]:
+    """File stems, prefixed by their folder names where stems repeat (``data_measured``)."""
+    paths = [Path(f) for f in files]
+    stems = [p.stem for p in paths]
+    names = [s if stems.count(s) == 1 else f"{p.parent.name}_{s}" for p, s in zip(paths, stems)]
+    if len(set(names)) != len(names):
+        raise DataError(f"two input files would get the same trial name: {', '.join(names)}")
+    return names

@@ -18,7 +18,7 @@ scale lives in the trials, so :class:`Simulator` rebuilds them when it changes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -121,17 +121,19 @@ def bounds_for(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def free_params(mode: str, effects: Sequence[str], with_tau: bool) -> tuple[str, ...]:
-    """The parameters a fit of the base model plus ``effects`` frees, in a fixed order."""
+def free_params(mode: str, effects: Sequence[str], with_tau: bool,
+                params_of: Mapping[str, Sequence[str]] | None = None) -> tuple[str, ...]:
+    """The parameters a fit of the base model plus ``effects`` frees, in a fixed order.
+    ``params_of`` narrows an effect to some of its parameters (a torque bias without drift)."""
     names = list(BASE_PARAMS)
     if mode == "lumped" and with_tau:
         names.append(TAU_SCALE)
     for effect in effects:
-        names.extend(EFFECTS[effect].params)
+        names.extend((params_of or {}).get(effect, EFFECTS[effect].params))
     return tuple(names)
 
 
-def physical_params(vec: np.ndarray, mode: str, tau_scale: float = 1.0) -> dict[str, float]:
+def physical_params(vec: np.ndarray, mode: str) -> dict[str, float]:
     """Contract 1 parameters from a sim-unit vector. Geometry mode: unchanged. Lumped mode: the
     per-inertia values with motor_inertia = 1 (Contract 1's lumped convention)."""
     out = {name: float(vec[i]) for i, name in enumerate(PARAM_NAMES)}

@@ -48,20 +48,25 @@ MODES = ("geometry", "lumped")
 def load(path: str | Path) -> dict[str, Any]:
     """Read and validate a parameter file: ``{"model": {...}, "params": {...}, "fit": {...}}``."""
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: parameter file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    doc = read_toml(path, ConfigError, "parameter file")
     model = _table(doc, "model", path)
     fit = _table(doc, "fit", path)
     params = validate_params(_table(doc, "params", path), where=str(path))
     _check_model(model, path)
     return {"model": model, "params": params, "fit": fit}
+
+
+def read_toml(path: Path, error: type[Exception], what: str) -> dict:
+    """Parse a TOML file; every failure is ``error`` with one line naming the file."""
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{path}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def dump(

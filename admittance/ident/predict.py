@@ -1,16 +1,18 @@
 """The thesis's testing trials (section 3.3, appendix B): fitted parameters against torque data.
 
-Two checks per trial that carries a measured torque:
+Two checks per trial:
 
 (a) **torque → position.** Simulate the fitted model (a Contract 2 file) driven by the measured
     torque from the trial's initial state, and compare the predicted angle with the recorded
-    one. This is the thesis's "recorded and predicted position" figure.
-(b) **position → torque.** Low-pass the recorded angle (2nd-order Butterworth at 5 Hz, run
-    forwards and backwards with ``filtfilt``, as appendix C.4), differentiate twice, and
-    compute the torque the model needs: the thesis's ``I·acc + D·vel + tanh(k·vel)·F`` and the
-    full model of Contract 1 (gravity, asymmetric/Stribeck friction, drag, cogging). Compare
-    with the measured torque: RMSE, correlation, and the lag that maximises their
-    cross-correlation (the thesis saw the measured torque late at fast speeds).
+    one. This is the thesis's "recorded and predicted position" figure. It also runs on free
+    swings (no torque), which makes it the residual plot of an identification.
+(b) **position → torque** (trials with a measured torque). Low-pass the recorded angle
+    (2nd-order Butterworth at 5 Hz, run forwards and backwards with ``filtfilt``, as
+    appendix C.4), differentiate twice, and compute the torque the model needs: the thesis's
+    ``I·acc + D·vel + tanh(k·vel)·F`` and the full model of Contract 1 (gravity,
+    asymmetric/Stribeck friction, drag, cogging). Compare with the measured torque: RMSE,
+    correlation, and the lag that maximises their cross-correlation (the thesis saw the
+    measured torque late at fast speeds).
 
 Why both: (a) is what a user feels (does the joint go where the model says?) but integrates
 torque errors into drift; (b) localises errors in time and exposes a delay directly.
@@ -41,23 +43,23 @@ class PredictMetrics:
     trial: str
     position_rmse: float  # rad, (a)
     position_corr: float
-    torque_rmse_thesis: float  # N·m, (b) with the thesis's formula
-    torque_rmse_model: float  # N·m, (b) with the full model
-    torque_corr_model: float
-    torque_lag: float  # s, > 0: the measured torque lags the calculated one
+    torque_rmse_thesis: float | None = None  # N·m, (b) with the thesis's formula
+    torque_rmse_model: float | None = None  # N·m, (b) with the full model
+    torque_corr_model: float | None = None
+    torque_lag: float | None = None  # s, > 0: the measured torque lags the calculated one
 
 
 @dataclass
 class TrialPrediction:
-    """The series behind the metrics and the appendix-B plots."""
+    """The series behind the metrics and the appendix-B plots (torques None for a free swing)."""
 
     t: np.ndarray
     theta: np.ndarray
     theta_pred: np.ndarray
-    tau: np.ndarray
-    tau_thesis: np.ndarray
-    tau_model: np.ndarray
     metrics: PredictMetrics
+    tau: np.ndarray | None = None
+    tau_thesis: np.ndarray | None = None
+    tau_model: np.ndarray | None = None
 
 
 def load_params(path: str | Path) -> tuple[dict[str, float], str]:
@@ -72,39 +74,56 @@ def load_params(path: str | Path) -> tuple[dict[str, float], str]:
 
 
 def predict_trial(trial, params: dict[str, float], friction: str, tanh_k_thesis: float | None = None,
-                  max_step: float = 1e-3) -> TrialPrediction:
-    """Both checks on one ``TrialData`` with a torque column."""
-    if trial.tau is None:
-        raise DataError(f"{trial.name}: no tau column; predict needs the measured torque")
-    theta_pred = predict_position(trial, params, friction, max_step)
+                  max_step: float = 1e-3, x0: str = "fit") -> TrialPrediction:
+    """(a) on any ``TrialData``; (b) as well when it carries a measured torque."""
+    theta_pred = predict_position(trial, params, friction, max_step, x0)
+    metrics = PredictMetrics(trial.name, _rmse(theta_pred, trial.theta), _corr(theta_pred, trial.theta))
+    prediction = TrialPrediction(trial.t, trial.theta, theta_pred, metrics)
+    if trial.tau is not None:
+        _torque_check(prediction, trial, params, friction, tanh_k_thesis)
+    return prediction
+
+
+def _torque_check(prediction: TrialPrediction, trial, params, friction, tanh_k_thesis) -> None:
+    """(b): calculated torques from the filtered motion, against the measured torque."""
     k = params["tanh_k"] if tanh_k_thesis is None else tanh_k_thesis
     grid, vel, acc, theta_f = filtered_derivatives(trial.t, trial.theta)
     inertia = params["motor_inertia"] + trial.load_inertia
     thesis_grid = inertia * acc + params["damping"] * vel + np.tanh(k * vel) * params["coulomb"]
     model_grid = model_torque(params, inertia, trial.gravity_torque, theta_f, vel, acc, friction)
-    tau_thesis = np.interp(trial.t, grid, thesis_grid)
-    tau_model = np.interp(trial.t, grid, model_grid)
+    prediction.tau = trial.tau
+    prediction.tau_thesis = np.interp(trial.t, grid, thesis_grid)
+    prediction.tau_model = np.interp(trial.t, grid, model_grid)
     measured = corrected_torque(trial.t, trial.tau, params)
-    metrics = PredictMetrics(
-        trial=trial.name,
-        position_rmse=_rmse(theta_pred, trial.theta),
-        position_corr=_corr(theta_pred, trial.theta),
-        torque_rmse_thesis=_rmse(tau_thesis, trial.tau),
-        torque_rmse_model=_rmse(tau_model, measured),
-        torque_corr_model=_corr(tau_model, measured),
-        torque_lag=lag_of(grid, model_grid, np.interp(grid, trial.t, trial.tau)),
-    )
-    return TrialPrediction(trial.t, trial.theta, theta_pred, trial.tau, tau_thesis, tau_model, metrics)
+    m = prediction.metrics
+    m.torque_rmse_thesis = _rmse(prediction.tau_thesis, trial.tau)
+    m.torque_rmse_model = _rmse(prediction.tau_model, measured)
+    m.torque_corr_model = _corr(prediction.tau_model, measured)
+    m.torque_lag = lag_of(grid, model_grid, np.interp(grid, trial.t, trial.tau))
 
 
-def predict_position(trial, params: dict[str, float], friction: str, max_step: float = 1e-3) -> np.ndarray:
-    """(a): the fitted model driven by the measured torque, from the trial's initial state."""
+def predict_position(trial, params: dict[str, float], friction: str, max_step: float = 1e-3,
+                     x0: str = "fit") -> np.ndarray:
+    """(a): the fitted model driven by the measured torque, from the trial's initial state.
+
+    ``x0="fit"`` fits (θ0, ω0) to the whole trial with the model fixed, the same scoring as
+    ``identify``'s held-out trials; ``"data"`` takes them from the first 50 ms of the record.
+    """
     from admittance import sim
     from admittance.ident.thesis import initial_state
 
+    start = initial_state(trial, "data")
+    if x0 == "fit":
+        from admittance.ident.fit import fit_initial_states
+        from admittance.ident.model import Simulator, vector_from
+
+        fitted = fit_initial_states(Simulator([trial], "geometry", friction, max_step), vector_from(params),
+                                    np.array([start]))
+        return trial.theta + fitted.residuals[0]
+    if x0 != "data":
+        raise ConfigError(f"x0 must be 'fit' or 'data', got {x0!r}")
     rt = sim.make_trial(trial.t, trial.tau, trial.load_inertia, trial.gravity_torque)
-    theta0, omega0 = initial_state(trial, "data")
-    return sim.simulate(rt, params, theta0, omega0, max_step=max_step, friction=friction)
+    return sim.simulate(rt, params, start[0], start[1], max_step=max_step, friction=friction)
 
 
 def filtered_derivatives(t: np.ndarray, theta: np.ndarray, cutoff: float = CUTOFF_HZ):
@@ -163,12 +182,10 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(a, b)[0, 1])
 
 
-def predict_dataset(dataset, params_path: str | Path, tanh_k_thesis: float | None = None) -> list[TrialPrediction]:
+def predict_dataset(dataset, params_path: str | Path, tanh_k_thesis: float | None = None,
+                    x0: str = "fit") -> list[TrialPrediction]:
     params, friction = load_params(params_path)
-    driven = [tr for tr in dataset.trials if tr.tau is not None]
-    if not driven:
-        raise DataError("no trial of this dataset has a tau column; predict needs measured torque")
-    return [predict_trial(tr, params, friction, tanh_k_thesis) for tr in driven]
+    return [predict_trial(tr, params, friction, tanh_k_thesis, x0=x0) for tr in dataset.trials]
 
 
 def metrics_table(predictions: list[TrialPrediction]) -> str:
@@ -177,9 +194,14 @@ def metrics_table(predictions: list[TrialPrediction]) -> str:
     lines = [head, "|---|---|---|---|---|---|---|"]
     for p in predictions:
         m = p.metrics
-        lines.append(f"| {m.trial} | {m.position_rmse:.4f} | {m.position_corr:.3f} | {m.torque_rmse_thesis:.4f} "
-                     f"| {m.torque_rmse_model:.4f} | {m.torque_corr_model:.3f} | {m.torque_lag:+.3f} |")
+        cells = [_fmt(m.position_rmse, ".4f"), _fmt(m.position_corr, ".3f"), _fmt(m.torque_rmse_thesis, ".4f"),
+                 _fmt(m.torque_rmse_model, ".4f"), _fmt(m.torque_corr_model, ".3f"), _fmt(m.torque_lag, "+.3f")]
+        lines.append(f"| {m.trial} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
 
 
 def metrics_dicts(predictions: list[TrialPrediction]) -> list[dict]:
@@ -187,39 +209,46 @@ def metrics_dicts(predictions: list[TrialPrediction]) -> list[dict]:
 
 
 def plot_trial(prediction: TrialPrediction, out_dir: Path) -> list[Path]:
-    """Appendix B's three figures: position and torque; measured vs calculated torque;
-    recorded vs predicted position."""
+    """Appendix B's figures: position and torque; measured vs calculated torque (trials with
+    torque); recorded vs predicted position, with the residual below it."""
     import matplotlib
 
     matplotlib.use("Agg")
+    stem = Path(prediction.metrics.trial).stem
+    paths = _plot_torques(prediction, out_dir, stem) if prediction.tau is not None else []
+    return paths + [_plot_position(prediction, out_dir, stem)]
+
+
+def _plot_torques(p: TrialPrediction, out_dir: Path, stem: str) -> list[Path]:
     import matplotlib.pyplot as plt
 
-    p = prediction
-    stem = Path(p.metrics.trial).stem
-    paths = []
     fig, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(p.t, p.theta, color="tab:blue", label="position")
-    ax.set_xlabel("Time (s)")
-    ax.set_ylabel("Position (rad)")
+    ax.set(xlabel="Time (s)", ylabel="Position (rad)", title=f"{stem}: measured position and torque")
     ax2 = ax.twinx()
     ax2.plot(p.t, p.tau, color="tab:red", label="torque")
     ax2.set_ylabel("Torque (N·m)")
-    ax.set_title(f"{stem}: measured position and torque")
-    paths.append(_save(fig, out_dir / f"{stem}_position_torque.png"))
+    first = _save(fig, out_dir / f"{stem}_position_torque.png")
     fig, ax = plt.subplots(figsize=(8, 3.5))
     ax.plot(p.t, p.tau_thesis, label="calculated (thesis formula)")
     ax.plot(p.t, p.tau_model, label="calculated (model)")
     ax.plot(p.t, p.tau, label="measured", alpha=0.8)
     ax.set(xlabel="Time (s)", ylabel="Torque (N·m)", title=f"{stem}: measured and calculated torque")
     ax.legend()
-    paths.append(_save(fig, out_dir / f"{stem}_torque.png"))
-    fig, ax = plt.subplots(figsize=(8, 3.5))
+    return [first, _save(fig, out_dir / f"{stem}_torque.png")]
+
+
+def _plot_position(p: TrialPrediction, out_dir: Path, stem: str) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, (ax, res) = plt.subplots(2, 1, figsize=(8, 5), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     ax.plot(p.t, p.theta, label="recorded")
     ax.plot(p.t, p.theta_pred, label="predicted")
-    ax.set(xlabel="Time (s)", ylabel="Position (rad)", title=f"{stem}: recorded and predicted position")
+    ax.set(ylabel="Position (rad)", title=f"{stem}: recorded and predicted position")
     ax.legend()
-    paths.append(_save(fig, out_dir / f"{stem}_position.png"))
-    return paths
+    res.plot(p.t, 1e3 * (p.theta - p.theta_pred), color="tab:gray")
+    res.set(xlabel="Time (s)", ylabel="Residual (mrad)")
+    return _save(fig, out_dir / f"{stem}_position.png")
 
 
 def _save(fig, path: Path) -> Path:

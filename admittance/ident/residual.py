@@ -20,6 +20,7 @@ import numpy as np
 
 from admittance.ident.fit import FitResult, autocorrelation_time
 from admittance.ident.model import Simulator
+from admittance.ident.smoothing import chi2_sf
 
 LJUNG_BOX_LAGS = 20
 N_BINS = 5
@@ -33,8 +34,6 @@ def noise_estimate(residuals: Sequence[np.ndarray]) -> float:
 
 def ljung_box(residuals: Sequence[np.ndarray], lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
     """(Q statistic, p-value) with the autocorrelation pooled over trials."""
-    from scipy.stats import chi2
-
     num = np.zeros(lags + 1)
     den = 0.0
     n_total = 0
@@ -50,7 +49,7 @@ def ljung_box(residuals: Sequence[np.ndarray], lags: int = LJUNG_BOX_LAGS) -> tu
     rho = num[1:] / den
     k = np.arange(1, lags + 1)
     q = float(n_total * (n_total + 2) * np.sum(rho**2 / (n_total - k)))
-    return q, float(chi2.sf(q, lags))
+    return q, chi2_sf(q, lags)
 
 
 def binned_rms(values: np.ndarray, residual: np.ndarray, n_bins: int = N_BINS) -> list[dict]:

@@ -30,15 +30,12 @@ def savgol(y: np.ndarray, window: int, order: int, deriv: int, dt: float) -> np.
     centre = pinv[deriv] * factor
     out = np.empty_like(y, dtype=float)
     out[half : y.size - half] = np.convolve(y, centre[::-1], mode="valid")
-    for edge, positions in ((y[:window], offsets[:half]), (y[-window:], offsets[half + 1 :])):
-        coef = pinv @ edge
-        powers = np.arange(deriv, order + 1)
-        scale = np.array([math.factorial(p) / math.factorial(p - deriv) for p in powers])
-        values = (positions[:, None] ** (powers - deriv)[None, :]) @ (coef[deriv:] * scale) / dt**deriv
-        if positions is offsets[:half]:
-            out[:half] = values
-        else:
-            out[y.size - half :] = values
+    powers = np.arange(deriv, order + 1)
+    scale = np.array([math.factorial(p) / math.factorial(p - deriv) for p in powers]) / dt**deriv
+    head = (offsets[:half, None] ** (powers - deriv)[None, :]) @ ((pinv @ y[:window])[deriv:] * scale)
+    tail = (offsets[half + 1 :, None] ** (powers - deriv)[None, :]) @ ((pinv @ y[-window:])[deriv:] * scale)
+    out[:half] = head
+    out[y.size - half :] = tail
     return out
 
 

@@ -116,7 +116,8 @@ def _lm(simulate, theta, counter, point, free, tol, batched_jacobian) -> np.ndar
     return result.x
 
 
-def rust_simulator(trial, x0: tuple[float, float], tanh_k: float = TANH_K, max_step: float = MAX_STEP) -> BatchSimulator:
+def rust_simulator(trial, x0: tuple[float, float], tanh_k: float = TANH_K,
+                   max_step: float = MAX_STEP) -> BatchSimulator:
     """A :data:`BatchSimulator` over one trial, running on ``_rtcore.simulate_batch``."""
     from admittance import _rtcore
 
@@ -215,11 +216,18 @@ def fit_dataset(
     cycles: int = CYCLES,
     x0: str = "rest",
     initial_friction: float | None = None,
+    initial_inertia: float = INITIAL_INERTIA,
+    initial_damping: float = INITIAL_DAMPING,
     simulator_factory=rust_simulator,
     batched_jacobian: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> list[ThesisRow]:
-    """Fit every trial of a geometry-mode dataset the thesis's way; one row per trial."""
+    """Fit every trial of a geometry-mode dataset the thesis's way; one row per trial.
+
+    The initial guesses default to the thesis's (its MX rig, I_total ≈ 0.02–0.05 kg·m²); like
+    ``lsqnonlin``'s LM the fit is unbounded, so a rig far from them (a small servo) needs its
+    own guesses or the inertia can wander negative.
+    """
     if dataset.mode != "geometry":
         raise DataError("thesis mode needs the pendulum geometry ([rod] and/or [bob] in the manifest)")
     friction0 = initial_friction if initial_friction is not None else initial_friction_for(dataset.motor)
@@ -227,7 +235,7 @@ def fit_dataset(
     for trial in dataset.trials:
         simulate = simulator_factory(trial, initial_state(trial, x0))
         fit = alternating_fit(
-            simulate, trial.theta, (INITIAL_INERTIA, INITIAL_DAMPING, friction0), cycles,
+            simulate, trial.theta, (initial_inertia, initial_damping, friction0), cycles,
             batched_jacobian=batched_jacobian,
         )
         rows.append(thesis_row(trial, dataset.geometry, fit))

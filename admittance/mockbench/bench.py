@@ -32,12 +32,16 @@ from admittance.mockbench.sensor import (
 
 PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
 SENSOR_KINDS = ("optoforce", "can")
+# Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
+# start angle, register presets...).
+MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name")
 
 
 @dataclass
 class BenchConfig:
     """What to simulate. ``servos`` is a count (IDs 1..N, all ``model``/``protocol``) or a list
-    of per-servo tables with keys id, model, protocol, params_file, load_inertia, gravity_torque."""
+    of per-servo tables with keys id, model, protocol, params_file, load_inertia, gravity_torque
+    (and any of MOCKBUS_PASSTHROUGH_KEYS)."""
 
     servos: int | Sequence[Mapping[str, Any]] = 1
     model: str = "MX-64"
@@ -68,16 +72,17 @@ def params_path(model: str) -> Path:
     return PARAMS_DIR / (re.sub(r"[^a-z0-9]", "", model.lower()) + ".toml")
 
 
-def load_plant_params(model: str, params_file: str | None, effects: Mapping[str, float]) -> dict[str, float]:
-    """The fitted parameters of ``model`` (Contract 2) with ``effects`` laid over them."""
+def load_plant(model: str, params_file: str | None, effects: Mapping[str, float]) -> tuple[dict[str, float], str]:
+    """The fitted parameters and friction law of ``model`` (Contract 2), ``effects`` laid over them."""
     from admittance.ident import paramfile
 
     path = Path(params_file) if params_file else params_path(model)
     if not path.is_file():
-        raise ConfigError(f"no fitted parameters for {model}: {path} does not exist (give a parameter file)")
-    params = dict(paramfile.load(path)["params"])
+        raise ConfigError(f"no fitted parameters for {model}: {path} does not exist (give one with --params FILE)")
+    fitted = paramfile.load(path)
+    params = dict(fitted["params"])
     params.update(paramfile.validate_params(dict(effects), where="mock-bench effect"))
-    return params
+    return params, str(fitted["model"].get("friction", "stick"))
 
 
 def servo_specs(config: BenchConfig) -> list[dict[str, Any]]:
@@ -88,30 +93,43 @@ def servo_specs(config: BenchConfig) -> list[dict[str, Any]]:
         wanted: Sequence[Mapping[str, Any]] = [{"id": i} for i in range(1, config.servos + 1)]
     else:
         wanted = config.servos
-    specs = []
-    for servo in wanted:
-        model = servo.get("model", config.model)
-        specs.append(
-            {
-                "id": int(servo["id"]),
-                "model": model,
-                "protocol": int(servo.get("protocol", config.protocol)),
-                "params": load_plant_params(model, servo.get("params_file", config.params_file), config.effects),
-                "load_inertia": float(servo.get("load_inertia", config.load_inertia)),
-                "gravity_torque": float(servo.get("gravity_torque", config.gravity_torque)),
-            }
-        )
+    specs = [_servo_spec(servo, config) for servo in wanted]
     ids = [s["id"] for s in specs]
     if len(set(ids)) != len(ids):
         raise ConfigError(f"servo IDs must be unique, got {ids}")
     return specs
 
 
+def _servo_spec(servo: Mapping[str, Any], config: BenchConfig) -> dict[str, Any]:
+    model = servo.get("model", config.model)
+    params, friction = load_plant(model, servo.get("params_file", config.params_file), config.effects)
+    extra = {key: servo[key] for key in MOCKBUS_PASSTHROUGH_KEYS if key in servo}
+    return extra | {
+        "id": int(servo["id"]),
+        "model": model,
+        "protocol": int(servo.get("protocol", config.protocol)),
+        "params": params,
+        "friction": friction,
+        "load_inertia": float(servo.get("load_inertia", config.load_inertia)),
+        "gravity_torque": float(servo.get("gravity_torque", config.gravity_torque)),
+    }
+
+
 class MockBench:
-    """The simulated bench; ``with MockBench() as bench:`` starts it and stops it."""
+    """The simulated bench; ``with MockBench() as bench:`` starts it and stops it.
+
+    ``profile`` (the hand, any ``t -> τ`` callable) may be replaced while the bench runs: it
+    is read at every sensor sample. ``bus`` is the ``_rtcore.MockBus`` (``servo_state``,
+    ``set_hardware_error``...) and ``sensor`` the simulated sensor.
+    """
 
     def __init__(self, config: BenchConfig | None = None, **options: Any):
-        self.config = config or BenchConfig(**options)
+        if config is not None and options:
+            raise ConfigError(f"give MockBench a BenchConfig or options, not both ({', '.join(options)})")
+        try:
+            self.config = config or BenchConfig(**options)
+        except TypeError as exc:
+            raise ConfigError(f"MockBench: {exc}") from None
         cfg = self.config
         if cfg.sensor not in SENSOR_KINDS:
             raise ConfigError(f"the mock bench's sensor is one of {', '.join(SENSOR_KINDS)}, not '{cfg.sensor}'")

@@ -282,14 +282,13 @@ class SimulatedCanOptoForce(_StreamingSensor):
         except (can.CanError, OSError, ImportError, NotImplementedError, ValueError) as exc:
             raise DeviceError(f"cannot open the simulated CAN sensor on {interface} channel {channel!r}: {exc}") from None
         self._message = can.Message
+        self._can_error = can.CanError
 
     def _send(self, data: bytes) -> bool:
-        import can
-
         try:
             for payload in split_into_can_payloads(data):
-                self._bus.send(self._message(arbitration_id=self.can_id, data=payload, is_extended_id=False), timeout=0.01)
-        except can.CanError:
+                self._bus.send(self._message(arbitration_id=self.can_id, data=payload, is_extended_id=self.can_id > 0x7FF), timeout=0.01)
+        except self._can_error:
             return False
         return True
 

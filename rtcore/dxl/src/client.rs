@@ -6,8 +6,8 @@
 //! client's timeout, typically one control period), never a fixed 34 ms as in the SDK.
 //! Multi-reply instructions (SYNC_READ, BULK_READ) collect status packets into caller slots
 //! by ID until all arrived or the deadline passed, so one silent servo costs one period, not
-//! the whole bus. No `tcflush` per transaction: stale bytes are dropped by the decoder reset
-//! and by ID matching.
+//! the whole bus. No `tcflush` per transaction: only after a reply was abandoned at its
+//! deadline does the next transaction drain the input, so late bytes never pose as a reply.
 use core::fmt;
 use std::io;
 use std::time::{Duration, Instant};
@@ -110,6 +110,9 @@ pub struct Client<T: Transport> {
     tx: Box<[u8]>,
     rx: Box<[u8]>,
     codec: AnyDecoder,
+    /// A reply was abandoned at its deadline: its late bytes may still arrive, so the next
+    /// transaction drains the input first. Normal cycles skip this (no flush per cycle).
+    abandoned: bool,
 }
 
 fn p1_field(field: &'static str, value: u16) -> Result<u8, ClientError> {
@@ -131,6 +134,7 @@ impl<T: Transport> Client<T> {
             tx: vec![0; max_packet].into_boxed_slice(),
             rx: vec![0; 256].into_boxed_slice(),
             codec,
+            abandoned: false,
         }
     }
 
@@ -157,6 +161,10 @@ impl<T: Transport> Client<T> {
     /// Encode into the TX buffer and send; returns the reply deadline.
     fn send(&mut self, encode: impl FnOnce(&mut [u8]) -> Result<usize, EncodeError>) -> Result<Instant, ClientError> {
         let n = encode(&mut self.tx)?;
+        if self.abandoned {
+            while self.transport.read(&mut self.rx, Instant::now())? > 0 {}
+            self.abandoned = false;
+        }
         self.codec.clear();
         self.transport.write_all(&self.tx[..n])?;
         Ok(Instant::now() + self.timeout)
@@ -184,6 +192,7 @@ impl<T: Transport> Client<T> {
             }
             let n = self.transport.read(&mut self.rx, deadline)?;
             if n == 0 {
+                self.abandoned = true;
                 return Ok((false, last_error));
             }
             self.codec.push(&self.rx[..n]);

@@ -47,6 +47,25 @@ impl ByteStream {
         self.consume(n);
     }
 
+    /// Skip (and count) bytes until `header` starts the pending data; true when it does,
+    /// false when more bytes are needed (a partial header at the end is kept).
+    pub(crate) fn seek_header(&mut self, header: &[u8]) -> bool {
+        match find_header(self.pending(), header) {
+            HeaderSearch::Found(i) => {
+                self.skip(i);
+                true
+            }
+            HeaderSearch::Partial(i) => {
+                self.skip(i);
+                false
+            }
+            HeaderSearch::None => {
+                self.skip(self.end - self.start);
+                false
+            }
+        }
+    }
+
     pub(crate) fn skipped(&self) -> u64 {
         self.skipped
     }
@@ -64,13 +83,13 @@ impl ByteStream {
 /// Where a header may begin in `data`: `Found(i)` for a full match at `i`, `Partial(i)` when a
 /// prefix of the header runs to the end of `data` at `i` (keep it, wait for more bytes), or
 /// `None` when no byte can start a header.
-pub(crate) enum HeaderSearch {
+enum HeaderSearch {
     Found(usize),
     Partial(usize),
     None,
 }
 
-pub(crate) fn find_header(data: &[u8], header: &[u8]) -> HeaderSearch {
+fn find_header(data: &[u8], header: &[u8]) -> HeaderSearch {
     for i in 0..data.len() {
         let tail = &data[i..];
         let n = tail.len().min(header.len());

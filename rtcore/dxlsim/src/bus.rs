@@ -23,6 +23,7 @@ pub enum Fault {
     Crc,
     DataRange,
     DataLength,
+    DataLimit,
     Access,
 }
 
@@ -32,6 +33,7 @@ impl From<TableError> for Fault {
             TableError::Access => Fault::Access,
             TableError::Length => Fault::DataLength,
             TableError::Range => Fault::DataRange,
+            TableError::Limit => Fault::DataLimit,
         }
     }
 }
@@ -127,6 +129,7 @@ impl Bus {
                 vec![status(protocol, servo, Some(Fault::Crc), &[])]
             }
             Some(_) => Vec::new(),
+            None if id == BROADCAST_ID => Vec::new(),
             None => {
                 self.counters.absent_ids += 1;
                 Vec::new()
@@ -134,24 +137,29 @@ impl Bus {
         }
     }
 
+    /// The reply follows the Status Return Level and ID the servo had when the instruction
+    /// arrived: a WRITE that changes either is answered as the servo was addressed.
     fn unicast(&mut self, id: u8, request: Result<Request, ParseError>) -> Vec<Reply> {
         let protocol = self.protocol;
         let Some(index) = self.servos.iter().position(|s| s.id() == id) else {
             self.counters.absent_ids += 1;
             return Vec::new();
         };
+        let level = self.servos[index].status_return_level();
         let (outcome, needs) = match request {
             Ok(request) => self.execute(index, request),
             Err(e) => (Err(self.parse_fault(e)), Needs::AllLevel),
         };
-        let servo = &self.servos[index];
-        if servo.status_return_level() < needs as i64 {
+        if level < needs as i64 {
             return Vec::new();
         }
-        match outcome {
-            Ok(data) => vec![status(protocol, servo, None, &data)],
-            Err(fault) => vec![status(protocol, servo, Some(fault), &[])],
-        }
+        let servo = &self.servos[index];
+        let error = |fault| error_byte(protocol, fault, servo.hardware_error());
+        let reply = match outcome {
+            Ok(data) => encode(protocol, id, error(None), &data, servo.return_delay_us()),
+            Err(fault) => encode(protocol, id, error(Some(fault)), &[], servo.return_delay_us()),
+        };
+        vec![reply]
     }
 
     fn parse_fault(&mut self, e: ParseError) -> Fault {
@@ -263,9 +271,7 @@ impl Bus {
     /// REG_WRITE stores the write for ACTION, after checking it would be accepted now.
     fn reg_write(&mut self, index: usize, address: u16, data: Vec<u8>) -> Result<Vec<u8>, Fault> {
         let servo = &mut self.servos[index];
-        let mut probe = servo.table.clone();
-        let locked = servo.protocol() == Protocol::V2 && servo.snapshot().torque_enabled;
-        let result = probe.write(address, &data, locked).map(|()| Vec::new()).map_err(Fault::from);
+        let result = servo.check_write(address, &data).map(|()| Vec::new()).map_err(Fault::from);
         if result.is_ok() {
             servo.registered = Some((address, data));
         }
@@ -325,6 +331,7 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
                 Some(Fault::Crc) => 0x03,
                 Some(Fault::DataRange) => 0x04,
                 Some(Fault::DataLength) => 0x05,
+                Some(Fault::DataLimit) => 0x06,
                 Some(Fault::Access) => 0x07,
             };
             code | if hardware_error != 0 { 0x80 } else { 0 }
@@ -334,6 +341,7 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
                 None => 0,
                 Some(Fault::Instruction) => protocol1::ErrorBits::INSTRUCTION,
                 Some(Fault::Crc) => protocol1::ErrorBits::CHECKSUM,
+                Some(Fault::DataLimit) => protocol1::ErrorBits::ANGLE_LIMIT,
                 // P1 has one bit for every refused value or address: Range.
                 Some(Fault::DataRange | Fault::DataLength | Fault::Access) => protocol1::ErrorBits::RANGE,
             };
@@ -344,7 +352,10 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
 
 fn status(protocol: Protocol, servo: &Servo, fault: Option<Fault>, data: &[u8]) -> Reply {
     let error = error_byte(protocol, fault, servo.hardware_error());
-    let id = servo.id();
+    encode(protocol, servo.id(), error, data, servo.return_delay_us())
+}
+
+fn encode(protocol: Protocol, id: u8, error: u8, data: &[u8], delay_us: u64) -> Reply {
     // A status packet is at most 1.5× its data (P2 stuffing) plus framing.
     let mut buf = vec![0u8; 16 + data.len() * 3 / 2];
     let written = match protocol {
@@ -355,5 +366,164 @@ fn status(protocol: Protocol, servo: &Servo, fault: Option<Fault>, data: &[u8]) 
     // table never yields either (IDs are range-checked, reads are bounded by the table size),
     // so an empty reply (silence) is the safe fallback.
     buf.truncate(written.unwrap_or(0));
-    Reply { delay_us: servo.return_delay_us(), bytes: buf }
+    Reply { delay_us, bytes: buf }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::setup::{build_bus, ServoConfig};
+    use dxl::instruction as ins;
+    use dxl::Kind;
+    use plant::Params;
+
+    fn bus(protocol: Protocol, ids: &[u8]) -> Bus {
+        let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
+        let configs = ids.iter().map(|&id| ServoConfig { protocol, ..ServoConfig::new(id, params) }).collect();
+        build_bus(configs, 1_000_000).unwrap()
+    }
+
+    /// Decodes P2 status packets: (id, error, data) each.
+    fn statuses(replies: &[Reply]) -> Vec<(u8, u8, Vec<u8>)> {
+        let mut decoder = protocol2::Decoder::new();
+        let mut out = Vec::new();
+        for reply in replies {
+            decoder.push(&reply.bytes);
+            while let Some(Ok(p)) = decoder.next() {
+                let Kind::Status(e) = p.kind else { panic!("not a status") };
+                out.push((p.id, e.raw(), p.params.to_vec()));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn ping_answers_model_and_firmware_with_the_return_delay() {
+        let mut b = bus(Protocol::V2, &[1]);
+        let replies = b.handle(1, ins::PING, &[]);
+        assert_eq!(replies[0].delay_us, 500);
+        let (id, error, data) = statuses(&replies).remove(0);
+        assert_eq!((id, error), (1, 0));
+        assert_eq!(u16::from_le_bytes([data[0], data[1]]), 311);
+    }
+
+    #[test]
+    fn absent_ids_are_silent_and_counted() {
+        let mut b = bus(Protocol::V2, &[1]);
+        assert!(b.handle(9, ins::PING, &[]).is_empty());
+        assert_eq!(b.counters.absent_ids, 1);
+    }
+
+    #[test]
+    fn broadcast_ping_answers_in_id_order() {
+        let mut b = bus(Protocol::V2, &[7, 2, 4]);
+        let ids: Vec<u8> = statuses(&b.handle(BROADCAST_ID, ins::PING, &[])).iter().map(|s| s.0).collect();
+        assert_eq!(ids, [2, 4, 7]);
+    }
+
+    #[test]
+    fn sync_read_answers_in_listed_order_and_skips_absent_ids() {
+        let mut b = bus(Protocol::V2, &[1, 2, 3]);
+        let replies = b.handle(BROADCAST_ID, ins::SYNC_READ, &[0, 0, 2, 0, 3, 9, 1]);
+        let got: Vec<(u8, Vec<u8>)> = statuses(&replies).into_iter().map(|(id, _, d)| (id, d)).collect();
+        assert_eq!(got, [(3, vec![0x37, 0x01]), (1, vec![0x37, 0x01])]);
+    }
+
+    #[test]
+    fn sync_write_changes_every_listed_servo_silently() {
+        let mut b = bus(Protocol::V2, &[1, 2]);
+        let params = [116, 0, 4, 0, 1, 0x10, 0, 0, 0, 2, 0x20, 0, 0, 0];
+        assert!(b.handle(BROADCAST_ID, ins::SYNC_WRITE, &params).is_empty());
+        assert_eq!(b.servo(1).unwrap().table.get("Goal Position"), Some(0x10));
+        assert_eq!(b.servo(2).unwrap().table.get("Goal Position"), Some(0x20));
+    }
+
+    #[test]
+    fn errors_are_e_manual_numbers_on_p2_and_bits_on_p1() {
+        let mut b = bus(Protocol::V2, &[1]);
+        let error = |b: &mut Bus, code, params: &[u8]| statuses(&b.handle(1, code, params))[0].1;
+        assert_eq!(error(&mut b, ins::READ, &[14, 0, 1, 0]), 0x07);
+        assert_eq!(error(&mut b, ins::WRITE, &[64, 0, 5]), 0x04);
+        assert_eq!(error(&mut b, 0x77, &[]), 0x02);
+        assert_eq!(error(&mut b, ins::READ, &[14]), 0x05);
+        // Goal Position 5000 exceeds Max Position Limit (4095) in position mode only.
+        assert_eq!(error(&mut b, ins::WRITE, &[116, 0, 0x88, 0x13, 0, 0]), 0x06);
+        assert_eq!(error(&mut b, ins::WRITE, &[11, 0, 4]), 0x00);
+        assert_eq!(error(&mut b, ins::WRITE, &[116, 0, 0x88, 0x13, 0, 0]), 0x00);
+        let mut p1 = bus(Protocol::V1, &[1]);
+        let replies = p1.handle(1, ins::WRITE, &[36, 0, 0]);
+        let mut decoder = protocol1::Decoder::new(protocol1::Expect::Status);
+        decoder.push(&replies[0].bytes);
+        let Some(Ok(p)) = decoder.next() else { panic!("no P1 status") };
+        assert_eq!(p.kind, Kind::Status(dxl::ServoError::V1(protocol1::ErrorBits(0x08))));
+    }
+
+    #[test]
+    fn hardware_errors_set_the_alert_bit() {
+        let mut b = bus(Protocol::V2, &[1]);
+        b.servo_mut(1).unwrap().set_hardware_error(0x04);
+        assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x80);
+        b.handle(1, ins::REBOOT, &[]);
+        assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x00);
+    }
+
+    #[test]
+    fn status_return_level_one_answers_reads_only() {
+        let mut b = bus(Protocol::V2, &[1]);
+        b.servo_mut(1).unwrap().table.set_checked("Status Return Level", 1).unwrap();
+        assert!(b.handle(1, ins::WRITE, &[65, 0, 1]).is_empty());
+        assert_eq!(statuses(&b.handle(1, ins::READ, &[65, 0, 1, 0]))[0].2, [1]);
+    }
+
+    #[test]
+    fn reg_write_waits_for_action() {
+        let mut b = bus(Protocol::V2, &[1]);
+        b.handle(1, ins::REG_WRITE, &[65, 0, 1]);
+        assert_eq!(b.servo(1).unwrap().table.get("LED"), Some(0));
+        b.handle(BROADCAST_ID, ins::ACTION, &[]);
+        assert_eq!(b.servo(1).unwrap().table.get("LED"), Some(1));
+        assert_eq!(statuses(&b.handle(1, ins::ACTION, &[]))[0].1, 0x02, "ACTION without REG_WRITE");
+    }
+
+    #[test]
+    fn corrupt_packets_answer_crc_error_only_to_present_ids() {
+        let mut b = bus(Protocol::V2, &[1]);
+        assert_eq!(statuses(&b.handle_corrupt(1))[0].1, 0x03);
+        assert!(b.handle_corrupt(5).is_empty());
+        assert!(b.handle_corrupt(BROADCAST_ID).is_empty());
+        assert_eq!(b.counters.crc_errors, 3);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_instruction_leaves_well_formed_replies(
+            id in proptest::prop_oneof![0u8..4, proptest::strategy::Just(BROADCAST_ID)],
+            instruction in proptest::prop_oneof![proptest::strategy::Just(ins::WRITE), proptest::prelude::any::<u8>()],
+            address in 0u8..150,
+            data in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..40),
+        ) {
+            let mut b = bus(Protocol::V2, &[1, 2]);
+            let params: Vec<u8> = [address, 0].into_iter().chain(data).collect();
+            let replies = b.handle(id, instruction, &params);
+            let decoded = statuses(&replies);
+            proptest::prop_assert_eq!(decoded.len(), replies.len());
+            // Whatever the instruction wrote, the physics stays finite.
+            for _ in 0..100 {
+                b.step(5e-4);
+            }
+            let finite = b.servos_mut().iter().all(|s| s.snapshot().theta.is_finite() && s.snapshot().omega.is_finite());
+            proptest::prop_assert!(finite);
+        }
+    }
+
+    #[test]
+    fn factory_reset_keeps_the_id_when_asked() {
+        let mut b = bus(Protocol::V2, &[5]);
+        b.handle(5, ins::WRITE, &[9, 0, 0]);
+        b.handle(5, ins::FACTORY_RESET, &[0x01]);
+        let servo = b.servo(5).unwrap();
+        assert_eq!(servo.table.get("Return Delay Time"), Some(250));
+        assert!(b.handle(BROADCAST_ID, ins::FACTORY_RESET, &[0xFF]).is_empty());
+        assert!(b.servo(5).is_some(), "a broadcast reset-all is not executed");
+    }
 }

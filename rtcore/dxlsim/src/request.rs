@@ -114,7 +114,7 @@ fn sync_write(params: &[u8], wide: bool) -> Result<Request, ParseError> {
     let (address, rest) = field(params, wide)?;
     let (length, body) = field(rest, wide)?;
     let stride = 1 + length as usize;
-    if length == 0 || body.is_empty() || body.len() % stride != 0 {
+    if length == 0 || body.is_empty() || !body.len().is_multiple_of(stride) {
         return Err(ParseError::Malformed);
     }
     let slots = body.chunks(stride).map(|c| WriteSlot { id: c[0], address, data: c[1..].to_vec() }).collect();
@@ -122,7 +122,7 @@ fn sync_write(params: &[u8], wide: bool) -> Result<Request, ParseError> {
 }
 
 fn bulk_read_p2(params: &[u8]) -> Result<Request, ParseError> {
-    if params.is_empty() || params.len() % 5 != 0 {
+    if params.is_empty() || !params.len().is_multiple_of(5) {
         return Err(ParseError::Malformed);
     }
     let slots = params
@@ -138,7 +138,7 @@ fn bulk_read_p2(params: &[u8]) -> Result<Request, ParseError> {
 
 fn bulk_read_p1(params: &[u8]) -> Result<Request, ParseError> {
     match params {
-        [0, body @ ..] if !body.is_empty() && body.len() % 3 == 0 => Ok(Request::MultiRead(
+        [0, body @ ..] if !body.is_empty() && body.len().is_multiple_of(3) => Ok(Request::MultiRead(
             body.chunks(3).map(|c| ReadSlot { id: c[1], address: c[2] as u16, length: c[0] as u16 }).collect(),
         )),
         _ => Err(ParseError::Malformed),

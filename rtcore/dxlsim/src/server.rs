@@ -32,6 +32,12 @@ use crate::pty::Pty;
 const MAX_WAIT: Duration = Duration::from_millis(1);
 /// The most simulated time one catch-up may run; beyond it time is skipped.
 const MAX_CATCH_UP: Duration = Duration::from_millis(250);
+/// A partial packet older than this is dropped: the e-manual's 1.5 ms inter-byte timeout,
+/// after which a servo waits for a new header. Clients write a packet in one call, so on a
+/// pty a packet's bytes arrive together and only a truncated packet ever waits this long.
+const INTER_BYTE_TIMEOUT: Duration = Duration::from_micros(1500);
+/// The bus thread's timer slack (ns): wake-ups land within this of their deadline.
+const TIMER_SLACK_NS: libc::c_ulong = 1_000;
 /// Replies beyond this many unsent bytes are dropped (a client that stopped reading).
 const MAX_PENDING_OUTPUT: usize = 64 * 1024;
 
@@ -52,6 +58,7 @@ pub struct IoCounters {
     pub framing_errors: u64,
     pub foreign_status_packets: u64,
     pub dropped_reply_bytes: u64,
+    pub truncated_packets: u64,
     pub physics_steps: u64,
     pub skipped_steps: u64,
 }
@@ -171,6 +178,20 @@ impl Decoder {
             Decoder::V2(d) => d.skipped_bytes(),
         }
     }
+
+    fn buffered(&self) -> usize {
+        match self {
+            Decoder::V1(d) => d.buffered(),
+            Decoder::V2(d) => d.buffered(),
+        }
+    }
+
+    fn clear(&mut self) {
+        match self {
+            Decoder::V1(d) => d.clear(),
+            Decoder::V2(d) => d.clear(),
+        }
+    }
 }
 
 /// The thread's own state.
@@ -189,6 +210,8 @@ struct Worker {
     output: VecDeque<u8>,
     /// When the bus is free again (the last scheduled reply's end).
     bus_free: Instant,
+    /// When the last bytes arrived (for the inter-byte timeout).
+    last_rx: Instant,
 }
 
 impl Worker {
@@ -207,10 +230,14 @@ impl Worker {
             schedule: VecDeque::new(),
             output: VecDeque::new(),
             bus_free: now,
+            last_rx: now,
         }
     }
 
     fn run(&mut self) -> io::Result<()> {
+        // The default 50 µs timer slack would make every emulated delay late by that much.
+        // SAFETY: PR_SET_TIMERSLACK only changes this thread's timer slack; failure is harmless.
+        unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, TIMER_SLACK_NS) };
         let mut buf = [0u8; 4096];
         while !self.stop.load(Ordering::SeqCst) {
             self.advance_physics();
@@ -218,6 +245,8 @@ impl Worker {
             if self.pty.wait_readable(self.wait_time())? {
                 let n = self.pty.read(&mut buf)?;
                 self.receive(&buf[..n]);
+            } else {
+                self.drop_stale_partial();
             }
         }
         Ok(())
@@ -264,8 +293,18 @@ impl Worker {
         }
     }
 
+    /// Forgets a partial packet once the inter-byte timeout has passed.
+    fn drop_stale_partial(&mut self) {
+        if self.decoder.buffered() > 0 && self.last_rx.elapsed() > INTER_BYTE_TIMEOUT {
+            self.decoder.clear();
+            self.lock().io.truncated_packets += 1;
+        }
+    }
+
     fn receive(&mut self, mut bytes: &[u8]) {
         let arrival = Instant::now();
+        self.drop_stale_partial();
+        self.last_rx = arrival;
         self.lock().io.bytes_in += bytes.len() as u64;
         while !bytes.is_empty() {
             let taken = self.decoder.push(bytes);

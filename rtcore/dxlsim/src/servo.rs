@@ -18,6 +18,8 @@ use crate::registers::Registers;
 use crate::table::{ControlTable, TableError};
 use crate::units::*;
 
+/// Hardware Error Status bit: input voltage outside the voltage limits.
+pub const HW_INPUT_VOLTAGE: u8 = 0x01;
 /// Hardware Error Status bit: overheating.
 pub const HW_OVERHEATING: u8 = 0x04;
 /// The hardware bits P1's error byte can carry (voltage, overheating, overload).
@@ -154,10 +156,59 @@ impl Servo {
         self.reg.torque_enable.is_some_and(|k| self.table.value(k) != 0)
     }
 
-    /// A client write, with the table's rules; P2 locks EEPROM while torque is on.
+    /// A client write, with the table's rules; P2 locks EEPROM while torque is on, and a goal
+    /// beyond its Limit item is refused (nothing is written).
     pub fn write(&mut self, address: u16, data: &[u8]) -> Result<(), TableError> {
-        let locked = self.spec.protocol == Protocol::V2 && self.torque_enabled();
+        self.check_limits(address, data)?;
+        let locked = self.eeprom_locked();
         self.table.write(address, data, locked)
+    }
+
+    /// Whether `write` would accept this now, without writing (REG_WRITE checks up front).
+    pub fn check_write(&self, address: u16, data: &[u8]) -> Result<(), TableError> {
+        self.check_limits(address, data)?;
+        self.table.clone().write(address, data, self.eeprom_locked())
+    }
+
+    /// P2 firmware refuses EEPROM writes while torque is on (P1 firmware does not).
+    fn eeprom_locked(&self) -> bool {
+        self.spec.protocol == Protocol::V2 && self.torque_enabled()
+    }
+
+    /// Data Limit Error (P2) / Angle Limit Error (P1): a goal outside the range its Limit
+    /// items allow now. Goal Position is bounded only in single-turn position mode.
+    fn check_limits(&self, address: u16, data: &[u8]) -> Result<(), TableError> {
+        let r = &self.reg;
+        let symmetric = |limit: Option<usize>| limit.map(|k| (-self.table.value(k), self.table.value(k)));
+        let position = match self.spec.protocol {
+            Protocol::V2 if self.value(r.operating_mode) == 3 => {
+                r.min_position_limit.zip(r.max_position_limit).map(|(lo, hi)| (self.table.value(lo), self.table.value(hi)))
+            }
+            Protocol::V1 if self.mode() == Mode::Position && !self.multi_turn_p1() => {
+                r.cw_angle_limit.zip(r.ccw_angle_limit).map(|(lo, hi)| (self.table.value(lo), self.table.value(hi)))
+            }
+            _ => None,
+        };
+        let checks = [
+            (r.goal_position, position),
+            (r.goal_pwm, symmetric(r.pwm_limit)),
+            (r.goal_current, symmetric(r.current_limit)),
+            (r.goal_velocity, if self.spec.protocol == Protocol::V2 { symmetric(r.velocity_limit) } else { None }),
+        ];
+        for (goal, bounds) in checks {
+            let (Some(goal), Some((lo, hi))) = (goal, bounds) else { continue };
+            let item = &self.table.items()[goal];
+            let start = item.address as usize;
+            let end = start + item.size as usize;
+            let offset = address as usize;
+            if start >= offset && end <= offset + data.len() {
+                let value = item.decode(&data[start - offset..end - offset]);
+                if value < lo || value > hi {
+                    return Err(TableError::Limit);
+                }
+            }
+        }
+        Ok(())
     }
 
     pub fn set_external_torque(&mut self, tau: f64) {
@@ -183,7 +234,7 @@ impl Servo {
 
     /// Advances the horn by one substep of `h` seconds.
     pub fn step(&mut self, h: f64) {
-        self.update_thermal_alarm();
+        self.update_alarms();
         self.enforce_shutdown();
         let duty = if self.torque_enabled() { self.firmware_duty(h) } else { 0.0 };
         let omega = self.state.omega;
@@ -256,21 +307,9 @@ impl Servo {
         }
     }
 
-    /// Goal Position in rad, clamped to the position limits in single-turn position mode.
+    /// Goal Position in rad (writes beyond the position limits are refused by `check_limits`).
     fn position_goal(&self) -> f64 {
-        let goal = self.value(self.reg.goal_position);
-        let limits = match self.spec.protocol {
-            Protocol::V2 if self.reg.operating_mode.map_or(3, |k| self.table.value(k)) == 3 => {
-                (self.reg.min_position_limit, self.reg.max_position_limit)
-            }
-            Protocol::V1 if !self.multi_turn_p1() => (self.reg.cw_angle_limit, self.reg.ccw_angle_limit),
-            _ => (None, None),
-        };
-        let goal = match limits {
-            (Some(lo), Some(hi)) => goal.clamp(self.table.value(lo), self.table.value(hi).max(self.table.value(lo))),
-            _ => goal,
-        };
-        tick_to_rad(goal)
+        tick_to_rad(self.value(self.reg.goal_position))
     }
 
     fn multi_turn_p1(&self) -> bool {
@@ -308,10 +347,22 @@ impl Servo {
         self.temperature += h * (loss - cooling) / HEAT_CAPACITY;
     }
 
-    fn update_thermal_alarm(&mut self) {
-        if let Some(k) = self.reg.temperature_limit {
-            if self.temperature > self.table.value(k) as f64 {
-                self.hardware_error |= HW_OVERHEATING;
+    /// Sets the overheating bit above Temperature Limit and the input-voltage bit outside the
+    /// voltage limits. P2 keeps a bit until a reboot; P1, which has no reboot, clears it once
+    /// the condition is gone.
+    fn update_alarms(&mut self) {
+        let above = |limit: Option<usize>, value: f64| limit.is_some_and(|k| value > self.table.value(k) as f64);
+        let below = |limit: Option<usize>, value: f64| limit.is_some_and(|k| value < self.table.value(k) as f64);
+        let volts = self.spec.motor.vin * 10.0;
+        let conditions = [
+            (HW_OVERHEATING, above(self.reg.temperature_limit, self.temperature)),
+            (HW_INPUT_VOLTAGE, below(self.reg.min_voltage_limit, volts) || above(self.reg.max_voltage_limit, volts)),
+        ];
+        for (bit, active) in conditions {
+            if active {
+                self.hardware_error |= bit;
+            } else if self.spec.protocol == Protocol::V1 {
+                self.hardware_error &= !bit;
             }
         }
     }
@@ -384,5 +435,153 @@ impl Servo {
             hardware_error: self.hardware_error,
             time: self.time,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::Bus;
+    use crate::setup::{build_bus, ServoConfig};
+
+    const H: f64 = 5e-4;
+
+    fn bus_with(protocol: Protocol, model: &str, load: Load, theta0: f64) -> Bus {
+        let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
+        let config = ServoConfig {
+            protocol,
+            model: model.into(),
+            load,
+            initial_theta: theta0,
+            ..ServoConfig::new(1, params)
+        };
+        build_bus(vec![config], 1_000_000).unwrap()
+    }
+
+    fn servo(bus: &mut Bus) -> &mut Servo {
+        bus.servo_mut(1).unwrap()
+    }
+
+    fn run(servo: &mut Servo, seconds: f64) {
+        for _ in 0..(seconds / H) as usize {
+            servo.step(H);
+        }
+        servo.publish();
+    }
+
+    fn set(servo: &mut Servo, name: &str, value: i64) {
+        servo.table.set_checked(name, value).unwrap();
+    }
+
+    /// Runs a servo to goal tick 2560 (0.785 rad) under `gravity`; returns its snapshot.
+    fn hold_goal(protocol: Protocol, model: &str, gravity: f64) -> Snapshot {
+        let mut bus = bus_with(protocol, model, Load { inertia: 0.01, gravity_torque: gravity }, 0.0);
+        let s = servo(&mut bus);
+        set(s, "Goal Position", 2048 + 512);
+        set(s, "Torque Enable", 1);
+        run(s, 3.0);
+        s.snapshot()
+    }
+
+    #[test]
+    fn position_loop_converges_on_the_goal_in_both_protocols() {
+        for (protocol, model) in [(Protocol::V2, "MX-64"), (Protocol::V1, "MX-28"), (Protocol::V2, "MX-106")] {
+            let snap = hold_goal(protocol, model, 0.0);
+            // Within the friction band of a P-only loop: coulomb / stiffness, a few ticks.
+            assert!((snap.present_tick - 2560).abs() <= 6, "{model} P{}: {snap:?}", protocol.number());
+            assert!(snap.omega.abs() < 1e-3);
+        }
+    }
+
+    #[test]
+    fn a_gravity_load_makes_the_p_loop_droop_more_at_lower_gain() {
+        // P1 default P = 32 is softer than P2 default 850 (= 53 in P1 units): it sags further.
+        let soft = hold_goal(Protocol::V1, "MX-64", 0.5);
+        let stiff = hold_goal(Protocol::V2, "MX-64", 0.5);
+        assert!(soft.present_tick < stiff.present_tick && stiff.present_tick < 2560, "{soft:?} {stiff:?}");
+    }
+
+    #[test]
+    fn torque_off_swings_freely_under_gravity_without_back_emf() {
+        let mut bus = bus_with(Protocol::V2, "MX-64", Load { inertia: 0.01, gravity_torque: 1.0 }, 1.2);
+        let s = servo(&mut bus);
+        let mut lowest = f64::MAX;
+        for _ in 0..4000 {
+            s.step(H);
+            lowest = lowest.min(s.snapshot().theta);
+            assert_eq!(s.snapshot().motor_torque, 0.0);
+        }
+        assert!(lowest < -0.5, "swung to {lowest}");
+        run(s, 20.0);
+        let snap = s.snapshot();
+        assert_eq!(snap.omega, 0.0, "stuck by friction");
+        assert!(snap.theta.abs() <= (0.084f64 / 1.0).asin() + 1e-3);
+    }
+
+    #[test]
+    fn enabled_motor_at_zero_duty_brakes_by_back_emf() {
+        let spin = |torque_on: bool| {
+            let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 0.0);
+            let s = servo(&mut bus);
+            set(s, "Operating Mode", 16);
+            set(s, "Torque Enable", i64::from(torque_on));
+            s.set_external_torque(0.5);
+            run(s, 2.0);
+            s.snapshot().omega
+        };
+        let (free, braked) = (spin(false), spin(true));
+        assert!(free > 2.0 * braked && braked > 0.0, "free {free}, braked {braked}");
+    }
+
+    #[test]
+    fn stall_heats_the_motor_until_the_overheating_shutdown() {
+        let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 0.0);
+        let s = servo(&mut bus);
+        set(s, "Temperature Limit", 26);
+        set(s, "Torque Enable", 1);
+        s.set_external_torque(6.0);
+        run(s, 10.0);
+        let snap = s.snapshot();
+        assert_eq!(snap.hardware_error & HW_OVERHEATING, HW_OVERHEATING);
+        assert!(!snap.torque_enabled, "Shutdown turns torque off");
+        assert_eq!(s.table.get("Hardware Error Status"), Some(HW_OVERHEATING as i64));
+    }
+
+    #[test]
+    fn a_supply_outside_the_voltage_limits_raises_the_voltage_bit() {
+        let params = Params { motor_inertia: 0.0147, ..Params::default() };
+        let config = ServoConfig { input_voltage: 18.0, ..ServoConfig::new(1, params) };
+        let mut bus = build_bus(vec![config], 1_000_000).unwrap();
+        let s = servo(&mut bus);
+        run(s, 0.01);
+        assert_eq!(s.hardware_error(), HW_INPUT_VOLTAGE);
+        assert_eq!(s.table.get("Present Input Voltage"), Some(180));
+    }
+
+    #[test]
+    fn p1_wheel_mode_spins_and_reports_sign_magnitude_speed() {
+        let mut bus = bus_with(Protocol::V1, "MX-64", Load::default(), 0.0);
+        let s = servo(&mut bus);
+        set(s, "CCW Angle Limit", 0);
+        set(s, "Moving Speed", 1024 + 600); // CW: negative
+        set(s, "Torque Enable", 1);
+        run(s, 1.0);
+        assert!(s.snapshot().omega < -1.0);
+        let speed = s.table.get("Present Speed").unwrap();
+        assert!(speed & 1024 != 0 && speed & 1023 > 0, "speed {speed}");
+        assert_eq!(s.table.get("Moving"), Some(1));
+    }
+
+    #[test]
+    fn p2_present_values_follow_the_state() {
+        let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), -0.5);
+        let s = servo(&mut bus);
+        assert_eq!(s.table.get("Goal Position"), s.table.get("Present Position"), "goal starts at present");
+        s.set_external_torque(-0.3);
+        run(s, 0.5);
+        assert!(s.table.get("Present Velocity").unwrap() < 0);
+        assert_eq!(s.table.get("Present Position"), Some(rad_to_tick(s.snapshot().theta)));
+        assert_eq!(s.table.get("Present Input Voltage"), Some(120));
+        assert_eq!(s.table.get("Realtime Tick"), Some(500));
     }
 }

@@ -46,7 +46,7 @@ impl Item {
     }
 
     /// Decodes this item's little-endian value from its bytes.
-    fn decode(&self, bytes: &[u8]) -> i64 {
+    pub(crate) fn decode(&self, bytes: &[u8]) -> i64 {
         let mut raw = 0u64;
         for (i, b) in bytes.iter().enumerate() {
             raw |= (*b as u64) << (8 * i);
@@ -69,6 +69,9 @@ pub enum TableError {
     Length,
     /// A value outside its item's min..max.
     Range,
+    /// A goal outside the servo's configured Limit item (checked by the servo, not the table:
+    /// the limit is another item's current value).
+    Limit,
 }
 
 /// The memory of one servo.

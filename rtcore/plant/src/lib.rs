@@ -10,6 +10,16 @@
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
 //!
+//! ```
+//! use plant::{step, FrictionLaw, Load, Params, State};
+//! let p = Params { motor_inertia: 0.0147, damping: 0.03, coulomb: 0.08, ..Params::default() };
+//! p.validate().unwrap();
+//! let load = Load { inertia: 0.0, gravity_torque: 0.0 };
+//! let mut s = State { theta: 0.0, omega: 0.0 };
+//! step(&mut s, &p, &load, FrictionLaw::Stick, 0.05, 0.0, 5e-4); // 0.05 < coulomb: stuck
+//! assert_eq!(s, State { theta: 0.0, omega: 0.0 });
+//! ```
+//!
 //! Semi-implicit (symplectic) Euler rather than RK4: the stick law is a per-step constraint
 //! that a multi-stage method would straddle, and symplectic Euler keeps a frictionless
 //! pendulum's energy bounded over thousands of periods at first-order cost.

@@ -1,7 +1,7 @@
 //! A trial (sample times, applied torque, load) and its simulation at the sample times.
 //!
-//! Between consecutive samples t[i] → t[i+1] the simulator takes n equal substeps,
-//! n = ceil((t[i+1] − t[i]) / max_step), so non-uniform sampling needs no resampling and every
+//! Between consecutive samples `t[i]` → `t[i+1]` the simulator takes n equal substeps,
+//! `n = ceil((t[i+1] − t[i]) / max_step)`, so non-uniform sampling needs no resampling and every
 //! sample time is hit exactly (no interpolation of the state). The ceiling forgives a
 //! relative 1e-9 of rounding, so an interval that is a whole number of steps in decimal does
 //! not get an extra substep from binary arithmetic.
@@ -165,37 +165,41 @@ pub fn simulate_into<F: FnMut(usize, &State)>(
     law: FrictionLaw,
     x0: State,
     max_step: f64,
-    mut record: F,
+    record: F,
 ) {
-    let t = &trial.t;
-    let t0 = t[0];
-    let mut state = x0;
-    record(0, &state);
     match trial.tau.as_deref() {
         Some(tau) => {
-            let mut cursor = TorqueCursor::new(t, tau);
-            for i in 1..t.len() {
-                let n = substep_count(t[i] - t[i - 1], max_step);
-                let h = (t[i] - t[i - 1]) / n as f64;
-                for k in 0..n {
-                    let tk = t[i - 1] + k as f64 * h;
-                    let applied = cursor.at(tk - p.time_delay);
-                    step(&mut state, p, &trial.load, law, applied, tk - t0, h);
-                }
-                record(i, &state);
-            }
+            let mut cursor = TorqueCursor::new(&trial.t, tau);
+            integrate(trial, p, law, x0, max_step, |tk| cursor.at(tk - p.time_delay), record);
         }
         None => {
             let p = Params { torque_bias: 0.0, torque_drift: 0.0, ..*p };
-            for i in 1..t.len() {
-                let n = substep_count(t[i] - t[i - 1], max_step);
-                let h = (t[i] - t[i - 1]) / n as f64;
-                for _ in 0..n {
-                    step(&mut state, &p, &trial.load, law, 0.0, 0.0, h);
-                }
-                record(i, &state);
-            }
+            integrate(trial, &p, law, x0, max_step, |_| 0.0, record);
         }
+    }
+}
+
+/// The substep loop, generic over the torque source so each case compiles to its own loop.
+fn integrate<T: FnMut(f64) -> f64, F: FnMut(usize, &State)>(
+    trial: &Trial,
+    p: &Params,
+    law: FrictionLaw,
+    x0: State,
+    max_step: f64,
+    mut applied_at: T,
+    mut record: F,
+) {
+    let t = &trial.t;
+    let mut state = x0;
+    record(0, &state);
+    for i in 1..t.len() {
+        let n = substep_count(t[i] - t[i - 1], max_step);
+        let h = (t[i] - t[i - 1]) / n as f64;
+        for k in 0..n {
+            let tk = t[i - 1] + k as f64 * h;
+            step(&mut state, p, &trial.load, law, applied_at(tk), tk - t[0], h);
+        }
+        record(i, &state);
     }
 }
 

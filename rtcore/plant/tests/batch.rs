@@ -22,16 +22,21 @@ fn x0(n: usize) -> Vec<State> {
     (0..n).map(|i| at(0.1 * i as f64, 0.0)).collect()
 }
 
+/// The trials, parameter sets and initial states every test here starts from.
+fn request() -> (Vec<Trial>, Vec<Params>, Vec<State>) {
+    let params = param_sets();
+    let starts = x0(params.len() * 2);
+    (trials(), params, starts)
+}
+
 fn batch<'a>(trials: &'a [&'a Trial], params: &'a [Params], x0: &'a [State]) -> Batch<'a> {
     Batch { trials, params, x0, law: FrictionLaw::Stick, max_step: 5e-4, output: Output::ThetaOmega, threads: None }
 }
 
 #[test]
 fn batch_matches_single_runs_on_any_thread_count() {
-    let owned = trials();
+    let (owned, params, starts) = request();
     let refs: Vec<&Trial> = owned.iter().collect();
-    let params = param_sets();
-    let starts = x0(params.len() * refs.len());
     let parallel = batch(&refs, &params, &starts).run().unwrap();
     let serial = Batch { threads: Some(1), ..batch(&refs, &params, &starts) }.run().unwrap();
     assert_eq!(parallel, serial);
@@ -49,10 +54,8 @@ fn batch_matches_single_runs_on_any_thread_count() {
 
 #[test]
 fn batch_refuses_bad_requests_before_running() {
-    let owned = trials();
+    let (owned, params, starts) = request();
     let refs: Vec<&Trial> = owned.iter().collect();
-    let params = param_sets();
-    let starts = x0(params.len() * refs.len());
     let short = x0(2);
     assert!(matches!(batch(&refs, &params, &short).run(), Err(PlantError::Shape(_))));
     let bad_step = Batch { max_step: 0.0, ..batch(&refs, &params, &starts) };

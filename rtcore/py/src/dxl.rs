@@ -26,11 +26,13 @@ fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// `admittance.errors.DeviceError(message)`, or RuntimeError if that module cannot load.
 fn device_error(py: Python<'_>, message: String) -> PyErr {
-    match py.import("admittance.errors").and_then(|m| m.getattr("DeviceError")) {
-        Ok(cls) => PyErr::from_type(cls.cast_into().expect("DeviceError is a type"), message),
-        Err(_) => PyRuntimeError::new_err(message),
-    }
+    py.import("admittance.errors")
+        .and_then(|m| m.getattr("DeviceError"))
+        .and_then(|cls| cls.call1((message.clone(),)))
+        .map(PyErr::from_value)
+        .unwrap_or_else(|_| PyRuntimeError::new_err(message))
 }
 
 fn client_error(py: Python<'_>, e: ClientError) -> PyErr {
@@ -358,6 +360,7 @@ fn model_dict<'py>(py: Python<'py>, m: &Model) -> PyResult<Bound<'py, PyDict>> {
         i.set_item("unit", it.unit)?;
         i.set_item("count", it.count)?;
         i.set_item("default_step", it.default_step)?;
+        i.set_item("first_number", it.first_number)?;
         items.append(i)?;
     }
     d.set_item("items", items)?;
@@ -365,7 +368,8 @@ fn model_dict<'py>(py: Python<'py>, m: &Model) -> PyResult<Bound<'py, PyDict>> {
 }
 
 /// Every model of the Rust table: `[{name, number, protocol, items: [{name, address, size,
-/// access, eeprom, signed, default, min, max, unit, count, default_step}]}]`.
+/// access, eeprom, signed, default, min, max, unit, count, default_step, first_number}]}]`.
+/// A run (`count` > 1) stands for elements `"{name} {first_number + k}"` at `address + k*size`.
 #[pyfunction]
 fn model_table<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
     let out = PyList::empty(py);

@@ -250,6 +250,7 @@ impl PyMockBus {
             ("framing_errors", s.io.framing_errors),
             ("foreign_status_packets", s.io.foreign_status_packets),
             ("dropped_reply_bytes", s.io.dropped_reply_bytes),
+            ("truncated_packets", s.io.truncated_packets),
             ("physics_steps", s.io.physics_steps),
             ("skipped_steps", s.io.skipped_steps),
         ];

@@ -16,7 +16,7 @@ use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
 use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
 
-const LOOP_KEYS: [&str; 20] = [
+const LOOP_KEYS: [&str; 19] = [
     "port",
     "baudrate",
     "protocol",
@@ -35,11 +35,10 @@ const LOOP_KEYS: [&str; 20] = [
     "force_capacity",
     "telemetry_capacity",
     "start_timeout_ms",
-    "model",
-    "name",
+    "torque_on_start",
 ];
 
-const JOINT_KEYS: [&str; 19] = [
+const JOINT_KEYS: [&str; 18] = [
     "id",
     "model",
     "goal_address",
@@ -58,7 +57,6 @@ const JOINT_KEYS: [&str; 19] = [
     "axis",
     "lever_arm",
     "limits",
-    "name",
 ];
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
@@ -176,8 +174,9 @@ fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
 fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let py = d.py();
     check_keys(d, &LOOP_KEYS, "config")?;
-    let mut c = LoopConfig::default();
-    c.port = opt(d, "port", "config")?.ok_or_else(|| config_error(py, "config: \"port\" (the Dynamixel bus device) is required"))?;
+    let port = opt(d, "port", "config")?;
+    let port = port.ok_or_else(|| config_error(py, "config: \"port\" (the Dynamixel bus device) is required"))?;
+    let mut c = LoopConfig { port, ..Default::default() };
     set(d, "baudrate", "config", &mut c.baudrate)?;
     let protocol: u8 = opt(d, "protocol", "config")?.unwrap_or(2);
     c.protocol = Protocol::from_number(protocol)
@@ -193,6 +192,7 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     set(d, "force_capacity", "config", &mut c.force_capacity)?;
     set(d, "telemetry_capacity", "config", &mut c.telemetry_capacity)?;
     set(d, "start_timeout_ms", "config", &mut c.start_timeout_ms)?;
+    set(d, "torque_on_start", "config", &mut c.torque_on_start)?;
     let joints: Vec<Bound<'_, PyDict>> = opt(d, "joints", "config")?.unwrap_or_default();
     c.joints = joints.iter().enumerate().map(|(k, j)| joint_config(j, k, c.protocol)).collect::<PyResult<_>>()?;
     c.validate().map_err(|e| config_error(py, e))?;
@@ -253,7 +253,8 @@ pub struct PyForceSink {
 #[pymethods]
 impl PyForceSink {
     /// `t_ns` = time.monotonic_ns() at arrival; `forces` = up to 6 numbers [fx, fy, fz, tx, ty, tz]
-    /// (missing trailing components are 0). False when the ring is full and the sample dropped.
+    /// (missing trailing components are 0; all finite). False when the ring is full and the
+    /// sample dropped; ValueError for a NaN or a stamp that is not `time.monotonic_ns()`.
     fn push(&self, t_ns: u64, forces: Vec<f64>) -> PyResult<bool> {
         if forces.is_empty() || forces.len() > 6 {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
@@ -263,6 +264,7 @@ impl PyForceSink {
         }
         let mut sample = ForceSample { t_ns, forces: [0.0; 6] };
         sample.forces[..forces.len()].copy_from_slice(&forces);
+        ForceSink::check(&sample).map_err(pyo3::exceptions::PyValueError::new_err)?;
         Ok(self.inner.push(sample))
     }
 }

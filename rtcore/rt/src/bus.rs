@@ -132,9 +132,9 @@ impl JointBus {
         self.sync_write(t, self.regs.goal_address, self.regs.goal_size)
     }
 
-    /// Torque Enable = 0 on every joint, in one SyncWrite.
-    pub fn torque_off(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
-        self.data[..self.ids.len()].fill(0);
+    /// Torque Enable on every joint, in one SyncWrite.
+    pub fn set_torque(&mut self, t: &mut dyn Transport, enable: bool) -> Result<(), BusError> {
+        self.data[..self.ids.len()].fill(u8::from(enable));
         self.sync_write(t, self.regs.torque_enable_address, 1)
     }
 
@@ -302,12 +302,42 @@ mod tests {
         assert_eq!(t1.written()[0][4], 0x92, "P1 reads with BULK_READ");
     }
 
+    proptest::proptest! {
+        #[test]
+        fn goals_survive_the_sync_write_codec(
+            goals in proptest::collection::vec(i32::MIN as i64..=i32::MAX as i64, 1..20),
+            first_id in 0u8..200,
+        ) {
+            let ids: Vec<u8> = (0..goals.len() as u8).map(|k| first_id + k).collect();
+            let mut t = MemoryTransport::new(true, &[]);
+            let mut bus = JointBus::new(Protocol::V2, regs2(), &ids);
+            bus.write_goals(&mut t, &goals).unwrap();
+            let mut decoder = protocol2::Decoder::new();
+            decoder.push(&t.written()[0]);
+            let packet = decoder.next().unwrap().unwrap();
+            proptest::prop_assert_eq!(packet.kind, Kind::Instruction(0x83));
+            let records = &packet.params[4..];
+            for (k, (id, goal)) in ids.iter().zip(&goals).enumerate() {
+                let record = &records[5 * k..5 * k + 5];
+                proptest::prop_assert_eq!(record[0], *id);
+                proptest::prop_assert_eq!(get_le(&record[1..]), *goal);
+            }
+        }
+
+        #[test]
+        fn short_registers_read_back_unsigned(value in 0i64..=0xFFFF) {
+            let mut bytes = [0u8; 2];
+            put_le(&mut bytes, value);
+            proptest::prop_assert_eq!(get_le(&bytes), value);
+        }
+    }
+
     #[test]
     fn a_missing_servo_is_a_timeout_and_torque_off_is_a_broadcast() {
         let mut t = MemoryTransport::new(true, &[(1, 7)]);
         let mut bus = JointBus::new(Protocol::V2, regs2(), &[1, 2]);
         assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Timeout { missing: 1 })));
-        bus.torque_off(&mut t).unwrap();
+        bus.set_torque(&mut t, false).unwrap();
         let last = t.written().pop().unwrap();
         let mut want = [0u8; 32];
         let n = protocol2::encode_sync_write(&mut want, 64, 1, &[1, 2], &[0, 0]).unwrap();

@@ -65,6 +65,8 @@ pub struct LoopConfig {
     pub telemetry_capacity: usize,
     /// How long `start` waits for the servos' present positions.
     pub start_timeout_ms: f64,
+    /// `start` sets each goal to the present position, then enables torque.
+    pub torque_on_start: bool,
 }
 
 impl Default for LoopConfig {
@@ -83,6 +85,7 @@ impl Default for LoopConfig {
             force_capacity: 4096,
             telemetry_capacity: 1 << 16,
             start_timeout_ms: 200.0,
+            torque_on_start: true,
         }
     }
 }

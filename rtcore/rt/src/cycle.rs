@@ -134,11 +134,18 @@ impl Controller {
     }
 
     /// Bumpless start: the model starts where each servo is, so the first goal is no jump.
-    pub fn start_at_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> Result<(), BusError> {
+    /// With `enable_torque`, the goals are first set to the present positions and only then is
+    /// torque enabled, so a servo never lunges towards a goal left over from before.
+    pub fn start_at_present(&mut self, t: &mut dyn Transport, deadline_ns: u64, enable_torque: bool) -> Result<(), BusError> {
         let ticks = self.bus.read_present(t, deadline_ns)?;
-        for (slot, &tick) in self.joints.iter_mut().zip(ticks) {
+        for ((slot, goal), &tick) in self.joints.iter_mut().zip(self.goals.iter_mut()).zip(ticks) {
             slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
             slot.present = tick;
+            *goal = tick;
+        }
+        if enable_torque {
+            self.bus.write_goals(t, &self.goals)?;
+            self.bus.set_torque(t, true)?;
         }
         Ok(())
     }
@@ -321,7 +328,7 @@ impl Controller {
 
     /// The stop policy's last traffic: Torque Enable = 0 on every joint.
     pub fn torque_off(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
-        self.bus.torque_off(t)
+        self.bus.set_torque(t, false)
     }
 }
 

@@ -44,6 +44,15 @@ fn rig(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
     Rig { ctl, bus, clock: FakeClock::new(1_000_000_000, 0), force, params: params_in, telemetry, shared }
 }
 
+/// A rig whose controller already read the present positions and started its stale clock.
+fn started(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
+    let mut r = rig(initial, present);
+    let mut bus = r.bus.clone();
+    r.ctl.start_at_present(&mut bus, 0, false).unwrap();
+    r.ctl.begin(r.clock.now_ns());
+    r
+}
+
 impl Rig {
     /// Pushes a fresh sample with `fx` and runs one cycle on the grid.
     fn cycle_with(&mut self, fx: Option<f64>) -> Record {
@@ -59,7 +68,10 @@ impl Rig {
     }
 
     fn last_goal_written(&self) -> i64 {
-        let packet = self.bus.written().pop().unwrap();
+        self.last_goal_written_in(&self.bus.written().pop().unwrap())
+    }
+
+    fn last_goal_written_in(&self, packet: &[u8]) -> i64 {
         // FF FF FD 00 FE len len 83 addr addr size size id d0 d1 d2 d3 crc crc
         i32::from_le_bytes([packet[13], packet[14], packet[15], packet[16]]) as i64
     }
@@ -74,10 +86,7 @@ fn free_joint() -> LoopParams {
 
 #[test]
 fn a_constant_force_gives_the_goal_ticks_of_the_model() {
-    let mut r = rig(free_joint(), &[(1, 2048)]);
-    let mut bus = r.bus.clone();
-    r.ctl.start_at_present(&mut bus, 0).unwrap();
-    r.ctl.begin(r.clock.now_ns());
+    let mut r = started(free_joint(), &[(1, 2048)]);
     let (fx, h, inertia) = (2.0, 1.0 / RATE, 0.02);
     let a = fx * 0.1 / inertia;
     for n in 1..=300u64 {
@@ -96,12 +105,16 @@ fn a_constant_force_gives_the_goal_ticks_of_the_model() {
 
 #[test]
 fn the_loop_starts_where_the_servo_is() {
-    let mut r = rig(free_joint(), &[(1, 3000)]);
-    let mut bus = r.bus.clone();
-    r.ctl.start_at_present(&mut bus, 0).unwrap();
-    r.ctl.begin(r.clock.now_ns());
+    let mut r = started(free_joint(), &[(1, 3000)]);
     let rec = r.cycle_with(Some(0.0));
     assert_eq!(rec.goal_tick, 3000);
+    let mut enabling = rig(free_joint(), &[(1, 1234)]);
+    let mut bus = enabling.bus.clone();
+    enabling.ctl.start_at_present(&mut bus, 0, true).unwrap();
+    let written = enabling.bus.written();
+    assert_eq!(written.len(), 3, "read, goal = present, then torque on");
+    assert_eq!(enabling.last_goal_written_in(&written[1]), 1234);
+    assert_eq!(&written[2][8..13], &[64, 0, 1, 0, 1], "Torque Enable = 1 for id 1");
 }
 
 #[test]

@@ -60,8 +60,28 @@ impl std::error::Error for StartError {}
 pub struct ForceSink(Arc<Mutex<rtrb::Producer<ForceSample>>>);
 
 impl ForceSink {
-    /// False when the ring is full (the sample is dropped).
+    /// A sample the loop can use: finite forces (a NaN would reach the goal tick, and a NaN goal
+    /// is a jump to the end of the range) stamped on CLOCK_MONOTONIC (a wall-clock stamp lies in
+    /// the far future, so the sample would never go stale).
+    pub fn check(sample: &ForceSample) -> Result<(), String> {
+        if let Some(bad) = sample.forces.iter().find(|f| !f.is_finite()) {
+            return Err(format!("forces must be finite, got {bad}"));
+        }
+        if sample.t_ns > monotonic_ns() + 1_000_000_000 {
+            return Err(format!(
+                "t_ns {} is in the future of CLOCK_MONOTONIC; stamp samples with time.monotonic_ns()",
+                sample.t_ns
+            ));
+        }
+        Ok(())
+    }
+
+    /// False when the sample is dropped: the ring is full, or the sample is invalid (see
+    /// `ForceSink::check`).
     pub fn push(&self, sample: ForceSample) -> bool {
+        if Self::check(&sample).is_err() {
+            return false;
+        }
         self.0.lock().map(|mut p| p.push(sample).is_ok()).unwrap_or(false)
     }
 }
@@ -126,7 +146,9 @@ impl LoopHandle {
         if self.running() {
             return Err(StartError::AlreadyStarted);
         }
-        let (transport, warnings) = SerialTransport::open(&self.config.port, self.config.baudrate)
+        // A write may wait one period for room; longer would make the next deadline late anyway.
+        let write_timeout_ns = (1e9 / self.config.rate_hz) as u64;
+        let (transport, warnings) = SerialTransport::open(&self.config.port, self.config.baudrate, write_timeout_ns)
             .map_err(|e| StartError::Port(format!("cannot open the Dynamixel bus: {e}")))?;
         warnings.into_iter().for_each(|w| self.shared.warn(w));
         self.start_with(Box::new(transport))
@@ -137,7 +159,7 @@ impl LoopHandle {
         let mut idle = self.idle.lock().map_err(|_| StartError::Thread("loop state poisoned".into()))?;
         let mut controller = idle.take().ok_or(StartError::AlreadyStarted)?;
         let deadline = monotonic_ns() + (self.config.start_timeout_ms * 1e6) as u64;
-        if let Err(e) = controller.start_at_present(transport.as_mut(), deadline) {
+        if let Err(e) = controller.start_at_present(transport.as_mut(), deadline, self.config.torque_on_start) {
             *idle = Some(controller);
             return Err(StartError::NoAnswer(self.no_answer_message(&e)));
         }
@@ -196,6 +218,10 @@ impl LoopHandle {
             candidate.set(&self.ids, name, *value)?;
         }
         candidate.validate(&self.ids, self.config.rate_hz)?;
+        if candidate.bias_generation != writer.current.bias_generation {
+            // Visible in params() at once, even before (or without) a running loop adopting it.
+            self.shared.publish_bias(&candidate.bias);
+        }
         writer.input.write(candidate.clone());
         writer.current = candidate;
         Ok(())
@@ -264,11 +290,27 @@ fn rt_thread(
     if let Ok(mut rt) = shared.stats.rt.lock() {
         *rt = report;
     }
-    shared.running.store(true, Ordering::Relaxed);
+    let running = RunningFlag::raise(&shared);
     let _ = ready.send(());
     crate::runner::run(&mut controller, transport.as_mut(), &mut MonotonicClock, &shared, || true);
-    shared.running.store(false, Ordering::Relaxed);
+    drop(running);
     (controller, transport)
+}
+
+/// `running` is true exactly while the loop thread is in its loop, even if it unwinds.
+struct RunningFlag<'a>(&'a Shared);
+
+impl<'a> RunningFlag<'a> {
+    fn raise(shared: &'a Shared) -> Self {
+        shared.running.store(true, Ordering::Relaxed);
+        RunningFlag(shared)
+    }
+}
+
+impl Drop for RunningFlag<'_> {
+    fn drop(&mut self) {
+        self.0.running.store(false, Ordering::Relaxed);
+    }
 }
 
 #[cfg(test)]
@@ -309,6 +351,15 @@ mod tests {
         assert_eq!(after.joints[0].gains.damping, 0.2);
         assert_eq!(after.joints[1].gains.damping, before.joints[1].gains.damping);
         assert_eq!(after.sensor.deadband, 1.0);
+    }
+
+    #[test]
+    fn the_sink_drops_non_finite_samples() {
+        let sink = handle(&[1]).force_sink();
+        assert!(!sink.push(ForceSample { t_ns: 1, forces: [f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0] }));
+        assert!(sink.push(ForceSample { t_ns: 2, forces: [1.0; 6] }));
+        let wall_clock = 1_700_000_000_000_000_000;
+        assert!(!sink.push(ForceSample { t_ns: wall_clock, forces: [1.0; 6] }));
     }
 
     #[test]

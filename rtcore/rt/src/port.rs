@@ -4,19 +4,25 @@
 //! nanoseconds (the clock `Instant` also reads on Linux), converted here by their distance from
 //! now. What the port could not configure (a pty has no baud rate; a non-FTDI device no low-latency
 //! flag; an FTDI latency timer above 1 ms) becomes warnings, not errors: the loop still runs.
+//!
+//! Writes wait for room in the kernel buffer for at most `write_timeout_ns`: a bus whose other
+//! end stopped reading (a stalled adapter, a mock that died) must cost the loop a counted bus
+//! error per cycle, not block the RT thread, and with it `stop()`, forever.
 use crate::bus::Transport;
 use crate::clock::monotonic_ns;
 use dxl::serial::SerialPort;
 use std::io;
+use std::os::fd::{AsRawFd, RawFd};
 use std::time::{Duration, Instant};
 
 pub struct SerialTransport {
     port: SerialPort,
+    write_timeout_ns: u64,
 }
 
 impl SerialTransport {
     /// Opens `path` at `baud`; returns the transport and the warnings about its setup.
-    pub fn open(path: &str, baud: u32) -> io::Result<(SerialTransport, Vec<String>)> {
+    pub fn open(path: &str, baud: u32, write_timeout_ns: u64) -> io::Result<(SerialTransport, Vec<String>)> {
         let port = SerialPort::open(path, baud)?;
         let report = port.report();
         let mut warnings = Vec::new();
@@ -31,7 +37,27 @@ impl SerialTransport {
                 ));
             }
         }
-        Ok((SerialTransport { port }, warnings))
+        Ok((SerialTransport { port, write_timeout_ns }, warnings))
+    }
+}
+
+/// Whether `fd` can take bytes within `timeout_ns` (poll for POLLOUT, retried on EINTR).
+fn writable_within(fd: RawFd, timeout_ns: u64) -> io::Result<bool> {
+    let mut pfd = libc::pollfd { fd, events: libc::POLLOUT, revents: 0 };
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+        let r = unsafe { libc::ppoll(&mut pfd, 1, &ts, std::ptr::null()) };
+        if r >= 0 {
+            return Ok(r > 0);
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
     }
 }
 
@@ -45,6 +71,9 @@ fn ftdi_latency_timer_ms(path: &str) -> Option<u32> {
 
 impl Transport for SerialTransport {
     fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
+        if !writable_within(self.port.as_raw_fd(), self.write_timeout_ns)? {
+            return Err(io::Error::new(io::ErrorKind::TimedOut, "the serial port accepts no more bytes"));
+        }
         self.port.write_all(bytes)
     }
 

@@ -202,6 +202,20 @@ mod tests {
     }
 
     #[test]
+    fn memory_is_either_locked_or_refused_with_one_warning() {
+        let req = RtRequest { policy: Policy::Other, priority: 0, lock_memory: true, cpu: None };
+        let (report, warnings) = std::thread::spawn(move || apply_to_current_thread(&req)).join().unwrap();
+        if report.memory_locked {
+            assert!(warnings.is_empty());
+            release_memory_lock();
+            assert_eq!(MEMORY_LOCK_HOLDERS.load(Ordering::SeqCst), 0);
+        } else {
+            assert_eq!(warnings.len(), 1);
+            assert!(warnings[0].contains("mlockall"));
+        }
+    }
+
+    #[test]
     fn an_impossible_cpu_is_a_warning_not_a_failure() {
         let req = RtRequest { policy: Policy::Other, priority: 0, lock_memory: false, cpu: Some(100_000) };
         let (report, warnings) = std::thread::spawn(move || apply_to_current_thread(&req)).join().unwrap();

@@ -20,8 +20,9 @@ pub enum Access {
     RW,
 }
 
-/// One control-table item (or a run of `count` identical items, element `k` at
-/// `address + k·size` with default `default + k·default_step`).
+/// One control-table item, or a run of `count` identical items: element `k` sits at
+/// `address + k·size`, starts at `default + k·default_step` and is called
+/// `"{name} {first_number + k}"` (e.g. "Indirect Address 29").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Item {
     pub name: &'static str,
@@ -42,12 +43,23 @@ pub struct Item {
     pub unit: &'static str,
     pub count: u16,
     pub default_step: i64,
+    /// The e-manual number of a run's first element (1 for single items).
+    pub first_number: u16,
 }
 
 impl Item {
     /// One past the last byte the item (all its elements) occupies.
     pub fn end(&self) -> u16 {
         self.address + u16::from(self.size) * self.count
+    }
+
+    /// The e-manual name of element `k` (the plain name for a single item).
+    pub fn element_name(&self, k: u16) -> String {
+        if self.count > 1 {
+            format!("{} {}", self.name, self.first_number + k)
+        } else {
+            self.name.to_string()
+        }
     }
 
     /// The initial value of element `k` of a run.
@@ -172,7 +184,9 @@ mod tests {
         let m = find_by_name("MX-64", Protocol::V2).unwrap();
         assert!(m.covers(132, 4) && m.covers(116, 20));
         assert!(!m.covers(14, 1) && !m.covers(146, 2));
-        assert_eq!(m.item_at(172).map(|(it, k)| (it.name, k, it.default_of(k))), Some(("Indirect Address 1", 2, Some(226))));
+        assert_eq!(m.item_at(172).map(|(it, k)| (it.name, k, it.default_of(k))), Some(("Indirect Address", 2, Some(226))));
         assert!(m.item_at(133).is_none());
+        let (run, k) = m.item_at(580).unwrap();
+        assert_eq!((run.element_name(k), run.default_of(k)), ("Indirect Address 30".to_string(), Some(635)));
     }
 }

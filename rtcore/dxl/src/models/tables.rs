@@ -6,6 +6,7 @@
 use super::{Access, Item, Model};
 use crate::packet::Protocol;
 
+#[allow(clippy::too_many_arguments)] // one argument per column of the e-manual table
 const fn item(
     name: &'static str,
     address: u16,
@@ -21,7 +22,7 @@ const fn item(
         None => (None, None),
     };
     let signed = matches!(range, Some((lo, _)) if lo < 0);
-    Item { name, address, size, access, eeprom, signed, default, min, max, unit, count: 1, default_step: 0 }
+    Item { name, address, size, access, eeprom, signed, default, min, max, unit, count: 1, default_step: 0, first_number: 1 }
 }
 
 /// EEPROM, read-write.
@@ -42,8 +43,10 @@ const fn ro(name: &'static str, address: u16, size: u8, eeprom: bool, default: O
 }
 
 /// A run of `count` RAM read-write items.
-const fn run(name: &'static str, address: u16, size: u8, count: u16, default: i64, step: i64, lo: i64, hi: i64) -> Item {
+#[allow(clippy::too_many_arguments)] // one argument per column of the e-manual table
+const fn run(name: &'static str, first: u16, address: u16, size: u8, count: u16, default: i64, step: i64, lo: i64, hi: i64) -> Item {
     let mut it = rw(name, address, size, Some(default), lo, hi, "");
+    it.first_number = first;
     it.count = count;
     it.default_step = step;
     it
@@ -282,16 +285,16 @@ const XL330_BACKUP_READY: [Item; 1] = [ro("Backup Ready", 147, 1, false, None, f
 
 /// Indirect Address 1..28 → Data 1..28, and 29..56 (addresses 578..661, P2 only).
 const P2_INDIRECT_56: [Item; 4] = [
-    run("Indirect Address 1", 168, 2, 28, 224, 1, 64, 661),
-    run("Indirect Data 1", 224, 1, 28, 0, 0, 0, 255),
-    run("Indirect Address 29", 578, 2, 28, 634, 1, 64, 661),
-    run("Indirect Data 29", 634, 1, 28, 0, 0, 0, 255),
+    run("Indirect Address", 1, 168, 2, 28, 224, 1, 64, 661),
+    run("Indirect Data", 1, 224, 1, 28, 0, 0, 0, 255),
+    run("Indirect Address", 29, 578, 2, 28, 634, 1, 64, 661),
+    run("Indirect Data", 29, 634, 1, 28, 0, 0, 0, 255),
 ];
 
 /// XL330: only 20 indirect slots.
 const XL330_INDIRECT: [Item; 2] = [
-    run("Indirect Address 1", 168, 2, 20, 208, 1, 64, 227),
-    run("Indirect Data 1", 208, 1, 20, 0, 0, 0, 255),
+    run("Indirect Address", 1, 168, 2, 20, 208, 1, 64, 227),
+    run("Indirect Data", 1, 208, 1, 20, 0, 0, 0, 255),
 ];
 
 const MX_CURRENT_UNIT: &str = "3.36 mA";

@@ -5,7 +5,7 @@
 use super::encode::checksum;
 use super::{ErrorBits, MAX_PACKET_LEN, PREFIX_LEN};
 use crate::packet::{DecodeError, Kind, Packet, ServoError};
-use crate::stream::{find_header, ByteStream, HeaderSearch};
+use crate::stream::ByteStream;
 
 /// Which packets the stream carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -19,7 +19,7 @@ pub enum Expect {
 pub struct Decoder {
     stream: ByteStream,
     /// The last packet, copied out so the stream can move on while the caller holds it.
-    packet: [u8; MAX_PACKET_LEN],
+    packet: Box<[u8]>,
     expect: Expect,
     checksum_errors: u64,
 }
@@ -28,7 +28,7 @@ impl Decoder {
     pub fn new(expect: Expect) -> Decoder {
         Decoder {
             stream: ByteStream::with_capacity(2 * MAX_PACKET_LEN),
-            packet: [0; MAX_PACKET_LEN],
+            packet: vec![0; MAX_PACKET_LEN].into_boxed_slice(),
             expect,
             checksum_errors: 0,
         }
@@ -76,19 +76,8 @@ impl Decoder {
     /// Find and check the next candidate; `Ok(Some(total))` leaves a valid packet at the front.
     fn frame(&mut self) -> Result<Option<usize>, DecodeError> {
         loop {
-            let data = self.stream.pending();
-            match find_header(data, &[0xFF, 0xFF]) {
-                HeaderSearch::None => {
-                    let n = data.len();
-                    self.stream.skip(n);
-                    return Ok(None);
-                }
-                HeaderSearch::Partial(i) => {
-                    self.stream.skip(i);
-                    return Ok(None);
-                }
-                HeaderSearch::Found(i) if i > 0 => self.stream.skip(i),
-                HeaderSearch::Found(_) => {}
+            if !self.stream.seek_header(&[0xFF, 0xFF]) {
+                return Ok(None);
             }
             let data = self.stream.pending();
             if data.len() < PREFIX_LEN {

@@ -8,7 +8,7 @@ use crate::crc::crc16;
 use crate::instruction::STATUS;
 use crate::packet::{DecodeError, Kind, Packet, ServoError};
 use crate::protocol2::StatusError;
-use crate::stream::{find_header, ByteStream, HeaderSearch};
+use crate::stream::ByteStream;
 
 /// The header the decoder looks for: `FF FF FD 00` (a stuffed `FF FF FD FD` never matches).
 const SYNC: [u8; 4] = [0xFF, 0xFF, 0xFD, 0x00];
@@ -90,19 +90,8 @@ impl Decoder {
 
     fn frame(&mut self) -> Framed {
         loop {
-            let data = self.stream.pending();
-            match find_header(data, &SYNC) {
-                HeaderSearch::None => {
-                    let n = data.len();
-                    self.stream.skip(n);
-                    return Framed::NeedMore;
-                }
-                HeaderSearch::Partial(i) => {
-                    self.stream.skip(i);
-                    return Framed::NeedMore;
-                }
-                HeaderSearch::Found(i) if i > 0 => self.stream.skip(i),
-                HeaderSearch::Found(_) => {}
+            if !self.stream.seek_header(&SYNC) {
+                return Framed::NeedMore;
             }
             let data = self.stream.pending();
             if data.len() < PREFIX_LEN + 1 {

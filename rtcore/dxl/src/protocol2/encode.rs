@@ -1,7 +1,7 @@
 //! P2 encoders. Each writes one whole packet into a caller buffer and returns its length, so
 //! the RT loop reuses one preallocated buffer per cycle. Stuffing happens while writing (one
 //! pass, no scratch buffer), the length field is patched afterwards and the CRC goes last.
-use super::stuffing::PatternMatcher;
+use super::stuffing::{stuffed_len_of, PatternMatcher};
 use super::{BROADCAST_ID, HEADER, MAX_ID, PREFIX_LEN};
 use crate::crc::crc16;
 use crate::instruction as ins;
@@ -99,14 +99,14 @@ pub fn encode_status(buf: &mut [u8], id: u8, error: u8, params: &[u8]) -> Result
     })
 }
 
-/// Size of an instruction packet with `params` (after stuffing); for sizing buffers.
-pub fn instruction_len(params: &[u8]) -> usize {
-    PREFIX_LEN + super::stuffing::stuffed_len(params) + 3
+/// Size of an instruction packet (after stuffing); for sizing buffers.
+pub fn instruction_len(instruction: u8, params: &[u8]) -> usize {
+    PREFIX_LEN + stuffed_len_of(core::iter::once(instruction).chain(params.iter().copied())) + 2
 }
 
-/// Size of a status packet with `params` (after stuffing).
-pub fn status_len(params: &[u8]) -> usize {
-    PREFIX_LEN + super::stuffing::stuffed_len(params) + 4
+/// Size of a status packet (after stuffing).
+pub fn status_len(error: u8, params: &[u8]) -> usize {
+    PREFIX_LEN + stuffed_len_of([ins::STATUS, error].into_iter().chain(params.iter().copied())) + 2
 }
 
 pub fn encode_ping(buf: &mut [u8], id: u8) -> Result<usize, EncodeError> {

@@ -30,8 +30,13 @@ impl PatternMatcher {
 
 /// Stuffed size of `src`.
 pub fn stuffed_len(src: &[u8]) -> usize {
+    stuffed_len_of(src.iter().copied())
+}
+
+/// Stuffed size of a byte sequence given in pieces (instruction, error, params).
+pub fn stuffed_len_of(src: impl IntoIterator<Item = u8>) -> usize {
     let mut m = PatternMatcher::default();
-    src.iter().map(|&b| if m.feed(b) { m.reset(); 2 } else { 1 }).sum()
+    src.into_iter().map(|b| if m.feed(b) { m.reset(); 2 } else { 1 }).sum()
 }
 
 /// Stuff `src` into `dst`; returns the bytes written, or `None` when `dst` is too short.

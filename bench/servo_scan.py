@@ -1,0 +1,65 @@
+"""How long a Dynamixel scan takes: ServoBus (the adapter's real latency timer) vs the plain SDK.
+
+dynamixel-sdk waits 2 × 16 ms (an assumed FTDI latency timer) + 2 ms for every missing reply;
+ServoBus uses the port's real timer (none on a pty) plus its 20 ms slack. The figures are for
+the simulated bus (one MX-64 at ID 1), with a ping on IDs 1..N (N − 1 of them absent), and a
+Protocol 2.0 broadcast ping.
+
+Run: .venv/bin/python bench/servo_scan.py
+"""
+
+from __future__ import annotations
+
+import time
+
+from dynamixel_sdk import PacketHandler, PortHandler
+
+from admittance import _rtcore
+from admittance.drivers.dynamixel import ServoBus
+
+IDS = range(1, 21)
+
+
+def _sdk_scan(port: str) -> tuple[float, int]:
+    handler, packet = PortHandler(port), PacketHandler(2.0)
+    handler.setBaudRate(1_000_000)
+    t0 = time.perf_counter()
+    found = sum(1 for i in IDS if packet.ping(handler, i)[1] == 0)
+    elapsed = time.perf_counter() - t0
+    handler.closePort()
+    return elapsed, found
+
+
+def _servobus_scan(port: str) -> tuple[float, int]:
+    with ServoBus(port) as bus:
+        t0 = time.perf_counter()
+        found = len(bus.scan(IDS))
+        return time.perf_counter() - t0, found
+
+
+def _broadcast(port: str) -> tuple[float, int]:
+    with ServoBus(port) as bus:
+        t0 = time.perf_counter()
+        found = len(bus.scan())
+        return time.perf_counter() - t0, found
+
+
+def main() -> None:
+    bus = _rtcore.MockBus(servos=[{"id": 1, "model": "MX-64", "protocol": 2, "params": {"motor_inertia": 0.0147}}], baudrate=1_000_000, wire_delay=True)
+    bus.start()
+    try:
+        sdk, found_sdk = _sdk_scan(bus.port_path)
+        ours, found_ours = _servobus_scan(bus.port_path)
+        broadcast, found_bc = _broadcast(bus.port_path)
+    finally:
+        bus.stop()
+    n = len(IDS)
+    print(f"scan of IDs {IDS.start}..{IDS.stop - 1} on the simulated bus (1 servo present)")
+    print(f"  dynamixel-sdk ping per ID          {sdk * 1e3:8.0f} ms  ({sdk / n * 1e3:5.1f} ms/ID, found {found_sdk})")
+    print(f"  ServoBus.scan(ids) ping per ID     {ours * 1e3:8.0f} ms  ({ours / n * 1e3:5.1f} ms/ID, found {found_ours})")
+    print(f"  ServoBus.scan() broadcast ping     {broadcast * 1e3:8.0f} ms  (whole bus, found {found_bc})")
+    print(f"  SDK / ServoBus per-ID scan: {sdk / ours:.1f}×")
+
+
+if __name__ == "__main__":
+    main()

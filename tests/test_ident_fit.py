@@ -1,0 +1,135 @@
+"""The fit on synthetic data with known truth: parameters recovered, nothing added on clean
+data, the Jacobian's one-batch structure, lumped mode and the tanh variant."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from admittance.ident.dataset import load_dataset, load_geometry
+from admittance.ident.equation_error import fit_equation_error, initial_states
+from admittance.ident.fit import _Problem, fit_output_error
+from admittance.ident.identify import IdentifySettings, identify_dataset
+from admittance.ident.model import Simulator, free_params, vector_from
+from admittance.ident.synthetic import BOB, MX64, ROD, SynthSpec, generate
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    return generate(tmp_path_factory.mktemp("clean"), SynthSpec(n_trials=8, duration=5.0, jitter=0.2, seed=1))
+
+
+@pytest.fixture(scope="module")
+def clean_result(clean):
+    return identify_dataset(load_dataset(clean))
+
+
+def test_parameters_recovered_on_clean_data(clean_result):
+    j = clean_result.to_json()
+    assert j["mode"] == "geometry"
+    assert j["motor_inertia"] == pytest.approx(MX64["motor_inertia"], rel=0.05)
+    assert j["damping"] == pytest.approx(MX64["damping"], rel=0.10)
+    assert j["coulomb"] == pytest.approx(MX64["coulomb"], rel=0.15)
+
+
+def test_nothing_is_added_on_clean_data(clean_result):
+    j = clean_result.to_json()
+    assert j["effects"] == []
+    assert j["rmse_after"] == j["rmse_before"]
+    assert j["rmse_before"] < 0.0025  # the 2 mrad sensor noise, not model error
+    assert j["residual"]["white"]
+
+
+def test_json_has_every_required_key(clean_result):
+    j = clean_result.to_json()
+    for key in ("mode", "base", "effects", "params", "motor_inertia", "damping", "coulomb",
+                "rmse_before", "rmse_after", "heldout"):
+        assert key in j
+    assert set(j["base"]) == {"motor_inertia", "damping", "coulomb"}
+    assert j["heldout"] and not set(j["heldout"]) & set(j["training"])
+    assert set(j["validation"]) <= set(j["training"])
+    json.dumps(j)  # serialisable as is
+
+
+def test_equation_error_start_is_close(clean):
+    ds = load_dataset(clean)
+    vec, _ = fit_equation_error(ds.trials, ds.mode)
+    assert vec[0] == pytest.approx(MX64["motor_inertia"], rel=0.2)
+    assert vec[2] == pytest.approx(MX64["coulomb"], rel=0.2)
+
+
+def test_jacobian_comes_from_one_batch_with_per_trial_initial_states(clean, monkeypatch):
+    ds = load_dataset(clean)
+    sim = Simulator(ds.trials[:3], ds.mode)
+    calls = []
+    real_run = sim.run
+
+    def counting_run(rows, x0, velocity=False):
+        calls.append(rows.shape[0])
+        return real_run(rows, x0, velocity)
+
+    monkeypatch.setattr(sim, "run", counting_run)
+    truth = vector_from(json.loads((clean / "truth.json").read_text())["params"])
+    problem = _Problem(sim, truth, free_params("geometry", [], False), True, 0.3)
+    z = np.concatenate([truth[:3], initial_states(ds.trials[:3]).ravel()])
+    r = problem.residuals(z)
+    jac = problem.jacobian(z, r, np.full(z.size, np.inf))
+    assert calls == [1, 3 + 2]  # one residual run, then ONE batch of n_params + 2 rows
+    assert [j.shape for j in jac] == [(5, tr.n_samples) for tr in ds.trials[:3]]
+    # A trial's θ0 column equals a direct finite difference on that trial alone.
+    bumped = z.copy()
+    bumped[3 + 2] += 1e-3
+    direct = (problem.residuals(bumped)[1] - r[1]) / 1e-3
+    np.testing.assert_allclose(jac[1][3], direct, atol=1e-6)
+
+
+def test_initial_states_are_estimated(clean, clean_result):
+    truth = json.loads((clean / "truth.json").read_text())
+    x0_true = {e["file"]: e["x0"] for e in truth["trials"]}
+    for name, (theta0, _) in clean_result.to_json()["x0"].items():
+        assert theta0 == pytest.approx(x0_true[name][0], abs=0.01)
+
+
+def test_lumped_mode_recovers_ratios(tmp_path):
+    folder = generate(tmp_path, SynthSpec(n_trials=5, duration=5.0, geometry=False, distances=(0.3,),
+                                          with_torque=True, seed=4))
+    j = identify_dataset(load_dataset(folder)).to_json()
+    inertia, gravity = load_geometry(ROD, BOB, 0.3)
+    inertia += MX64["motor_inertia"]
+    assert j["mode"] == "lumped"
+    assert j["base"]["gravity_per_inertia"] == pytest.approx(gravity / inertia, rel=0.02)
+    assert j["base"]["damping_per_inertia"] == pytest.approx(MX64["damping"] / inertia, rel=0.1)
+    assert j["base"]["coulomb_per_inertia"] == pytest.approx(MX64["coulomb"] / inertia, rel=0.15)
+    assert j["base"]["inverse_inertia"] == pytest.approx(1 / inertia, rel=0.05)
+    assert j["params"]["motor_inertia"] == 1.0
+
+
+def test_tanh_variant_fits_its_own_data(tmp_path):
+    """The thesis's tanh law stays available: data simulated with it are fitted with it."""
+    from admittance import _rtcore
+
+    ds = load_dataset(generate(tmp_path, SynthSpec(n_trials=3, duration=4.0, seed=2)))
+    truth = vector_from(MX64)
+    x0 = initial_states(ds.trials)
+    rt = [_rtcore.Trial(tr.t, None, tr.load_inertia, tr.gravity_torque) for tr in ds.trials]
+    measured = _rtcore.simulate_batch(rt, truth[None, :], x0[None], max_step=1e-3, friction="tanh")
+    ds_trials = [tr.__class__(tr.name, tr.t, m[0], None, tr.load_inertia, tr.gravity_torque, tr.meta)
+                 for tr, m in zip(ds.trials, measured)]
+    sim = Simulator(ds_trials, ds.mode, friction="tanh")
+    start = truth.copy()
+    start[:3] *= (1.1, 0.8, 1.2)
+    fit = fit_output_error(sim, start, free_params("geometry", [], False), x0, torque_scale=0.3)
+    np.testing.assert_allclose(fit.vector[:3], truth[:3], rtol=0.01)
+
+
+@pytest.mark.slow
+def test_thesis_scale_recovery(tmp_path):
+    """30 trials of 12 s, as in the thesis: parameters within 2 %, nothing added."""
+    folder = generate(tmp_path, SynthSpec(n_trials=30, duration=12.0, jitter=0.2, seed=7))
+    j = identify_dataset(load_dataset(folder), IdentifySettings()).to_json()
+    assert j["effects"] == []
+    assert j["motor_inertia"] == pytest.approx(MX64["motor_inertia"], rel=0.02)
+    assert j["damping"] == pytest.approx(MX64["damping"], rel=0.02)
+    assert j["coulomb"] == pytest.approx(MX64["coulomb"], rel=0.02)

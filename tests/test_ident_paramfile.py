@@ -1,0 +1,74 @@
+"""Contract 2 parameter files: round trip, validation with file and key named."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from admittance.errors import ConfigError
+from admittance.ident import paramfile
+
+
+def test_round_trip(tmp_path):
+    path = tmp_path / "mx64.toml"
+    params = {"motor_inertia": 0.0147, "damping": 0.0347, "coulomb": 0.0843, "angle_offset": -0.01}
+    paramfile.dump(path, params, model={"motor": "MX-64", "friction": "stick"}, fit={"effects": ["angle_offset"]})
+    doc = paramfile.load(path)
+    assert doc["params"] == params
+    assert doc["model"]["motor"] == "MX-64"
+    assert doc["fit"]["effects"] == ["angle_offset"]
+
+
+def test_names_agree_with_the_simulator():
+    from admittance import _rtcore
+
+    assert paramfile.PARAM_NAMES == tuple(_rtcore.PARAM_NAMES)
+    defaults = [0.0 if v is None else v for v in paramfile.PARAM_DEFAULTS.values()]
+    assert defaults[1:] == list(_rtcore.PARAM_DEFAULTS)[1:]
+
+
+@pytest.mark.parametrize(
+    "body, fragment",
+    [
+        ("[params]\nmotor_inertia = 0.01\ndampin = 0.1\n", "dampin: unknown parameter"),
+        ("[params]\nmotor_inertia = nan\n", "motor_inertia: value must be finite"),
+        ("[params]\ncoulomb = inf\n", "coulomb: value must be finite"),
+        ("[params]\ncoulomb = \"high\"\n", "coulomb: expected a number"),
+        ("[model]\nfriction = \"viscous\"\n", "friction"),
+        ("[model]\nmode = \"other\"\n", "mode"),
+        ("params = 3\n", "[params] must be a table"),
+        ("[params\n", "not valid TOML"),
+    ],
+)
+def test_bad_files_name_file_and_key(tmp_path, body, fragment):
+    path = tmp_path / "bad.toml"
+    path.write_text(body)
+    with pytest.raises(ConfigError) as err:
+        paramfile.load(path)
+    assert str(path) in str(err.value)
+    assert fragment in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        paramfile.load(tmp_path / "absent.toml")
+
+
+def test_dump_refuses_bad_values_before_writing(tmp_path):
+    path = tmp_path / "out.toml"
+    with pytest.raises(ConfigError, match="damping"):
+        paramfile.dump(path, {"motor_inertia": 0.01, "damping": math.nan})
+    assert not path.exists()
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.dictionaries(st.sampled_from(paramfile.PARAM_NAMES),
+                       st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1))
+def test_round_trip_property(tmp_path_factory, params):
+    path = tmp_path_factory.mktemp("pf") / "p.toml"
+    paramfile.dump(path, params)
+    assert paramfile.load(path)["params"] == {k: float(v) for k, v in params.items()}

@@ -1,0 +1,57 @@
+"""Residual verdict pieces: whiteness, noise estimate, binning; and the stratified split."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from admittance.ident.dataset import TrialData
+from admittance.ident.fit import autocorrelation_time
+from admittance.ident.residual import binned_rms, ljung_box, noise_estimate
+from admittance.ident.split import stratified_pick
+
+
+def test_white_noise_is_white_and_a_smooth_error_is_not():
+    rng = np.random.default_rng(0)
+    white = [rng.normal(0, 0.002, 700) for _ in range(4)]
+    _, p_white = ljung_box(white)
+    assert p_white > 0.01
+    t = np.linspace(0, 6, 700)
+    smooth = [0.003 * np.sin(3 * t) + rng.normal(0, 0.002, t.size) for _ in range(4)]
+    _, p_smooth = ljung_box(smooth)
+    assert p_smooth < 1e-6
+    assert autocorrelation_time(smooth) > 5 * autocorrelation_time(white)
+
+
+def test_noise_estimate_ignores_slow_model_error():
+    rng = np.random.default_rng(2)
+    t = np.linspace(0, 8, 1000)
+    residual = 0.02 * np.sin(2 * t) + rng.normal(0, 0.002, t.size)
+    assert abs(noise_estimate([residual]) - 0.002) < 0.0003
+
+
+def test_binned_rms_finds_the_bad_region():
+    speed = np.linspace(0, 5, 1000)
+    residual = np.where(speed < 1, 0.01, 0.001)
+    bins = binned_rms(speed, residual)
+    assert bins[0]["rms"] > 5 * bins[-1]["rms"]
+
+
+def _trial(name, distance, direction):
+    t = np.arange(20) * 0.01
+    return TrialData(name, t, t, None, 0.0, 1.0, {"bob_distance": distance, "direction": direction})
+
+
+def test_stratified_pick_spreads_over_distances_and_directions():
+    trials = [_trial(f"{d}_{s}_{k}", d, s) for d in (0.2, 0.3, 0.4) for s in ("cw", "ccw") for k in range(3)]
+    picked, rest = stratified_pick(trials)
+    assert sorted(picked + rest) == list(range(len(trials)))
+    assert len(picked) == 6
+    assert {trials[i].meta["bob_distance"] for i in picked} == {0.2, 0.3, 0.4}
+    assert {trials[i].meta["direction"] for i in picked} == {"cw", "ccw"}
+    assert stratified_pick(trials) == (picked, rest)  # deterministic
+
+
+def test_stratified_pick_small():
+    assert stratified_pick([_trial("a", 0.2, "cw")]) == ([], [0])
+    picked, rest = stratified_pick([_trial("a", 0.2, "cw"), _trial("b", 0.3, "cw")])
+    assert len(picked) == 1 and len(rest) == 1

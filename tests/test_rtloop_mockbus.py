@@ -1,0 +1,164 @@
+"""The RT loop (`_rtcore.AdmittanceLoop`) against the simulated Dynamixel bus (`MockBus`).
+
+The loop runs for real here: its own thread, a pseudo-terminal, the mock servo's control
+table. The checks are on *what* it did (goals against the model, holds, counters), never on
+how fast: waits poll the loop's heartbeat with a generous limit and fail with a message.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from admittance import _rtcore
+from admittance.errors import DeviceError
+
+RATE_HZ = 500.0
+INERTIA, DAMPING = 0.02, 0.01
+LEVER = 0.1
+
+
+def wait_for(condition, what: str, limit_s: float = 20.0, push=None) -> None:
+    """Polls `condition` (calling `push` between polls) until true; fails after `limit_s`."""
+    end = time.monotonic() + limit_s
+    while not condition():
+        if time.monotonic() > end:
+            pytest.fail(f"gave up waiting for {what}")
+        if push is not None:
+            push()
+        time.sleep(0.001)
+
+
+@pytest.fixture
+def bus():
+    servos = [{"id": 1, "model": "MX-64", "protocol": 2, "params": {"motor_inertia": 0.0147}}]
+    mock = _rtcore.MockBus(servos=servos, baudrate=1_000_000, wire_delay=False)
+    mock.start()
+    yield mock
+    mock.stop()
+
+
+def config(port: str, **overrides) -> dict:
+    joint = {"id": 1, "model": "MX-64", "virtual_inertia": INERTIA, "virtual_damping": DAMPING,
+             "virtual_coulomb": 0.0, "axis": "x", "lever_arm": LEVER}
+    cfg = {"port": port, "rate_hz": RATE_HZ, "rt_priority": 0, "lock_memory": False,
+           "sync_read_divisor": 5, "stale_timeout_ms": 1000.0, "joints": [joint]}
+    cfg.update(overrides)
+    return cfg
+
+
+def run_with_force(loop, fx: float, cycles: int) -> None:
+    sink = loop.force_sink()
+    start = loop.heartbeat()
+    wait_for(lambda: loop.heartbeat() >= start + cycles, f"{cycles} cycles",
+             push=lambda: sink.push(time.monotonic_ns(), [fx, 0, 0, 0, 0, 0]))
+
+
+def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path))
+    loop.start()
+    run_with_force(loop, 1.5, 200)
+    loop.stop("hold")
+    rec = loop.drain_telemetry()
+    assert len(rec) >= 200 and np.all(np.diff(rec["cycle"]) == 1)
+    h = 1.0 / RATE_HZ
+    # plant::admittance with F = 0, on the torque each cycle used: the velocity first (damping
+    # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'.
+    omega_prev, theta_prev = rec["omega"][:-1], rec["theta"][:-1]
+    omega_want = (omega_prev + h * rec["torque"][1:] / INERTIA) / (1 + h * DAMPING / INERTIA)
+    np.testing.assert_allclose(rec["omega"][1:], omega_want, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rec["theta"][1:], theta_prev + h * omega_want, rtol=1e-9, atol=1e-12)
+    assert rec["torque"].max() == pytest.approx(1.5 * LEVER)
+    assert rec["omega"][-1] > 0.1, "the pushed joint moves"
+    want_ticks = np.clip(2048 + np.round(rec["theta"] * 4096 / (2 * math.pi)), 0, 4095)
+    np.testing.assert_array_equal(rec["goal_tick"], want_ticks)
+    # The last SyncWrite reaches the servo's control table (the mock decodes it on its own thread).
+    wait_for(lambda: bus.servo_state(1)["goal_tick"] == rec["goal_tick"][-1], "the last goal on the servo")
+    read = rec["present_tick"][rec["present_tick"] != -1]
+    assert len(read) > 0 and np.all((read >= 0) & (read <= 4095))
+    stats = loop.stats()
+    # A read may time out on a loaded machine (a bus error, counted); most must succeed.
+    assert stats["sync_reads"] > stats["bus_errors"] and stats["sensor_stale_events"] == 0
+    assert stats["latency_us"]["count"] > 0
+
+
+def test_stale_force_holds_the_position(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path, stale_timeout_ms=20.0))
+    loop.start()
+    run_with_force(loop, 3.0, 30)
+    # No more samples: the data goes stale, the joint holds.
+    wait_for(lambda: loop.stats()["sensor_stale_events"] >= 1, "the stale event")
+    held_from = loop.heartbeat()
+    wait_for(lambda: loop.heartbeat() >= held_from + 30, "30 held cycles")
+    loop.stop("hold")
+    rec = loop.drain_telemetry()
+    held = rec[rec["cycle"] >= held_from]
+    assert np.all(held["omega"] == 0.0)
+    assert np.all(held["theta"] == held["theta"][0])
+    assert np.all(held["goal_tick"] == held["goal_tick"][0])
+    assert loop.stats()["sensor_stale_events"] == 1
+
+
+def test_stats_has_every_key_of_the_daemon_contract(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path))
+    loop.start()
+    run_with_force(loop, 0.5, 20)
+    stats = loop.stats()
+    loop.stop()
+    for key in ("cycles", "overruns", "rate_hz", "period_us", "latency_us", "bus_errors",
+                "sensor_samples", "sensor_stale_events", "rt"):
+        assert key in stats, key
+    for key in ("period_us", "latency_us"):
+        assert set(stats[key]) >= {"p50", "p99", "p999", "max"}
+        assert stats[key]["p50"] <= stats[key]["p99"] <= stats[key]["p999"] <= stats[key]["max"]
+    assert stats["rt"] == {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False, "cpu": None}
+    assert stats["rate_hz"] == RATE_HZ and stats["cycles"] >= 20 and stats["sensor_samples"] > 0
+
+
+def test_fifo_is_obtained_or_refused_with_a_warning(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path, rt_priority=10))
+    loop.start()
+    rt, warnings = loop.stats()["rt"], loop.warnings()
+    loop.stop()
+    if rt["policy"] == "SCHED_FIFO":
+        assert rt["priority"] == 10
+    else:
+        assert any("SCHED_FIFO" in w for w in warnings), warnings
+
+
+def test_stop_policies_hold_or_disable_torque(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path))
+    loop.start()
+    wait_for(lambda: bus.servo_state(1)["torque_enabled"], "torque on after goal = present")
+    loop.stop("hold")
+    assert bus.servo_state(1)["torque_enabled"]
+    again = _rtcore.AdmittanceLoop(config(bus.port_path))
+    again.start()
+    again.stop("torque_off")
+    wait_for(lambda: not bus.servo_state(1)["torque_enabled"], "torque off on the servo")
+    assert not again.running()
+
+
+def test_tare_measures_the_bias_the_loop_then_removes(bus):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path))
+    loop.start()
+    loop.tare(samples=20)
+    sink = loop.force_sink()
+    wait_for(lambda: loop.params()["bias"][0] != 0.0, "the tare",
+             push=lambda: sink.push(time.monotonic_ns(), [2.5, -1.0]))
+    run_with_force(loop, 2.5, 10)
+    loop.stop()
+    assert loop.params()["bias"][:3] == [2.5, -1.0, 0.0]
+    assert loop.drain_telemetry()["force"][-1] == 0.0
+
+
+def test_a_silent_bus_is_a_device_error_and_start_can_be_retried(bus):
+    cfg = config(bus.port_path, start_timeout_ms=50.0)
+    cfg["joints"][0]["id"] = 9
+    loop = _rtcore.AdmittanceLoop(cfg)
+    with pytest.raises(DeviceError, match=r"id\(s\) \[9\]"):
+        loop.start()
+    assert not loop.running()
