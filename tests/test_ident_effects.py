@@ -41,6 +41,17 @@ def test_clean_torque_driven_data_gets_nothing(tmp_path):
     assert j["effects"] == []
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_correlated_noise_is_not_an_effect(tmp_path, seed):
+    """Filtered (AR(1)) sensor noise leaves a residual that is not white, so the search runs;
+    nothing may pass validation and significance (σ accounts for the correlation)."""
+    folder = generate(tmp_path, SynthSpec(n_trials=7, duration=5.0, jitter=0.2, noise=0.002,
+                                          noise_correlation=0.9, seed=300 + seed))
+    j = identify_dataset(load_dataset(folder)).to_json()
+    assert not j["residual"]["white"]
+    assert j["effects"] == []
+
+
 def test_explained_fraction_of_a_column_that_is_the_residual():
     """A candidate column equal to the residual explains all of it; an orthogonal one nothing."""
     rng = np.random.default_rng(0)
@@ -48,10 +59,11 @@ def test_explained_fraction_of_a_column_that_is_the_residual():
     r = [rng.normal(size=n)]
     jac = [rng.normal(size=(3, n))]
     r[0] -= jac[0].T @ np.linalg.lstsq(jac[0].T, r[0], rcond=None)[0]  # residual ⟂ current model
-    base, _ = _explained(jac, [], r, 1)
-    full, coef = _explained(jac, [r[0][None, :]], r, 1)
+    base, _, _ = _explained(jac, [], r, 1)
+    full, coef, change = _explained(jac, [r[0][None, :]], r, 1)
     assert base == pytest.approx(0.0, abs=1e-9)
     assert full == pytest.approx(float(r[0] @ r[0]))
     assert coef[0] == pytest.approx(-1.0)
+    np.testing.assert_allclose(change[0], -r[0], atol=1e-9)  # the step cancels the residual
     orth = jac[0][1][None, :]  # inside the current span: nothing new
     assert _explained(jac, [orth], r, 1)[0] == pytest.approx(0.0, abs=1e-8)

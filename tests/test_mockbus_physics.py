@@ -129,3 +129,26 @@ def test_unknown_ids_in_python_calls_are_config_errors():
         bus.set_external_torque(4, 0.1)
     with pytest.raises(ConfigError, match="no control-table item"):
         bus.register(1, "Colour")
+
+
+def test_stop_while_another_thread_drives_the_hand():
+    import threading
+
+    bus = _rtcore.MockBus(servos=[{"id": 1, "params": dict(MX64)}])
+    bus.start()
+    errors = []
+
+    def hand():
+        try:
+            for k in range(2000):
+                bus.set_external_torque(1, 0.01 * (k % 7))
+                bus.servo_state(1)
+        except Exception as exc:  # noqa: BLE001 - the test reports whatever escaped
+            errors.append(exc)
+
+    worker = threading.Thread(target=hand)
+    worker.start()
+    bus.stop()
+    worker.join()
+    assert errors == []
+    assert not bus.running

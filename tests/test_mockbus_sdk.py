@@ -174,6 +174,22 @@ def test_reboot_clears_a_hardware_error_and_the_alert(open_bus):
     assert status == 0
 
 
+def test_reg_write_action_clear_and_factory_reset(open_bus):
+    bus, port, ph = open_bus([servo(1, initial_theta=7.0)])
+    ok(*ph.regWriteTxRx(port, 1, P2_LED, 1, [1]))
+    assert ph.read1ByteTxRx(port, 1, P2_LED)[0] == 0
+    # Broadcast, as usual: the SDK does not read the status a unicast ACTION gets back.
+    assert ph.action(port, sdk.BROADCAST_ID) == sdk.COMM_SUCCESS
+    assert ph.read1ByteTxRx(port, 1, P2_LED)[0] == 1
+    assert ph.read4ByteTxRx(port, 1, P2_PRESENT_POSITION)[0] > 4095  # a turn and more
+    ok(*ph.clearMultiTurn(port, 1))
+    assert 0 <= ph.read4ByteTxRx(port, 1, P2_PRESENT_POSITION)[0] <= 4095
+    ok(*ph.write1ByteTxRx(port, 1, P2_RETURN_DELAY, 3))
+    ok(*ph.factoryReset(port, 1, 0x01))
+    assert ph.read1ByteTxRx(port, 1, P2_RETURN_DELAY)[0] == 250
+    assert bus.register(1, "ID") == 1
+
+
 def test_a_changed_id_answers_under_the_new_id(open_bus):
     _, port, ph = open_bus([servo(1)])
     ok(*ph.write1ByteTxRx(port, 1, 7, 4))
@@ -254,3 +270,19 @@ def test_p1_reboot_is_an_instruction_error(open_bus):
 def test_bad_configurations_raise_config_error(servos, message):
     with pytest.raises(ConfigError, match=message):
         _rtcore.MockBus(servos=servos)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"servos": [1]}, "each servo must be a table"),
+        ({"servos": {"id": 1}}, "list of servo tables"),
+        ({"servos": [servo(1)], "baudrate": -5}, "baudrate"),
+        ({"servos": [servo(1)], "physics_rate_hz": 0.0}, "physics_rate_hz"),
+        ({"servos": [servo(1, protocol=3)]}, "protocol must be 1 or 2"),
+        ({"servos": [servo(1, gravity_torque="heavy")]}, "gravity_torque"),
+    ],
+)
+def test_bad_arguments_raise_config_error(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        _rtcore.MockBus(**kwargs)

@@ -30,8 +30,8 @@ def register(subparsers) -> None:
     p.add_argument("--friction", choices=("stick", "tanh"), default="stick",
                    help="Coulomb law: exact stick-slip (default) or the thesis's tanh")
     p.add_argument("--max-effects", type=int, default=4, metavar="N", help="add at most N effects (default 4)")
-    p.add_argument("--min-gain", type=float, default=0.05, metavar="FRACTION",
-                   help="relative validation improvement an effect must bring (default 0.05)")
+    p.add_argument("--min-gain", type=float, default=0.03, metavar="FRACTION",
+                   help="relative validation improvement an effect must bring (default 0.03)")
     p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run_identify)
 
@@ -46,6 +46,8 @@ def register(subparsers) -> None:
     s.add_argument("--trials", type=int, default=10, metavar="N")
     s.add_argument("--duration", type=float, default=8.0, metavar="SECONDS")
     s.add_argument("--noise", type=float, default=0.002, metavar="RAD", help="angle noise σ (default 0.002)")
+    s.add_argument("--noise-corr", type=float, default=0.0, metavar="RHO",
+                   help="AR(1) correlation of the noise between samples (default 0: white)")
     s.add_argument("--jitter", type=float, default=0.1, metavar="FRACTION", help="sampling-time jitter")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--with-torque", action="store_true", help="torque-driven trials with a tau column")
@@ -84,9 +86,10 @@ def run_synth(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
-    if args.duration <= 0 or args.noise < 0:
-        raise ConfigError("--duration must be > 0 and --noise >= 0")
-    spec = SynthSpec(n_trials=args.trials, duration=args.duration, noise=args.noise, jitter=args.jitter,
+    if args.duration <= 0 or args.noise < 0 or not (0.0 <= args.noise_corr < 1.0):
+        raise ConfigError("--duration must be > 0, --noise >= 0 and --noise-corr in [0, 1)")
+    spec = SynthSpec(n_trials=args.trials, duration=args.duration, noise=args.noise,
+                     noise_correlation=args.noise_corr, jitter=args.jitter,
                      effects=parse_effect_args(args.effect), with_torque=args.with_torque,
                      geometry=not args.lumped, seed=args.seed)
     out = generate(args.out_dir, spec)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import datetime as _dt
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,10 +28,11 @@ from admittance.errors import ConfigError
 from admittance.ident import paramfile
 from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, SearchOutcome, SearchSettings, candidate_effects, rank_candidates
-from admittance.ident.effects import nothing_left, score, search_effects
+from admittance.ident.effects import grown, nothing_left, score, search_effects
 from admittance.ident.equation_error import fit_equation_error, initial_states
 from admittance.ident.fit import FitResult, fit_output_error, rmse
 from admittance.ident.model import (
+    EFFECTS,
     INDEX,
     TAU_SCALE,
     TORQUE_PARAMS,
@@ -50,7 +52,7 @@ FIT_MAX_STEP = 1e-3  # s: semi-implicit Euler error is < 0.1 mrad for these pend
 class IdentifySettings:
     friction: str = "stick"
     max_effects: int = 4
-    min_gain: float = 0.05
+    min_gain: float = 0.03
     min_sigma: float = 3.0
     max_step: float = FIT_MAX_STEP
     quiet: bool = True
@@ -203,66 +205,88 @@ def identify_dataset(dataset: Dataset, settings: IdentifySettings | None = None)
     return result
 
 
+@contextmanager
+def _timed(timings: dict, phase: str):
+    tick = time.perf_counter()
+    yield
+    timings[phase] = time.perf_counter() - tick
+
+
 def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timings: dict) -> IdentifyResult:
     trials = dataset.trials
-    mode = dataset.mode
-    with_tau = dataset.has_torque
     heldout, training = stratified_pick(trials)
     if not heldout:  # a single trial: score on it, and say so in the JSON (heldout == training)
         heldout = list(training)
-    torque_scale = float(np.mean([tr.gravity_torque for tr in trials])) if mode == "geometry" else 1.0
-    torque_scale = torque_scale if torque_scale > 0 else 1.0
-
-    tick = time.perf_counter()
-    progress("equation-error start")
-    start, tau_scale = fit_equation_error([trials[i] for i in training], mode)
-    x0_all = initial_states(trials)
-    sim_all = Simulator(trials, mode, settings.friction, settings.max_step, tau_scale)
-    sim_train = sim_all.subset(training)
-    sim_held = sim_all.subset(heldout)
-    timings["equation_error"] = time.perf_counter() - tick
-
-    tick = time.perf_counter()
-    base_free = free_params(mode, [], with_tau)
-    base = fit_output_error(sim_train, start, base_free, x0_all[training], torque_scale=torque_scale,
-                            progress=progress, label="base fit")
-    timings["base_fit"] = time.perf_counter() - tick
-
-    tick = time.perf_counter()
-    search, validation = _search(sim_train, training, base, mode, torque_scale, settings, progress)
-    timings["effect_search"] = time.perf_counter() - tick
-
-    tick = time.perf_counter()
-    final = base
-    if search and search.effects:
-        free = search.fit.free
-        sim_final = sim_train.with_tau_scale(search.fit.tau_scale)
-        # The initial states belong to the base model; refit them to the new model first (cheap,
-        # three simulations per trial and iteration) so the joint fit starts near its optimum.
-        x0 = fit_output_error(sim_final, search.fit.vector, (), base.x0, label="final fit").x0
-        final = fit_output_error(sim_final, search.fit.vector, free, x0, torque_scale=torque_scale,
-                                 progress=progress, label="final fit")
-    before = score(sim_held, base, x0_all[heldout], progress=progress)
-    after = before if final is base else score(sim_held, final, before.x0, progress=progress)
-    timings["final_fit_and_scoring"] = time.perf_counter() - tick
-
-    tick = time.perf_counter()
-    progress("residual analysis")
-    effects = search.effects if search else []
-    # Ranking what is left only matters when something is left (it is the costliest batch).
-    remaining = [] if nothing_left(final) else rank_candidates(
-        sim_train, final, candidate_effects(effects, with_tau), torque_scale)
-    residual = analyse(sim_train, final)
-    timings["residual_analysis"] = time.perf_counter() - tick
+    torque_scale = _torque_scale(dataset)
+    with _timed(timings, "equation_error"):
+        progress("equation-error start")
+        start, tau_scale = fit_equation_error([trials[i] for i in training], dataset.mode)
+        x0_all = initial_states(trials)
+        sim_all = Simulator(trials, dataset.mode, settings.friction, settings.max_step, tau_scale)
+        sim_train, sim_held = sim_all.subset(training), sim_all.subset(heldout)
+    with _timed(timings, "base_fit"):
+        base = fit_output_error(sim_train, start, free_params(dataset.mode, [], dataset.has_torque),
+                                x0_all[training], torque_scale=torque_scale, progress=progress, label="base fit")
+    with _timed(timings, "effect_search"):
+        search, validation = _search(sim_train, training, base, torque_scale, settings, progress)
+    with _timed(timings, "final_fit_and_scoring"):
+        final = _final_fit(sim_train, base, search, torque_scale, progress)
+        before = score(sim_held, base, x0_all[heldout], progress=progress)
+        after = before if final is base else score(sim_held, final, before.x0, progress=progress)
+    with _timed(timings, "residual_analysis"):
+        progress("residual analysis")
+        effects = search.effects if search else []
+        # Ranking what is left only matters when something is left (it is the costliest batch).
+        remaining = [] if nothing_left(final) else rank_candidates(
+            sim_train, final, candidate_effects(effects, dataset.has_torque), torque_scale)
+        residual = analyse(sim_train, final)
     return IdentifyResult(dataset, settings, heldout, training, validation, base, final, before, after, search,
                           remaining, residual, timings)
 
 
-def _search(sim_train: Simulator, training: list[int], base: FitResult, mode: str, torque_scale: float,
+def _torque_scale(dataset: Dataset) -> float:
+    """A typical torque of the problem (N·m; 1 in lumped sim units): sets finite-difference steps."""
+    if dataset.mode != "geometry":
+        return 1.0
+    scale = float(np.mean([tr.gravity_torque for tr in dataset.trials]))
+    return scale if scale > 0 else 1.0
+
+
+def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | None, torque_scale: float,
+               progress) -> FitResult:
+    """The model with the admitted effects, refitted on all training trials."""
+    if not search or not search.effects:
+        return base
+    sim = sim_train.with_tau_scale(search.fit.tau_scale)
+    best = None
+    for start in _restarts(search.fit.vector, search.effects):
+        # The initial states belong to the base model; refit them to the new model first (cheap,
+        # three simulations per trial and iteration) so the joint fit starts near its optimum.
+        x0 = fit_output_error(sim, start, (), base.x0, label="final fit").x0
+        fit = fit_output_error(sim, start, search.fit.free, x0, torque_scale=torque_scale, progress=progress,
+                               label="final fit")
+        if best is None or fit.rmse < best.rmse:
+            best = fit
+    return best
+
+
+def _restarts(vector: np.ndarray, effects: list[str]) -> list[np.ndarray]:
+    """The search's values, and the same with the effects grown (see effects.grown)."""
+    names = [n for effect in effects for n in EFFECTS[effect].evidence]
+    doubled = vector.copy()
+    for name, value in grown({n: vector[INDEX[n]] for n in names}, effects).items():
+        doubled[INDEX[name]] = value
+    return [vector, doubled]
+
+
+def _search(sim_train: Simulator, training: list[int], base: FitResult, torque_scale: float,
             settings: IdentifySettings, progress) -> tuple[SearchOutcome | None, list[int]]:
-    """The effect search on an inner split of the training trials (None if too few trials)."""
+    """The effect search on an inner split of the training trials (None if too few trials).
+    A base residual that is already white noise ends it before the inner split is even fitted."""
     if settings.max_effects == 0:
         return None, []
+    if nothing_left(base):
+        return SearchOutcome([], base, [], []), []
     val_local, fit_local = stratified_pick(sim_train.trials)
     if not val_local or not fit_local:
         return None, []

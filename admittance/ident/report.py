@@ -39,6 +39,7 @@ def write_report(result: IdentifyResult, out_dir: str | Path) -> Path:
         "heldout": _heldout_figures(out, result),
         "residual": _residual_figure(out, result),
         "evidence": _evidence_figure(out, result),
+        "signatures": _signature_figure(out, result),
     }
     path = out / "report.md"
     path.write_text(_markdown(result, figures))
@@ -126,6 +127,28 @@ def _residual_figure(out: Path, result: IdentifyResult) -> str:
     return _save(fig, out / "residual_bins.png")
 
 
+def _signature_figure(out: Path, result: IdentifyResult) -> str | None:
+    """The final residual of the worst training trial against the signature of each remaining
+    candidate: the part of the residual that candidate, linearised, would take away."""
+    import matplotlib.pyplot as plt
+
+    candidates = [e for e in result.remaining if e.signature][:4]
+    if not candidates:
+        return None
+    worst = int(np.argmax([np.sqrt(np.mean(r**2)) for r in result.final.residuals]))
+    trial = result.dataset.trials[result.training[worst]]
+    fig, axes = plt.subplots(len(candidates), 1, figsize=(8, 1.9 * len(candidates)), sharex=True, squeeze=False)
+    for ax, evidence in zip(axes.ravel(), candidates):
+        ax.plot(trial.t, 1e3 * result.final.residuals[worst], color="0.6", lw=1, label="residual")
+        ax.plot(trial.t, 1e3 * evidence.signature[worst], color="C1", lw=1.2,
+                label=f"{evidence.effect} ({100 * evidence.explained:.1f} % overall)")
+        ax.set_ylabel("mrad")
+        ax.legend(fontsize=7, loc="upper right")
+    axes.ravel()[0].set_title(f"{trial.name}: residual and candidate signatures", fontsize=9)
+    axes.ravel()[-1].set_xlabel("t [s]")
+    return _save(fig, out / "signatures.png")
+
+
 def _evidence_figure(out: Path, result: IdentifyResult) -> str | None:
     """Explained fraction of each candidate, per search round and on the final residual."""
     import matplotlib.pyplot as plt
@@ -177,8 +200,13 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
     lines += _evidence_table(result)
     if figures["evidence"]:
         lines += ["", f"![evidence]({figures['evidence']})"]
-    lines += ["", "## Residual", "", result.residual["summary"] + ".", "", f"![residual]({figures['residual']})",
-              "", "## Held-out trials", ""]
+    lines += ["", "## Residual", "", result.residual["summary"] + ".", "", f"![residual]({figures['residual']})", ""]
+    if figures["signatures"]:
+        lines += ["What each remaining candidate would explain, on the worst training trial:", "",
+                  f"![signatures]({figures['signatures']})", ""]
+    else:
+        lines += ["The residual is white and at the noise level: no candidate has anything to explain.", ""]
+    lines += ["## Held-out trials", ""]
     lines += [f"![held-out]({name})" for name in figures["heldout"]]
     lines += ["", "## Training trials (final model)", ""]
     lines += [f"![training]({name})" for name in figures["training"]]
@@ -196,5 +224,6 @@ def _evidence_table(result: IdentifyResult) -> list[str]:
             decision = "**added**" if e.accepted else e.reason
             rows.append(f"| {i} | {e.effect} | {e.variant} | {100 * e.explained:.2f} % | {gain} | {sig} | {decision} |")
     if not rounds:
-        rows.append("| – | – | – | – | – | – | no effect search (too few trials or --max-effects 0) |")
+        rows.append("| – | – | – | – | – | – | no search: the base residual is white noise, or too few "
+                    "trials to validate, or --max-effects 0 |")
     return rows

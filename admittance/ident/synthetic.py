@@ -3,7 +3,7 @@
 Thesis-like by default (section 2.1): a 45.6 cm, 40.2 g rod and a 103.4 g bob at 20–40 cm on an
 MX-64 (the thesis's averages, I ≈ 0.0147 kg·m², B ≈ 0.035 N·m·s/rad, F ≈ 0.084 N·m),
 released from about ±90° (alternately cw and ccw), sampled at 120 Hz with optional jitter and
-OptiTrack-like Gaussian noise (~2 mrad). Any candidate effect can be injected, *undeclared*:
+OptiTrack-like Gaussian noise (~2 mrad, white or AR(1)-correlated). Any candidate effect can be injected, *undeclared*:
 the manifest never mentions it, only ``truth.json`` (beside the manifest, ignored by
 ``identify``) records what was simulated, so a test can check what the fit found.
 
@@ -57,6 +57,7 @@ class SynthSpec:
     rate: float = 120.0  # Hz
     jitter: float = 0.0  # sampling-time jitter, as a fraction of the interval (< 0.45)
     noise: float = 0.002  # rad, Gaussian angle noise
+    noise_correlation: float = 0.0  # AR(1) coefficient of the noise per sample (0: white)
     distances: tuple[float, ...] = (0.20, 0.25, 0.30, 0.35, 0.40)
     release: float = math.pi / 2  # rad from the vertical
     params: dict[str, float] = field(default_factory=lambda: dict(MX64))
@@ -116,13 +117,24 @@ def generate(out_dir: str | Path, spec: SynthSpec) -> Path:
         trial = _rtcore.Trial(t, recorded_tau, load_inertia=inertia, gravity_torque=gravity)
         x0 = np.array([[[theta0, 0.0]]])
         theta = _rtcore.simulate_batch([trial], row, x0, max_step=GENERATION_STEP)[0][0]
-        theta = theta + rng.normal(0.0, spec.noise, theta.size)
+        theta = theta + _noise(rng, spec.noise, spec.noise_correlation, theta.size)
         entry["x0"] = [theta0, 0.0]
         _write_csv(out / entry["file"], t, theta, recorded_tau)
     _write_manifest(out, spec, plan)
     truth = {"params": params, "effects": sorted(n for n in spec.effects if n in EFFECTS),
              "trials": plan, "noise": spec.noise}
     (out / "truth.json").write_text(json.dumps(truth, indent=2))
+    return out
+
+
+def _noise(rng: np.random.Generator, sigma: float, rho: float, n: int) -> np.ndarray:
+    """Gaussian noise of standard deviation ``sigma``, AR(1)-correlated with coefficient ``rho``
+    (motion capture filters its output, so its noise is rarely white)."""
+    white = rng.normal(0.0, sigma * np.sqrt(1.0 - rho**2), n)
+    out = np.empty(n)
+    out[0] = rng.normal(0.0, sigma)
+    for i in range(1, n):
+        out[i] = rho * out[i - 1] + white[i]
     return out
 
 

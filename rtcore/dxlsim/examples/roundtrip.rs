@@ -1,7 +1,8 @@
 //! Ping round trips through the simulated bus, side by side: no timing emulation, wire time
 //! only (Return Delay Time 0), and wire time plus the default Return Delay Time (500 µs).
-//! Prints median / p99 / max per variant and the ratios to the first, so the figures compare
-//! alternatives measured in one run on the same (noisy) machine.
+//! Prints median / p99 / max per variant, and what each adds to the first variant's median
+//! next to what the emulation should add, so the figures compare alternatives measured in one
+//! run on the same (noisy) machine.
 //!
 //!     cargo run --release --example roundtrip -p admittance-dxlsim [-- N]
 use std::time::{Duration, Instant};
@@ -23,7 +24,7 @@ fn bus(wire_delay: bool, return_delay: i64) -> MockBus {
 }
 
 /// Round-trip times (µs) of `n` pings, sorted.
-fn round_trips(mock: &mut MockBus, n: usize) -> std::io::Result<Vec<f64>> {
+fn round_trips(mock: &MockBus, n: usize) -> std::io::Result<Vec<f64>> {
     mock.start()?;
     let port = SerialPort::open(mock.port_path(), BAUD)?;
     let mut ping = [0u8; 16];
@@ -49,6 +50,16 @@ fn round_trips(mock: &mut MockBus, n: usize) -> std::io::Result<Vec<f64>> {
     Ok(times)
 }
 
+/// What the emulation adds to a ping: the 10-byte instruction and 14-byte status on the wire
+/// (10 bits per byte) plus the Return Delay Time (2 µs units).
+fn expected_us(wire_delay: bool, return_delay: i64) -> f64 {
+    if wire_delay {
+        (10 + PING_REPLY_LEN) as f64 * 10.0 * 1e6 / BAUD as f64 + 2.0 * return_delay as f64
+    } else {
+        0.0
+    }
+}
+
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
@@ -56,16 +67,15 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
 fn main() -> std::io::Result<()> {
     let n: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(2000);
     let variants = [("instant (wire_delay off)", false, 250), ("wire time, RDT 0", true, 0), ("wire time + RDT 500 us", true, 250)];
-    // Expected added time at 1 Mbps: (10 + 14 bytes) × 10 µs = 240 µs of wire, plus the RDT.
     println!("ping round trip through the mock bus, {n} pings per variant, {BAUD} baud");
-    println!("{:<26} {:>10} {:>10} {:>10} {:>12}", "variant", "p50 us", "p99 us", "max us", "p50 ratio");
+    println!("{:<26} {:>9} {:>9} {:>9} {:>12} {:>12}", "variant", "p50 us", "p99 us", "max us", "added p50", "expected");
     let mut base = None;
     for (name, wire_delay, rdt) in variants {
-        let times = round_trips(&mut bus(wire_delay, rdt), n)?;
+        let times = round_trips(&bus(wire_delay, rdt), n)?;
         let p50 = quantile(&times, 0.5);
-        let ratio = p50 / *base.get_or_insert(p50);
+        let added = p50 - *base.get_or_insert(p50);
         let (p99, max) = (quantile(&times, 0.99), times[times.len() - 1]);
-        println!("{name:<26} {p50:>10.1} {p99:>10.1} {max:>10.1} {ratio:>12.2}");
+        println!("{name:<26} {p50:>9.1} {p99:>9.1} {max:>9.1} {added:>12.1} {:>12.1}", expected_us(wire_delay, rdt));
     }
     Ok(())
 }

@@ -19,6 +19,7 @@ pub const BROADCAST_ID: u8 = 0xFE;
 /// Why an instruction failed, before it becomes a protocol's error byte.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Fault {
+    ResultFail,
     Instruction,
     Crc,
     DataRange,
@@ -192,6 +193,10 @@ impl Bus {
                 self.servos[index].reboot();
                 (Ok(Vec::new()), Needs::AllLevel)
             }
+            Request::ClearTurns => {
+                let cleared = self.servos[index].clear_turns();
+                (if cleared { Ok(Vec::new()) } else { Err(Fault::ResultFail) }, Needs::AllLevel)
+            }
             // Sync/Bulk instructions are broadcast by definition; to a single ID they are
             // not an instruction a servo accepts.
             Request::MultiRead(_) | Request::MultiWrite(_) => (Err(Fault::Instruction), Needs::AllLevel),
@@ -327,6 +332,7 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
         Protocol::V2 => {
             let code = match fault {
                 None => 0,
+                Some(Fault::ResultFail) => 0x01,
                 Some(Fault::Instruction) => 0x02,
                 Some(Fault::Crc) => 0x03,
                 Some(Fault::DataRange) => 0x04,
@@ -343,7 +349,9 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
                 Some(Fault::Crc) => protocol1::ErrorBits::CHECKSUM,
                 Some(Fault::DataLimit) => protocol1::ErrorBits::ANGLE_LIMIT,
                 // P1 has one bit for every refused value or address: Range.
-                Some(Fault::DataRange | Fault::DataLength | Fault::Access) => protocol1::ErrorBits::RANGE,
+                Some(Fault::DataRange | Fault::DataLength | Fault::Access | Fault::ResultFail) => {
+                    protocol1::ErrorBits::RANGE
+                }
             };
             bit | (hardware_error & P1_HARDWARE_BITS)
         }
@@ -465,6 +473,15 @@ mod tests {
         assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x80);
         b.handle(1, ins::REBOOT, &[]);
         assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x00);
+    }
+
+    #[test]
+    fn clear_needs_its_magic_parameters() {
+        let mut b = bus(Protocol::V2, &[1]);
+        assert_eq!(statuses(&b.handle(1, ins::CLEAR, &[0x01, 0x44, 0x58, 0x4C, 0x22]))[0].1, 0x00);
+        assert_eq!(statuses(&b.handle(1, ins::CLEAR, &[0x01, 0x00]))[0].1, 0x05);
+        let mut p1 = bus(Protocol::V1, &[1]);
+        assert_eq!(p1.handle(1, ins::CLEAR, &[0x01, 0x44, 0x58, 0x4C, 0x22])[0].bytes[4], 0x40);
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! The model table is the single source of addresses, sizes, access, defaults and ranges; this
 //! module only fills what the e-manual leaves blank, so a simulated servo has a value for
 //! every byte:
-//! - runs of identical items (Indirect Address 1..n) become one item per element;
+//! - runs of identical items (Indirect Address 1..56) become one item per element, named as
+//!   the e-manual numbers them;
 //! - an item without a range accepts whatever its bytes hold (read-only items are never
 //!   written by clients anyway);
 //! - an item without a default starts at 0, except Firmware Version, which the e-manual does
@@ -12,7 +13,7 @@
 use dxl::models::{self, Access, Model};
 use dxl::Protocol;
 
-use crate::table::{ControlTable, Item};
+use crate::table::{representable, ControlTable, Item};
 
 /// The Firmware Version we report for P2 (MX(2.0)) servos. MX(2.0) needs firmware 39 or
 /// later and CLEAR arrived in 42; 45 is a release with both, not a measured servo's value.
@@ -34,7 +35,7 @@ pub fn control_table(model: &Model) -> ControlTable {
     let mut items = Vec::new();
     for it in model.items {
         for k in 0..it.count {
-            let name = if it.count > 1 { format!("{} {}", it.name, k + 1) } else { it.name.to_string() };
+            let name = it.element_name(k);
             let (lo, hi) = representable(it.size, it.signed);
             let default = match it.name {
                 "Firmware Version" => it.default.unwrap_or(match model.protocol {
@@ -58,15 +59,6 @@ pub fn control_table(model: &Model) -> ControlTable {
     ControlTable::new(items)
 }
 
-fn representable(size: u8, signed: bool) -> (i64, i64) {
-    let bits = 8 * u32::from(size.min(4));
-    if signed {
-        (-(1i64 << (bits - 1)), (1i64 << (bits - 1)) - 1)
-    } else {
-        (0, (1i64 << bits) - 1)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -81,6 +73,14 @@ mod tests {
                 assert_eq!(table.get("Return Delay Time"), Some(250));
             }
         }
+    }
+
+    #[test]
+    fn runs_become_named_elements() {
+        let table = control_table(find_model("MX-64", Protocol::V2).unwrap());
+        let item = table.item("Indirect Address 29").unwrap();
+        assert_eq!((item.address, item.default), (578, 634));
+        assert!(table.item("Indirect Data 56").is_some());
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //! - `motor`, `firmware`, `servo`: BAM's PWM/DC-motor model driving `plant::step`;
 //! - `request`, `bus`: packets → requests → replies, with Status Return Level, broadcast and
 //!   error semantics; pure logic, no clock;
-//! - `pty`, `server`: the pseudo-terminal and the thread that times replies and physics.
+//! - `pty`, `server`: the pseudo-terminal and the thread that times replies and physics;
+//! - `setup`: a bus from a configuration, every value checked first (the binding's entry).
 //!
 //! Why a thread in Rust rather than a Python mock: the mock must answer within the SDK's
 //! timeouts while the daemon's RT loop hammers it at 1 kHz, and step physics at 2 kHz; a

@@ -32,6 +32,8 @@ pub enum Request {
     Action,
     FactoryReset { option: u8 },
     Reboot,
+    /// CLEAR (P2) with its magic parameters: fold the multi-turn position into one turn.
+    ClearTurns,
     /// Sync Read and Bulk Read: replies in listed order.
     MultiRead(Vec<ReadSlot>),
     /// Sync Write and Bulk Write: no reply.
@@ -46,6 +48,9 @@ pub enum ParseError {
     /// A known instruction whose parameters have the wrong length or shape.
     Malformed,
 }
+
+/// CLEAR's parameters for "reset the multi-turn position" (option 1 and the "DXL\"" key).
+const CLEAR_TURNS: &[u8] = &[0x01, 0x44, 0x58, 0x4C, 0x22];
 
 /// Parses one instruction's parameters.
 pub fn parse(protocol: Protocol, instruction: u8, params: &[u8]) -> Result<Request, ParseError> {
@@ -69,6 +74,10 @@ pub fn parse(protocol: Protocol, instruction: u8, params: &[u8]) -> Result<Reque
         ins::ACTION => Ok(Request::Action),
         ins::FACTORY_RESET => Ok(Request::FactoryReset { option: params.first().copied().unwrap_or(0xFF) }),
         ins::REBOOT if wide => Ok(Request::Reboot),
+        ins::CLEAR if wide => match params {
+            CLEAR_TURNS => Ok(Request::ClearTurns),
+            _ => Err(ParseError::Malformed),
+        },
         ins::SYNC_READ if wide => sync_read(params),
         ins::SYNC_WRITE => sync_write(params, wide),
         ins::BULK_READ if wide => bulk_read_p2(params),

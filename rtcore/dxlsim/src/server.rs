@@ -77,23 +77,31 @@ pub struct Stats {
 }
 
 /// A simulated bus on a pty, running in its own thread between `start` and `stop`.
+///
+/// Every method takes `&self` (the thread handle sits behind its own mutex), so one thread
+/// may stop the bus while another still sets a hand torque: Python's bench does exactly that.
 pub struct MockBus {
     pty: Arc<Pty>,
     shared: Arc<Mutex<Shared>>,
     config: BusConfig,
     stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<io::Result<()>>>,
+    thread: Mutex<Option<JoinHandle<io::Result<()>>>>,
 }
 
 impl MockBus {
-    /// Opens the pty; the servos stay still until `start`.
+    /// Opens the pty; the servos stay still until `start`. The physics rate must be within
+    /// 1 Hz..=1 MHz (InvalidInput otherwise).
     pub fn new(bus: Bus, config: BusConfig) -> io::Result<MockBus> {
+        if !(1.0..=1e6).contains(&config.physics_rate_hz) {
+            let message = format!("physics rate {} Hz is outside 1..=1e6", config.physics_rate_hz);
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, message));
+        }
         Ok(MockBus {
             pty: Arc::new(Pty::open()?),
             shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default() })),
             config,
             stop: Arc::new(AtomicBool::new(false)),
-            thread: None,
+            thread: Mutex::new(None),
         })
     }
 
@@ -102,25 +110,30 @@ impl MockBus {
     }
 
     pub fn is_running(&self) -> bool {
-        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+        self.handle().as_ref().is_some_and(|t| !t.is_finished())
+    }
+
+    fn handle(&self) -> MutexGuard<'_, Option<JoinHandle<io::Result<()>>>> {
+        self.thread.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
     /// Starts the bus thread (a no-op when it runs already).
-    pub fn start(&mut self) -> io::Result<()> {
-        if self.thread.is_some() {
+    pub fn start(&self) -> io::Result<()> {
+        let mut handle = self.handle();
+        if handle.is_some() {
             return Ok(());
         }
         self.stop.store(false, Ordering::SeqCst);
         let mut worker = Worker::new(self.pty.clone(), self.shared.clone(), self.config, self.stop.clone());
-        let handle = std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?;
-        self.thread = Some(handle);
+        *handle = Some(std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?);
         Ok(())
     }
 
     /// Stops the thread and waits for it; returns the I/O error that ended it early, if any.
-    pub fn stop(&mut self) -> io::Result<()> {
+    pub fn stop(&self) -> io::Result<()> {
         self.stop.store(true, Ordering::SeqCst);
-        match self.thread.take() {
+        let handle = self.handle().take();
+        match handle {
             Some(handle) => handle.join().map_err(|_| io::Error::other("the bus thread panicked"))?,
             None => Ok(()),
         }

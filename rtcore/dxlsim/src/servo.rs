@@ -9,6 +9,8 @@
 //! Hardware errors use the P2 Hardware Error Status bit layout (bit 0 input voltage, 2
 //! overheating, 3 encoder, 4 electrical shock, 5 overload). P1's error byte has voltage,
 //! overheating and overload at the same bit positions, so one value serves both protocols.
+use std::collections::VecDeque;
+
 use dxl::packet::Protocol;
 use plant::{FrictionLaw, Load, Params, State};
 
@@ -79,6 +81,10 @@ pub struct Servo {
     time: f64,
     /// A REG_WRITE waiting for ACTION: (address, data).
     pub registered: Option<(u16, Vec<u8>)>,
+    /// Applied torques of the last `time_delay` seconds, oldest first (the plant's delay).
+    torque_history: VecDeque<f64>,
+    /// Whole turns CLEAR removed from the reported position (ticks): reported = encoder + this.
+    tick_offset: i64,
 }
 
 impl Servo {
@@ -106,6 +112,8 @@ impl Servo {
             hardware_error: 0,
             time: 0.0,
             registered: None,
+            torque_history: VecDeque::new(),
+            tick_offset: 0,
         };
         servo.publish();
         servo.hold_present_position();
@@ -232,6 +240,18 @@ impl Servo {
         self.hold_present_position();
     }
 
+    /// CLEAR (P2): the reported position loses its whole turns, back into 0..4095. Refused
+    /// while the horn moves (the caller answers Result Fail).
+    pub fn clear_turns(&mut self) -> bool {
+        if self.state.omega.abs() > self.moving_threshold() {
+            return false;
+        }
+        let tick = rad_to_tick(self.state.theta) + self.tick_offset;
+        self.tick_offset -= 4096 * tick.div_euclid(4096);
+        self.publish();
+        true
+    }
+
     /// Advances the horn by one substep of `h` seconds.
     pub fn step(&mut self, h: f64) {
         self.update_alarms();
@@ -247,10 +267,25 @@ impl Servo {
         };
         self.motor_torque = torque;
         self.current = current;
-        let tau = torque + self.external_torque;
+        let tau = self.delayed(torque + self.external_torque, h);
         plant::step(&mut self.state, &self.spec.params, &self.spec.load, self.spec.friction, tau, self.time, h);
         self.heat(h);
         self.time += h;
+    }
+
+    /// The applied torque of `time_delay` ago (Contract 1: τ(t − time_delay)); before that much
+    /// history exists, the oldest value is held, as the trial simulator holds its end values.
+    fn delayed(&mut self, tau: f64, h: f64) -> f64 {
+        let n = (self.spec.params.time_delay / h).round() as usize;
+        if n == 0 {
+            return tau;
+        }
+        self.torque_history.push_back(tau);
+        if self.torque_history.len() > n {
+            self.torque_history.pop_front().unwrap_or(tau)
+        } else {
+            self.torque_history.front().copied().unwrap_or(tau)
+        }
     }
 
     /// The duty the firmware applies this substep, clipped to its limit.
@@ -309,7 +344,7 @@ impl Servo {
 
     /// Goal Position in rad (writes beyond the position limits are refused by `check_limits`).
     fn position_goal(&self) -> f64 {
-        tick_to_rad(self.value(self.reg.goal_position))
+        tick_to_rad(self.value(self.reg.goal_position) - self.tick_offset)
     }
 
     fn multi_turn_p1(&self) -> bool {
@@ -385,7 +420,7 @@ impl Servo {
     pub fn publish(&mut self) {
         let (theta, omega) = (self.state.theta, self.state.omega);
         let p1 = self.spec.protocol == Protocol::V1;
-        let tick = rad_to_tick(theta);
+        let tick = rad_to_tick(theta) + self.tick_offset;
         let load = self.motor_torque / self.spec.motor.stall_torque() * PER_MILLE;
         let values = [
             (self.reg.present_position, if p1 { tick.rem_euclid(4096) } else { tick }),
@@ -556,6 +591,33 @@ mod tests {
         run(s, 0.01);
         assert_eq!(s.hardware_error(), HW_INPUT_VOLTAGE);
         assert_eq!(s.table.get("Present Input Voltage"), Some(180));
+    }
+
+    #[test]
+    fn time_delay_postpones_the_applied_torque() {
+        let delay = 0.05;
+        let params = Params { motor_inertia: 0.0147, time_delay: delay, ..Params::default() };
+        let mut bus = build_bus(vec![ServoConfig::new(1, params)], 1_000_000).unwrap();
+        let s = servo(&mut bus);
+        s.step(H);
+        s.set_external_torque(0.5);
+        run(s, delay - 2.0 * H);
+        assert_eq!(s.snapshot().omega, 0.0, "the hand's torque has not arrived yet");
+        run(s, 4.0 * H);
+        assert!(s.snapshot().omega > 0.0);
+    }
+
+    #[test]
+    fn clear_folds_the_reported_position_into_one_turn_at_rest_only() {
+        let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 7.0);
+        let s = servo(&mut bus);
+        let before = s.table.get("Present Position").unwrap();
+        assert!(before > 4095);
+        assert!(s.clear_turns());
+        assert_eq!(s.table.get("Present Position"), Some(before - 4096));
+        s.set_external_torque(1.0);
+        run(s, 0.2);
+        assert!(!s.clear_turns(), "refused while moving");
     }
 
     #[test]

@@ -37,12 +37,7 @@ impl Item {
 
     /// The smallest and largest values its bytes can hold.
     fn representable(&self) -> (i64, i64) {
-        let bits = 8 * self.size.min(4) as u32;
-        if self.signed() {
-            (-(1i64 << (bits - 1)), (1i64 << (bits - 1)) - 1)
-        } else {
-            (0, (1i64 << bits) - 1)
-        }
+        representable(self.size, self.signed())
     }
 
     /// Decodes this item's little-endian value from its bytes.
@@ -204,6 +199,17 @@ impl ControlTable {
 
     fn defined(&self, address: usize) -> bool {
         self.owner.get(address).is_some_and(Option::is_some)
+    }
+}
+
+/// The smallest and largest values `size` little-endian bytes hold (sizes above 4 are
+/// treated as 4: no control-table item is wider).
+pub fn representable(size: u8, signed: bool) -> (i64, i64) {
+    let bits = 8 * u32::from(size.clamp(1, 4));
+    if signed {
+        (-(1i64 << (bits - 1)), (1i64 << (bits - 1)) - 1)
+    } else {
+        (0, (1i64 << bits) - 1)
     }
 }
 

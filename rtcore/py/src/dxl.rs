@@ -17,6 +17,7 @@ use dxl::{AnyDecoder, BulkEntry, DecodeError, EncodeError, Kind, Packet, Protoco
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
+use crate::errors::device_error;
 
 fn protocol_of(n: u8) -> PyResult<Protocol> {
     Protocol::from_number(n).ok_or_else(|| PyValueError::new_err(format!("protocol must be 1 or 2, got {n}")))
@@ -24,15 +25,6 @@ fn protocol_of(n: u8) -> PyResult<Protocol> {
 
 fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
-}
-
-/// `admittance.errors.DeviceError(message)`, or RuntimeError if that module cannot load.
-fn device_error(py: Python<'_>, message: String) -> PyErr {
-    py.import("admittance.errors")
-        .and_then(|m| m.getattr("DeviceError"))
-        .and_then(|cls| cls.call1((message.clone(),)))
-        .map(PyErr::from_value)
-        .unwrap_or_else(|_| PyRuntimeError::new_err(message))
 }
 
 fn client_error(py: Python<'_>, e: ClientError) -> PyErr {

@@ -10,9 +10,9 @@ use dxl::Protocol;
 use dxlsim::servo::Snapshot;
 use dxlsim::{build_bus, BusConfig, MockBus, ServoConfig};
 use plant::{param_index, FrictionLaw, Load, Params, PARAM_NAMES};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple, PyType};
+use pyo3::types::{PyDict, PyTuple};
+use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
 const SERVO_KEYS: [&str; 14] = [
@@ -31,24 +31,6 @@ const SERVO_KEYS: [&str; 14] = [
     "registers",
     "name",
 ];
-
-/// An `admittance.errors.<class_name>` carrying `message` (a `ValueError` if the Python
-/// package is not importable, e.g. when the extension is used alone).
-fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
-    let class = py.import("admittance.errors").and_then(|m| m.getattr(class_name));
-    match class.map(|c| c.cast_into::<PyType>()) {
-        Ok(Ok(ty)) => PyErr::from_type(ty, message),
-        _ => PyValueError::new_err(message),
-    }
-}
-
-fn config_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
-    admittance_error(py, "ConfigError", message.into())
-}
-
-fn device_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
-    admittance_error(py, "DeviceError", message.into())
-}
 
 /// `key` of a servo dict as `T`, or `default` when absent.
 fn field<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, default: T) -> PyResult<T> {
@@ -116,6 +98,24 @@ fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
     })
 }
 
+/// The `servos` argument: a sequence of dicts.
+fn servo_configs(servos: &Bound<'_, PyAny>) -> PyResult<Vec<ServoConfig>> {
+    let py = servos.py();
+    let not_a_list = || config_error(py, "servos must be a list of servo tables (dicts)");
+    if servos.is_instance_of::<pyo3::types::PyString>() || servos.is_instance_of::<PyDict>() {
+        return Err(not_a_list());
+    }
+    let mut configs = Vec::new();
+    for item in servos.try_iter().map_err(|_| not_a_list())? {
+        let item = item?;
+        let table = item.cast::<PyDict>().map_err(|_| {
+            config_error(py, format!("each servo must be a table (dict), got {}", item.get_type().name().map_or("?".into(), |n| n.to_string())))
+        })?;
+        configs.push(servo_config(table)?);
+    }
+    Ok(configs)
+}
+
 fn snapshot_dict<'py>(py: Python<'py>, s: &Snapshot) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("theta", s.theta)?;
@@ -133,7 +133,7 @@ fn snapshot_dict<'py>(py: Python<'py>, s: &Snapshot) -> PyResult<Bound<'py, PyDi
 }
 
 /// A simulated Dynamixel bus on a pseudo-terminal (see docs/mock-bench.md).
-#[pyclass(name = "MockBus", module = "admittance._rtcore")]
+#[pyclass(name = "MockBus", module = "admittance._rtcore", frozen)]
 pub struct PyMockBus {
     inner: MockBus,
 }
@@ -152,14 +152,15 @@ impl PyMockBus {
 impl PyMockBus {
     #[new]
     #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0))]
-    fn new(py: Python<'_>, servos: Vec<Bound<'_, PyDict>>, baudrate: u32, wire_delay: bool, physics_rate_hz: f64) -> PyResult<Self> {
+    fn new(py: Python<'_>, servos: &Bound<'_, PyAny>, baudrate: i64, wire_delay: bool, physics_rate_hz: f64) -> PyResult<Self> {
         if !(physics_rate_hz.is_finite() && (100.0..=100_000.0).contains(&physics_rate_hz)) {
             return Err(config_error(py, format!("physics_rate_hz must be within 100..=100000, got {physics_rate_hz}")));
         }
-        if baudrate == 0 {
-            return Err(config_error(py, "baudrate must be positive"));
-        }
-        let configs = servos.iter().map(servo_config).collect::<PyResult<Vec<_>>>()?;
+        let baudrate = u32::try_from(baudrate)
+            .ok()
+            .filter(|b| *b > 0)
+            .ok_or_else(|| config_error(py, format!("baudrate must be a positive bit rate, got {baudrate}")))?;
+        let configs = servo_configs(servos)?;
         let bus = build_bus(configs, baudrate).map_err(|e| config_error(py, e))?;
         let config = BusConfig { baudrate, wire_delay, physics_rate_hz };
         let inner = MockBus::new(bus, config)
@@ -184,24 +185,23 @@ impl PyMockBus {
         self.inner.lock().bus.protocol().number()
     }
 
-    fn start(&mut self, py: Python<'_>) -> PyResult<()> {
+    fn start(&self, py: Python<'_>) -> PyResult<()> {
         self.inner.start().map_err(|e| device_error(py, format!("cannot start the mock bus thread: {e}")))
     }
 
     /// Stops the bus thread and joins it (without the GIL).
-    fn stop(&mut self, py: Python<'_>) -> PyResult<()> {
-        let inner = &mut self.inner;
+    fn stop(&self, py: Python<'_>) -> PyResult<()> {
+        let inner = &self.inner;
         py.detach(|| inner.stop()).map_err(|e| device_error(py, format!("the mock bus thread failed: {e}")))
     }
 
-    fn __enter__(mut slf: PyRefMut<'_, Self>) -> PyResult<PyRefMut<'_, Self>> {
-        let py = slf.py();
-        slf.start(py)?;
+    fn __enter__(slf: PyRef<'_, Self>) -> PyResult<PyRef<'_, Self>> {
+        slf.start(slf.py())?;
         Ok(slf)
     }
 
     #[pyo3(signature = (*_args))]
-    fn __exit__(&mut self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> PyResult<bool> {
+    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> PyResult<bool> {
         self.stop(py)?;
         Ok(false)
     }

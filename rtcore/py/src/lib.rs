@@ -10,6 +10,7 @@ use pyo3::prelude::*;
 
 mod dxl;
 mod dxlsim;
+mod errors;
 mod plant;
 mod rt;
 

@@ -8,13 +8,14 @@
 use dxl::Protocol;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict, PyList, PyType};
+use pyo3::types::{PyBytes, PyDict, PyList};
 use rtloop::histogram::Percentiles;
 use rtloop::params::{joint_value, LoopParams};
 use rtloop::sched::{Policy, RtRequest};
 use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
 use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
+use crate::errors::{admittance_error, config_error};
 
 const LOOP_KEYS: [&str; 19] = [
     "port",
@@ -61,19 +62,6 @@ const JOINT_KEYS: [&str; 18] = [
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
 const AXES: [&str; 6] = ["x", "y", "z", "tx", "ty", "tz"];
-
-/// An `admittance.errors.<class_name>` (a RuntimeError if the package is not importable).
-fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
-    let class = py.import("admittance.errors").and_then(|m| m.getattr(class_name));
-    match class.map(|c| c.cast_into::<PyType>()) {
-        Ok(Ok(ty)) => PyErr::from_type(ty, message),
-        _ => PyRuntimeError::new_err(message),
-    }
-}
-
-fn config_error(py: Python<'_>, message: impl Into<String>) -> PyErr {
-    admittance_error(py, "ConfigError", message.into())
-}
 
 fn check_keys(d: &Bound<'_, PyDict>, known: &[&str], where_: &str) -> PyResult<()> {
     for key in d.keys() {

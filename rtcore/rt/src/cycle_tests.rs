@@ -251,3 +251,85 @@ fn overruns_are_counted_and_skipped_on_the_grid() {
     let expected: Vec<u64> = [1, 2, 3, 4, 5, 8, 9, 10, 11, 12].iter().map(|k| k * PERIOD).collect();
     assert_eq!(wakes, expected, "every wake is on the grid, none is doubled up");
 }
+
+/// Counts the allocations made by the current thread (const thread-locals never allocate).
+mod counting {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+
+    thread_local! {
+        pub static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+    }
+
+    pub struct Counting;
+
+    // SAFETY: forwards to the system allocator unchanged; only counts.
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            ALLOCATIONS.with(|c| c.set(c.get() + 1));
+            System.alloc(layout)
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            System.dealloc(ptr, layout)
+        }
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            ALLOCATIONS.with(|c| c.set(c.get() + 1));
+            System.realloc(ptr, layout, new_size)
+        }
+    }
+
+    #[global_allocator]
+    static GLOBAL: Counting = Counting;
+
+    pub fn count() -> u64 {
+        ALLOCATIONS.with(|c| c.get())
+    }
+}
+
+/// A bus that accepts every write and never answers: nothing of its own allocates.
+struct NullBus;
+
+impl Transport for NullBus {
+    fn write_all(&mut self, _bytes: &[u8]) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn read_until(&mut self, _buf: &mut [u8], _deadline_ns: u64) -> std::io::Result<usize> {
+        Ok(0)
+    }
+}
+
+#[test]
+fn a_cycle_allocates_nothing() {
+    let mut p = params(3);
+    p.ramp_time_s = 0.05;
+    p.sensor.lowpass_hz = 20.0;
+    p.sensor.deadband = 0.1;
+    let mut r = rig(p.clone(), &[(1, 2048), (2, 2048), (3, 2048)]);
+    r.ctl.sync_read_divisor = 7; // reads time out on this bus: the error path runs too
+    r.ctl.begin(r.clock.now_ns());
+    let mut next = p.clone();
+    next.joints[1].gains.damping = 0.2;
+    next.bias = [0.5; 6];
+    next.bias_generation = 1;
+    r.params.write(next);
+    r.shared.tare_request.store(5, Ordering::Relaxed);
+    let probe = counting::count();
+    std::hint::black_box(Box::new(1u8));
+    assert_eq!(counting::count(), probe + 1, "the counter sees this thread's allocations");
+    let mut allocations = 0;
+    for k in 0..400u64 {
+        let deadline = r.clock.now_ns() + PERIOD;
+        r.clock.clone().sleep_until(deadline);
+        if k < 200 {
+            r.force.push(ForceSample { t_ns: r.clock.now_ns(), forces: [1.0, 2.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
+        }
+        let before = counting::count();
+        r.ctl.run_cycle(&mut NullBus, &r.clock, deadline);
+        allocations += counting::count() - before;
+        while r.telemetry.pop().is_ok() {}
+    }
+    let stats = &r.shared.stats;
+    assert_eq!(stats.sensor_stale_events.load(Ordering::Relaxed), 1, "the stale path ran");
+    assert!(stats.bus_errors.load(Ordering::Relaxed) > 0, "the bus-error path ran");
+    assert_eq!(allocations, 0, "a cycle allocated");
+}

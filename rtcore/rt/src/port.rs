@@ -72,7 +72,8 @@ fn ftdi_latency_timer_ms(path: &str) -> Option<u32> {
 impl Transport for SerialTransport {
     fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
         if !writable_within(self.port.as_raw_fd(), self.write_timeout_ns)? {
-            return Err(io::Error::new(io::ErrorKind::TimedOut, "the serial port accepts no more bytes"));
+            // A bare kind: io::Error::new would allocate, and this runs in the cycle.
+            return Err(io::ErrorKind::TimedOut.into());
         }
         self.port.write_all(bytes)
     }
