@@ -157,7 +157,7 @@ def _next_velocity(omega: float, inertia: float, drive: float, dissipation: floa
 
 def _reference_step(theta: float, omega: float, p: Mapping[str, float], inertia: float, gravity: float,
                     tau: float, t: float, h: float, friction: str) -> tuple[float, float]:
-    tau_corrected = tau - p["torque_bias"] - p["torque_drift"] * t
+    tau_corrected = p["torque_gain"] * tau - p["torque_bias"] - p["torque_drift"] * t
     g = gravity * math.sin(theta - p["angle_offset"])
     cogging = p["cogging_amplitude"] * math.sin(p["cogging_period"] * theta + p["cogging_phase"])
     drive = tau_corrected - g - cogging
@@ -183,7 +183,7 @@ def simulate_reference(
     p = unpack_params(pack_params(params))
     t = trial.t.tolist()
     tau = trial.tau.tolist() if trial.has_tau else None
-    if tau is None:  # bias and drift correct a measured torque; a free swing has none
+    if tau is None:  # gain, bias and drift correct a measured torque; a free swing has none
         p["torque_bias"] = p["torque_drift"] = 0.0
     inertia = p["motor_inertia"] + trial.load_inertia
     theta, omega = float(theta0), float(omega0)

@@ -66,7 +66,7 @@ def numpy_simulate(trial: sim.Trial, sets: np.ndarray, theta0: float) -> np.ndar
         for k in range(n):
             tk = t[i - 1] + k * h
             applied = np.interp(tk - p["time_delay"], t, tau)
-            tau_c = applied - p["torque_bias"] - p["torque_drift"] * (tk - t[0])
+            tau_c = p["torque_gain"] * applied - p["torque_bias"] - p["torque_drift"] * (tk - t[0])
             g = trial.gravity_torque * np.sin(theta - p["angle_offset"])
             drive = tau_c - g - p["cogging_amplitude"] * np.sin(p["cogging_period"] * theta + p["cogging_phase"])
             direction = np.where(omega != 0, np.sign(omega), np.sign(drive))

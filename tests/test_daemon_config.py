@@ -89,10 +89,12 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d["joints"][0].update(virtual_damping=-1.0), r"virtual_damping: must be >= 0"),
     (lambda d: d["joints"][0].update(virtual_inertia=0.0), r"virtual_inertia: must be > 0"),
     (lambda d: d["joints"].append(dict(d["joints"][0])), r"duplicate joint id 1"),
+    (lambda d: d["joints"][0].update(virtual_damping=50.0), r"\[joints\.1\] virtual_\*: h·B/I = .* must be < 1"),
     (lambda d: d["joints"][0].update(params="nowhere.toml"), r"params: file 'nowhere.toml' not found"),
     (lambda d: d["joints"][0].update(limits={"position_min": 1.0, "position_max": 0.5}),
      r"limits\.position_min: must be below position_max"),
     (lambda d: d["joints"][0].update(limits={"velocity_mx": 1.0}), r"did you mean 'velocity_max'"),
+    (lambda d: d["joints"][0].update(plant={}), r"unknown key 'plant'"),  # filled in, never read
     (lambda d: d["joints"][0].update(model="MX-65"), r"model: 'MX-65' is not a Protocol 2\.0 model \(did you mean 'MX-64'\?\)"),
     (lambda d: d.update(bus={"port": "/dev/x", "protocol": 1}) or d["joints"][0].update(model="XM430-W350"),
      r"'XM430-W350' is not a Protocol 1\.0 model"),
@@ -102,6 +104,7 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d["sensor"].update(port="mock"), r"needs the simulated bench"),
     (lambda d: d.update(loop={"rate_hz": 1000, "stale_timeout_ms": 0}), r"stale_timeout_ms: must be > 0"),
     (lambda d: d.update(zenoh={"state_rate_hz": 20}), r"state_rate_hz: must be >= 50"),
+    (lambda d: d.update(zenoh={"mode": "client"}), r"\[zenoh\]\.connect: required with mode = \"client\""),
     (lambda d: d.update(zenoh={"encoding": "cbor"}), r"encoding: expected one of 'json', 'msgpack'"),
     (lambda d: d.update(zenoh={"prefix": "a//b"}), r"prefix: 'a//b' is not a valid key expression"),
     (lambda d: d.update(stop={"torque_policy": "float"}), r"torque_policy: expected one of 'hold', 'torque_off'"),
@@ -160,3 +163,11 @@ def test_every_key_is_documented():
             if key.get("internal"):
                 continue
             assert f"`{key['name']}`" in doc, f"[{table}] {key['name']} is not in docs/daemon.md"
+
+
+def test_run_check_prints_the_resolved_configuration(capsys):
+    from admittance.cli import main
+
+    assert main(["run", "--check", "--config", str(REPO / "config" / "example.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "joint 1: MX-64" in out and "I=0.02 kg·m²" in out and "zenoh: bench/arm1" in out

@@ -96,3 +96,10 @@ def test_watchdog_is_off_without_watchdog_usec_or_for_another_pid(notify_socket)
     other = Notifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "1000000", "WATCHDOG_PID": str(os.getpid() + 1)})
     assert other.watchdog_usec == 0
     assert Notifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "x"}).watchdog_usec == 0
+
+
+def test_a_reader_that_does_not_read_never_blocks_the_sender(notify_socket):
+    path, _ = notify_socket
+    notifier = Notifier({"NOTIFY_SOCKET": path})
+    results = [notifier.status(f"line {i}") for i in range(200)]  # far beyond the datagram queue
+    assert results[0] and not all(results)

@@ -35,6 +35,7 @@ class FakeLoop:
         self.stopped_with = None
         self.samples = []
         self.values = {"1.virtual_damping": 0.05}
+        self.lifetime = None
 
     def force_sink(self):
         return SimpleNamespace(push=lambda t, f: self.samples.append((t, f)) or True)
@@ -65,12 +66,22 @@ class FakeLoop:
     def heartbeat(self):
         return self.cycle
 
+    def running(self):
+        """True for ``lifetime`` checks (None: forever), then the thread "dies"."""
+        if self.lifetime is not None:
+            self.lifetime -= 1
+        return self.lifetime is None or self.lifetime >= 0
+
+
     def params(self):
         return dict(self.values)
 
     def set_params(self, request):
         self.values.update(request)
         return True, ""
+
+    def tare(self, samples):
+        self.events.append(f"loop.tare:{samples}")
 
     def stop(self, torque_policy="hold"):
         self.events.append(f"loop.stop:{torque_policy}")
@@ -159,7 +170,7 @@ class Harness:
             self._maybe_fail("sensor")
             return FakeSensor(self.events, sink, self.tare_ok)
 
-        def make_interface(zcfg, codec, get, set_):
+        def make_interface(zcfg, codec, handler):
             self.events.append("zenoh")
             self._maybe_fail("zenoh")
             return SimpleNamespace(publish_state=self.published.append, publish_stats=self.published.append,
@@ -266,29 +277,46 @@ def test_params_are_flattened_and_sets_are_forwarded(tmp_path):
     h.supervisor.run()
     assert h.supervisor.set_params({"virtual_damping": 0.1}) == (True, "")
     assert h.supervisor.get_params()["virtual_damping"] == 0.1
+    assert h.supervisor.tare(50) == (True, "") and "loop.tare:50" in h.events
 
 
 def test_ready_status_and_watchdog_reach_a_real_notify_socket(tmp_path):
-    """READY=1 once running, WATCHDOG=1 while the loop's heartbeat advances, STOPPING=1 at the end."""
+    """READY=1 once running, WATCHDOG=1 while the loop's heartbeat advances, STOPPING=1 at the end.
+    The supervisor runs in a thread so that this one reads the socket as systemd would."""
     import socket
 
     from admittance.daemon.notify import Notifier
 
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(tmp_path / "notify"))
+    sock.settimeout(10.0)
+    h = Harness(tmp_path, stop_after=0.6)
+    h.supervisor.notifier = Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "200000"})
+    runner = threading.Thread(target=h.supervisor.run)
+    runner.start()
+    messages: list[str] = []
     try:
-        h = Harness(tmp_path, stop_after=0.5)
-        h.supervisor.notifier = Notifier({"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "100000"})
-        assert h.supervisor.run() == 0
-        sock.setblocking(False)
-        messages = []
-        with contextlib.suppress(BlockingIOError):
-            while True:
-                messages.append(sock.recv(4096).decode())
+        while not messages or not messages[-1].startswith("STOPPING=1"):
+            messages.append(sock.recv(4096).decode())
     finally:
+        runner.join()
         sock.close()
     ready = next(i for i, m in enumerate(messages) if m.startswith("READY=1"))
     assert "STATUS=running MX-64#1, MX-28#2 at 1000 Hz" in messages[ready]
     pings = [i for i, m in enumerate(messages) if m == "WATCHDOG=1"]
-    assert len(pings) >= 3 and min(pings) > ready  # every 50 ms over 0.5 s, after READY
-    assert messages[-1].startswith("STOPPING=1")
+    assert len(pings) >= 2 and min(pings) > ready  # one per 0.1 s while running, after READY
+
+
+def test_a_loop_that_dies_stops_the_daemon_with_a_device_error(tmp_path):
+    h = Harness(tmp_path)
+    make_loop = h.backends.make_loop
+
+    def short_lived(cfg, port):
+        loop = make_loop(cfg, port)
+        loop.lifetime = 1  # alive at the first stats check, dead at the second
+        return loop
+
+    h.backends.make_loop = short_lived
+    with pytest.raises(DeviceError, match="RT loop thread ended"):
+        h.supervisor.run()
+    assert "loop.stop:hold" in h.events  # the undo path still holds the joints

@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -165,7 +166,8 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
     tau, b1, b2, coulomb = 0.06, 0.1, 0.3, 0.02
     config, endpoint = daemon_config(
         tmp_path, joint={"virtual_inertia": 0.02, "virtual_damping": b1, "virtual_coulomb": coulomb},
-        bench={"profile": f"still:torque={tau}", "hand_delay_s": 0.5})
+        bench={"profile": f"still:torque={tau}", "hand_delay_s": 0.5},
+        loop={"stale_timeout_ms": 1000.0})  # a stalled reader would hold (ω = 0 at once): not under test here
     proc = start_daemon(config, "--record", str(tmp_path / "rec"))
     try:
         wait_alive(endpoint)
@@ -187,7 +189,7 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
     v1, v2 = (tau_model - coulomb) / b1, (tau_model - coulomb) / b2
     omega = rec["omega_model"]
     assert abs(omega.max() - v1) < 0.1 * v1
-    assert abs(omega[-1] - v2) < 0.1 * v2
+    assert abs(np.median(omega[rec["t"] > rec["t"][-1] - 0.2]) - v2) < 0.1 * v2
     speeds = np.abs(np.diff(rec["theta_model"])) / np.maximum(np.diff(rec["t"]), 1e-4)
     assert speeds.max() < 1.5 * v1, "no cycle jumped"
     assert np.all(np.abs(np.diff(omega)) <= 200.0 * np.diff(rec["t"]) + 1e-9), "within acceleration_max"
@@ -226,11 +228,14 @@ def test_sensor_silence_holds_the_joint(tmp_path):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_clean_stop_exits_0_with_every_stats_key(tmp_path, sig):
+    """(A tare over Zenoh on the way, from the `admittance tare` command.)"""
     config, endpoint = daemon_config(tmp_path, stop="torque_off", bench={"profile": "still"})
     stats_path = tmp_path / "stats.json"
     proc = start_daemon(config, "--stats-json", str(stats_path))
     try:
         wait_alive(endpoint)
+        assert subprocess.run([str(ADMITTANCE), "tare", "--samples", "50", "--prefix", "hil/arm", "--connect",
+                               endpoint], capture_output=True, text=True, timeout=30).returncode == 0
     finally:
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=15)
@@ -284,3 +289,20 @@ def test_no_config_runs_the_embedded_bench(tmp_path):
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["cycles"] > 1000 and stats["sensor_samples"] > 500
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("bus, sensor", [({"protocol": 1}, {}), ({}, {"kind": "can", "interface": "virtual"})],
+                         ids=["protocol1", "can-sensor"])
+def test_protocol_1_servos_and_the_can_sensor_run_end_to_end(tmp_path, bus, sensor):
+    """The other firmware protocol (BULK_READ instead of SYNC_READ) and the CAN reader, on the
+    embedded bench: the loop reads the servo and the sensor's samples reach it."""
+    config, _ = daemon_config(tmp_path, bench={"profile": "still"})
+    doc = tomllib.loads(config.read_text())
+    doc["bus"].update(bus)
+    doc["sensor"].update(sensor)
+    config.write_text(tomli_w.dumps(doc))
+    result = run_daemon(config, "--duration", "1.5", "--stats-json", str(tmp_path / "s.json"))
+    assert result.returncode == 0, result.stderr
+    stats = json.loads((tmp_path / "s.json").read_text())
+    assert stats["sync_reads"] > 100 and stats["sensor_samples"] > 500

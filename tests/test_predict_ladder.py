@@ -27,6 +27,19 @@ def test_the_true_effect_wins_leave_one_out(offset_set):
     assert offset.params["motor_inertia"] == pytest.approx(synthetic.MX64["motor_inertia"], rel=0.05)
     assert len(base.heldout_rmse) == 4 and base.label == "base"
     assert offset.label == "base + angle_offset"
+    assert len(offset.fold_values) == 4 and base.fold_values == [{}] * 4
+    for fold in offset.fold_values:  # each fold finds it without its left-out trial
+        value, sigma = fold["angle_offset"]
+        assert value == pytest.approx(0.06, abs=0.01) and 0 < sigma < 0.01
+    assert "- base + angle_offset: angle_offset 0.0" in ladder.to_markdown([base, offset], ["a", "b", "c", "d"])
+
+
+def test_lumped_ladder_refuses_a_torque_gain(tmp_path):
+    """Lumped mode already frees the scale of the torque (κ); a gain would be it twice."""
+    spec = synthetic.SynthSpec(n_trials=2, duration=1.0, seed=1, with_torque=True, geometry=False)
+    dataset = load_dataset(synthetic.generate(tmp_path, spec))
+    with pytest.raises(ConfigError, match="torque_gain needs geometry"):
+        ladder.effect_ladder(dataset, [("torque_gain",)])
 
 
 def test_bad_rungs_are_config_errors(offset_set):

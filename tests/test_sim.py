@@ -23,6 +23,8 @@ EFFECTS = {
     "torque_bias": {"torque_bias": 0.006},
     "torque_drift": {"torque_drift": 0.01},
     "tanh_k": {"tanh_k": 40.0},
+    "torque_gain": {"torque_gain": 0.8},
+    "torque_gain_and_bias": {"torque_gain": 1.25, "torque_bias": 0.006},
 }
 
 
@@ -39,6 +41,12 @@ def driven_trial():
 @pytest.fixture(scope="module")
 def free_swing():
     return sim.make_trial(np.arange(0.0, 1.0, 1 / 120), None, load_inertia=1e-3, gravity_torque=0.15)
+
+
+def test_torque_gain_is_entry_16_and_defaults_to_one():
+    """Contract 1's order: torque_gain was added after tanh_k, so older indices are unchanged."""
+    assert sim.PARAM_NAMES.index("torque_gain") == 16 == sim.PARAM_NAMES.index("tanh_k") + 1
+    assert sim.PARAM_DEFAULTS["torque_gain"] == 1.0
 
 
 def test_pack_fills_defaults_and_unpack_inverts():
@@ -117,8 +125,9 @@ def test_batch_shapes_and_rows(driven_trial, free_swing):
         ({"max_step": 0.0}, "max_step"),
         ({"threads": 0}, "threads"),
         ({"x0": np.zeros((1, 2, 2))}, r"x0 must have shape"),
-        ({"params": np.zeros((1, 5))}, "16 columns"),
-        ({"params": np.zeros((1, 16))}, "motor_inertia must be > 0"),
+        ({"params": np.zeros((1, 5))}, f"{len(sim.PARAM_NAMES)} columns"),
+        ({"params": np.zeros((1, len(sim.PARAM_NAMES)))}, "motor_inertia must be > 0"),
+        ({"params": sim.pack_params({**BASE, "torque_gain": 0.0})[None, :]}, "torque_gain must be > 0"),
     ],
 )
 def test_batch_refuses_bad_requests(free_swing, kwargs, words):
@@ -144,8 +153,8 @@ def test_rust_matches_the_python_reference(driven_trial, effect, friction):
 
 
 def test_reference_matches_on_a_free_swing_with_measurement_effects(free_swing):
-    # Bias and drift correct a measured torque; a free swing has none, so both sides ignore them.
-    params = {**BASE, "torque_bias": 0.01, "torque_drift": 0.01}
+    # Gain, bias and drift correct a measured torque; a free swing has none, so both sides ignore them.
+    params = {**BASE, "torque_bias": 0.01, "torque_drift": 0.01, "torque_gain": 0.7}
     fast = sim.simulate(free_swing, params, 1.0, 0.0)
     np.testing.assert_allclose(fast, sim.simulate_reference(free_swing, params, 1.0, 0.0), atol=1e-9)
     np.testing.assert_array_equal(fast, sim.simulate(free_swing, BASE, 1.0, 0.0))

@@ -34,6 +34,7 @@ plants = st.fixed_dictionaries({
     "time_delay": st.floats(0.0, 0.05),
     "torque_bias": st.floats(-0.02, 0.02),
     "torque_drift": st.floats(-0.02, 0.02),
+    "torque_gain": st.floats(0.5, 2.0),
 })
 
 

@@ -23,17 +23,22 @@ def free_endpoint() -> str:
         return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
 
 
-class FakeParams:
+class FakeHandler:
     """All-or-nothing like the loop: any negative value rejects the whole request."""
 
     def __init__(self):
         self.values = {"1.virtual_damping": 0.05, "1.virtual_inertia": 0.02}
         self.requests = []
+        self.tares = []
 
-    def get(self):
+    def get_params(self):
         return dict(self.values)
 
-    def set(self, request):
+    def tare(self, samples):
+        self.tares.append(samples)
+        return True, ""
+
+    def set_params(self, request):
         self.requests.append(request)
         bad = [k for k, v in request.items() if isinstance(v, float) and v < 0]
         if bad:
@@ -45,9 +50,8 @@ class FakeParams:
 @pytest.fixture(params=["json", "msgpack"])
 def daemon(request):
     endpoint = free_endpoint()
-    params = FakeParams()
-    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param),
-                            params.get, params.set)
+    params = FakeHandler()
+    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param), params)
     stop = threading.Event()
     state = State(cycle=7, joints=[JointState(id=1, t=1.0, force=2.0, tau=0.2, theta=0.1, omega=0.0,
                                               goal_tick=2100, present_tick=2099)])
@@ -131,3 +135,15 @@ def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
     assert main(["monitor", "--prefix", "test/arm", "--connect", endpoint, "--duration", "0.6"]) == 0
     out = capsys.readouterr().out
     assert "joint   1" in out and "\x1b[" not in out
+
+
+def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsys):
+    endpoint, handler, _ = daemon
+    assert main(["tare", "--samples", "250", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    assert json.loads(capsys.readouterr().out) == {"accepted": True}
+    with Client([endpoint]) as client:
+        assert client.query("test/arm/tare") == {"accepted": True}  # no payload: 100 samples
+        reply = client.query("test/arm/tare", {"samples": 0})
+        assert reply["accepted"] is False and "samples" in reply["reason"]
+        assert client.query("test/arm/tare", {"sample": 5})["accepted"] is False
+    assert handler.tares == [250, 100]

@@ -1,4 +1,4 @@
-"""``admittance run | monitor | set``: the daemon and its two remote tools (Contract 6).
+"""``admittance run | monitor | set | tare``: the daemon and its remote tools (Contract 6).
 
 Registration stays import-light: zenoh, NumPy and the Rust extension are imported inside the
 handlers, so ``admittance --help`` is instant and a configuration error is reported before any
@@ -44,6 +44,15 @@ def register(subparsers) -> None:
     _remote_args(setp)
     setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
     setp.set_defaults(func=cmd_set)
+
+    tare = subparsers.add_parser(
+        "tare", help="re-zero a running daemon's force sensor (let go of the handle first)",
+        description="The loop averages the next N force samples into its bias; a hand on the "
+                    "handle during those samples becomes part of the zero.")
+    tare.add_argument("--samples", type=int, default=100, metavar="N", help="samples to average (default 100)")
+    _remote_args(tare)
+    tare.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
+    tare.set_defaults(func=cmd_tare)
 
 
 def _remote_args(parser: argparse.ArgumentParser) -> None:
@@ -106,13 +115,21 @@ def parse_assignments(items: list[str]) -> dict[str, float | list[float]]:
 
 
 def cmd_set(args: argparse.Namespace) -> int:
+    return _remote_request(args, "params", parse_assignments(args.assignments))
+
+
+def cmd_tare(args: argparse.Namespace) -> int:
+    return _remote_request(args, "tare", {"samples": args.samples})
+
+
+def _remote_request(args: argparse.Namespace, leaf: str, request: dict) -> int:
+    """Send one request to ``<prefix>/<leaf>``, print the reply; 1 when the daemon rejects it."""
     from admittance.daemon.zenoh_iface import Client
 
-    request = parse_assignments(args.assignments)
     with Client(args.connect or [DEFAULT_ENDPOINT]) as client:
-        reply = client.query_params(args.prefix, request, timeout=args.timeout)
+        reply = client.query(f"{args.prefix}/{leaf}", request, timeout=args.timeout)
     print(json.dumps(reply))
     if not reply.get("accepted", False):
-        print(f"admittance set: rejected: {reply.get('reason', 'no reason given')}", file=sys.stderr)
+        print(f"admittance {args.command}: rejected: {reply.get('reason', 'no reason given')}", file=sys.stderr)
         return 1
     return 0

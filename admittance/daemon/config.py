@@ -122,7 +122,7 @@ class RecordConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class BenchConfig:
-    """The embedded simulated bench (only with [bus].port = "mock")."""
+    """The simulation: the embedded bench ([bus].port = "mock") or the scripted sensor (kind = "mock")."""
 
     profile: str = key("str", "push-release", doc="the scripted hand: a mock-bench profile (NAME[:k=v,...] or CSV)")
     hand_delay_s: float = key("float", 0.5, unit="s", lo=0.0, hi=3600.0,
@@ -178,8 +178,9 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
     lever_arm = tables["sensor"].lever_arm
     joints = tuple(j if j.lever_arm is not None else dataclasses.replace(j, lever_arm=lever_arm) for j in joints)
     _check_cross(tables, joints, where)
-    if "bench" in doc and tables["bus"].port != MOCK_PORT:
-        raise ConfigError(f"{where}: [bench] only applies to the simulated bench ([bus].port = \"mock\")")
+    if "bench" in doc and tables["bus"].port != MOCK_PORT and tables["sensor"].kind != "mock":
+        raise ConfigError(f"{where}: [bench] only applies to a simulation "
+                          "([bus].port = \"mock\" or [sensor].kind = \"mock\")")
     return DaemonConfig(joints=joints, source=path, **tables)
 
 
@@ -260,10 +261,26 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
                           f"({loop.rate_hz / 2:g} Hz), got {sensor.lowpass_hz:g}")
     if zen.state_rate_hz > loop.rate_hz:
         raise ConfigError(f"{where}: [zenoh].state_rate_hz: must not exceed [loop].rate_hz ({loop.rate_hz:g} Hz)")
+    if zen.mode == "client" and not zen.connect:
+        raise ConfigError(f"{where}: [zenoh].connect: required with mode = \"client\" (a client only "
+                          "reaches others through the router or peer it connects to)")
+    _check_stable(joints, loop.rate_hz, where)
     chunks = zen.prefix.split("/")
     if not all(_KEY_CHUNK.match(c) for c in chunks):
         raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
+
+
+def _check_stable(joints: tuple[JointConfig, ...], rate_hz: float, where: str) -> None:
+    """The virtual joint must be integrable at the loop's step (the loop's own gate, run early
+    so that a bad value fails before any servo is touched)."""
+    from admittance import _rtcore
+
+    for j in joints:
+        reason = _rtcore.admittance_check_stable(j.virtual_inertia, j.virtual_damping, j.virtual_coulomb,
+                                                 1.0 / rate_hz)
+        if reason:
+            raise ConfigError(f"{where}: [joints.{j.id}] virtual_*: {reason}")
 
 
 def known_models(protocol: int) -> list[str]:

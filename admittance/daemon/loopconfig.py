@@ -3,8 +3,8 @@
 The daemon's TOML speaks the user's language (a model name, a lever arm, limits in rad); the
 loop wants register addresses and tick ranges. The addresses come from the one model table
 (``_rtcore.model_table()``, read through ``admittance.drivers.control_table``), so an address
-is never typed twice; the tick range and the position limits follow from the model's Goal
-Position range and the joint's zero tick.
+is never typed twice. The tick range is position mode's single turn (0..4095), and the position
+limits are clipped to what that range reaches from the joint's zero tick.
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
 
     table = table_for_name(joint.model, protocol)
     goal, present, torque = (table.item(name) for name in (GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM))
-    tick_min = goal.minimum if goal.minimum is not None else 0
-    tick_max = goal.maximum if goal.maximum is not None else int(TICKS_PER_REV) - 1
+    # Position mode (set up by the servo checks): one turn, whatever wider range the Goal
+    # Position item allows in the extended or multi-turn modes.
+    tick_min, tick_max = 0, int(TICKS_PER_REV) - 1
     if not tick_min <= joint.zero_tick <= tick_max:
         raise ConfigError(f"[joints.{joint.id}].zero_tick: {joint.zero_tick} is outside the {joint.model}'s "
                           f"goal range {tick_min}..{tick_max}")

@@ -1,6 +1,6 @@
 """Typed payloads of the Zenoh keys, and their two encodings (JSON, MessagePack).
 
-Every payload the daemon sends or accepts is a msgspec Struct declared here, so the daemon,
+Every payload the daemon sends or accepts is described by a msgspec Struct here, so the daemon,
 ``admittance monitor``/``set`` and outside tools share one schema, and a malformed request
 fails in the decoder with a message rather than deep in the supervisor.
 
@@ -50,7 +50,7 @@ class RtInfo(msgspec.Struct):
 
 
 class Stats(msgspec.Struct):
-    """The keys of ../shared/contracts/daemon.md; further keys are passed through in ``extra``."""
+    """The keys of ../shared/contracts/daemon.md that every stats object must hold."""
 
     cycles: int
     overruns: int
@@ -61,7 +61,6 @@ class Stats(msgspec.Struct):
     sensor_samples: int
     sensor_stale_events: int
     rt: RtInfo
-    extra: dict[str, Any] = {}
 
 
 STATS_KEYS = ("cycles", "overruns", "rate_hz", "period_us", "latency_us", "bus_errors",
@@ -77,14 +76,18 @@ class SetReply(msgspec.Struct, omit_defaults=True):
     reason: str = ""
 
 
-def stats_message(stats: dict[str, Any]) -> Stats:
-    """The loop's stats dict as a Stats struct (contract keys typed, the rest in ``extra``)."""
-    core = {k: stats[k] for k in STATS_KEYS if k in stats}
-    extra = {k: v for k, v in stats.items() if k not in STATS_KEYS}
+def stats_message(stats: dict[str, Any]) -> dict[str, Any]:
+    """The loop's stats, checked against :class:`Stats`, published as they are.
+
+    ``<prefix>/stats`` is "the --stats-json object so far", so the payload is the loop's own
+    object with every key it reports (work_us, sync_reads...); the struct only guarantees that
+    the contract's keys are there with the right types.
+    """
     try:
-        return msgspec.convert({**core, "extra": extra}, Stats, strict=False)
+        msgspec.convert(stats, Stats, strict=False)
     except msgspec.ValidationError as exc:
         raise DataError(f"stats: {exc}") from None
+    return stats
 
 
 class Codec:
@@ -134,3 +137,20 @@ def _number(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise DataError(f"{name}: expected a number, got {value!r}")
     return float(value)
+
+
+class TareRequest(msgspec.Struct, forbid_unknown_fields=True):
+    samples: int = 100
+
+
+MAX_TARE_SAMPLES = 100_000
+
+
+def decode_tare_request(payload: bytes) -> int:
+    """A tare request: no payload (100 samples) or ``{"samples": n}`` with 1 ≤ n ≤ 100000."""
+    if not payload.strip():
+        return TareRequest().samples
+    samples = decode(payload, TareRequest).samples
+    if not 1 <= samples <= MAX_TARE_SAMPLES:
+        raise DataError(f"samples: must be 1..{MAX_TARE_SAMPLES}, got {samples}")
+    return samples

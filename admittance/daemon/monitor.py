@@ -35,7 +35,7 @@ def stats_lines(stats: dict[str, Any]) -> list[str]:
     return [
         f"loop   {stats.get('rate_hz', 0):8.1f} Hz  cycles {stats.get('cycles', 0)}  "
         f"overruns {stats.get('overruns', 0)}  bus errors {stats.get('bus_errors', 0)}",
-        f"period p50 {period.get('p50', 0):7.1f} µs  p99 {period.get('p99', 0):7.1f}  "
+        f"jitter p50 {period.get('p50', 0):7.1f} µs  p99 {period.get('p99', 0):7.1f}  "
         f"p99.9 {period.get('p999', 0):7.1f}  max {period.get('max', 0):7.1f}",
         f"latency p50 {latency.get('p50', 0):6.1f} µs  p99 {latency.get('p99', 0):7.1f}  "
         f"max {latency.get('max', 0):7.1f}",

@@ -31,13 +31,18 @@ class Notifier:
         return bool(self.address)
 
     def send(self, *lines: str) -> bool:
-        """Send one datagram; False when there is no socket or systemd is gone."""
+        """Send one datagram; False when there is no socket, systemd is gone or not reading.
+
+        Non-blocking: a datagram socket whose reader lags blocks the sender once its queue is
+        full, and the supervisor's main loop must never wait on systemd.
+        """
         if not self.address:
             return False
-        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
+        flags = socket.SOCK_DGRAM | socket.SOCK_CLOEXEC | socket.SOCK_NONBLOCK
+        with socket.socket(socket.AF_UNIX, flags) as sock:
             try:
                 sock.sendto("\n".join(lines).encode(), self.address)
-            except OSError:
+            except OSError:  # BlockingIOError included: drop rather than stall
                 return False
         return True
 

@@ -49,7 +49,7 @@ def build(cls: type, table: Any, where: str) -> Any:
     """Validate ``table`` against the dataclass ``cls``; ``where`` prefixes every message."""
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: expected a table, got {type(table).__name__}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
     for name in table:
         if name not in fields:
             raise ConfigError(f"{where}: unknown key {name!r}{did_you_mean(name, fields)}")

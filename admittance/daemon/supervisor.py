@@ -59,7 +59,7 @@ class Backends:
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
-    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, get, set) -> DaemonInterface
+    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
 
 
 class GatedSink:
@@ -129,20 +129,39 @@ class Supervisor:
                 signal.signal(sig, handler)
 
     def _start(self, stack: contextlib.ExitStack) -> None:
-        b, cfg = self.backends, self.cfg
         self.notifier.status("starting: bus")
-        bus_port, sensor_port, start_hand = stack.enter_context(b.start_bench(cfg))
-        for warning in b.check_servos(cfg, bus_port):
-            self._warn(warning)
-        if cfg.stop.torque_policy == "torque_off":
-            stack.callback(self._release_unless_loop_ran, bus_port)
-        self.notifier.status("starting: sensor")
-        self.loop = b.make_loop(cfg, bus_port)
+        ports = stack.enter_context(self.backends.start_bench(self.cfg))
+        bus_port, sensor_port, start_hand = ports
+        self._check_servos(stack, bus_port)
+        self.loop = self.backends.make_loop(self.cfg, bus_port)
         gate = GatedSink(self.loop.force_sink())
-        self.sensor = b.make_sensor(cfg, sensor_port, gate)
+        self._start_sensor(stack, sensor_port, gate)
+        self._start_loop(stack, bus_port)
+        gate.open()
+        self._start_recorder(stack)
+        self._start_interface(stack)
+        self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
+        status = self._status_line()
+        self.notifier.ready(status)
+        z = self.cfg.zenoh
+        self.options.log(f"{status}; zenoh {z.prefix}/* on {', '.join(z.listen) or 'zenoh defaults'}; "
+                         "stop with Ctrl-C or SIGTERM")
+        start_hand()
+
+    def _check_servos(self, stack: contextlib.ExitStack, bus_port: str) -> None:
+        for warning in self.backends.check_servos(self.cfg, bus_port):
+            self._warn(warning)
+        if self.cfg.stop.torque_policy == "torque_off":
+            stack.callback(self._release_unless_loop_ran, bus_port)
+
+    def _start_sensor(self, stack: contextlib.ExitStack, port: str, sink: GatedSink) -> None:
+        self.notifier.status("starting: sensor")
+        self.sensor = self.backends.make_sensor(self.cfg, port, sink)
         self.sensor.start()
         stack.callback(self.sensor.stop)
         self._tare()
+
+    def _start_loop(self, stack: contextlib.ExitStack, bus_port: str) -> None:
         self.notifier.status("starting: loop")
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         try:
@@ -150,12 +169,6 @@ class Supervisor:
         except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
             raise DeviceError(f"RT loop: cannot start on {bus_port}: {exc}") from None
         stack.callback(self._stop_loop)
-        gate.open()
-        self._start_recorder(stack)
-        self._start_interface(stack)
-        self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
-        self.notifier.ready(self._status_line())
-        start_hand()
 
     def _tare(self) -> None:
         n = self.cfg.sensor.tare_samples
@@ -177,8 +190,7 @@ class Supervisor:
     def _start_interface(self, stack: contextlib.ExitStack) -> None:
         if self.backends.make_interface is None:
             return
-        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self.get_params,
-                                                      self.set_params)
+        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self)
         stack.callback(self.interface.close)
 
     def _release_unless_loop_ran(self, bus_port: str) -> None:
@@ -243,15 +255,20 @@ class Supervisor:
     def _publish_stats(self) -> None:
         for warning in self.loop.warnings():
             self._warn(warning)
+        if not self.loop.running():
+            raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
+        stats = self.loop.stats()
+        self.notifier.status(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
+                             f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
-            self.interface.publish_stats(stats_message(self.loop.stats()))
+            self.interface.publish_stats(stats_message(stats))
 
     def _warn(self, text: str) -> None:
         if text not in self._warned:
             self._warned.add(text)
             self.options.log(f"warning: {text}")
 
-    # -- parameters (called from the main thread's poll) -------------------------------------
+    # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
     def get_params(self) -> dict[str, float | list[float]]:
         return telemetry.params_values(self.loop.params())
@@ -262,10 +279,16 @@ class Supervisor:
             self.options.log(f"params set: {json.dumps(request, sort_keys=True)}")
         return accepted, reason
 
+    def tare(self, samples: int) -> tuple[bool, str]:
+        """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
+        self.loop.tare(samples)
+        self.options.log(f"tare requested over the next {samples} samples")
+        return True, ""
+
     # -- exit ----------------------------------------------------------------------------------
 
-    def _status_line(self) -> str:
-        rt = self.loop.stats().get("rt", {})
+    def _status_line(self, stats: dict[str, Any] | None = None) -> str:
+        rt = (stats or self.loop.stats()).get("rt", {})
         joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
         return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')})"
 

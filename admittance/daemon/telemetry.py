@@ -1,9 +1,11 @@
 """The loop's per-cycle telemetry, turned into what the daemon publishes and records.
 
 ``AdmittanceLoop.drain_telemetry()`` hands over a NumPy structured array, one row per joint
-per cycle (see docs/realtime.md). Working on whole columns keeps the main thread's cost per
-tick independent of the loop rate: at 1 kHz and a 100 Hz tick it converts ten rows per joint
-with a handful of vectorised operations, never a Python loop over rows.
+per cycle (see docs/realtime.md). The conversion works on whole columns rather than row by row:
+at the usual 10 cycles per tick both cost about the same, but a tick that fell behind (the
+main thread was descheduled, a recording flush was slow) drains hundreds of cycles at once,
+and there the columns are ~4× cheaper (bench/daemon_tick.py), so a late tick catches up
+instead of falling further behind.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
-"""The daemon's Zenoh interface, and the client side used by ``admittance monitor`` and ``set``.
+"""The daemon's Zenoh interface, and the client side of ``admittance monitor``, ``set`` and ``tare``.
 
 This is the only module that imports zenoh, so the rest of the daemon is testable without a
 network and the zenoh API (which changed between 0.11 and 1.x) is confined to one file.
 
 Zenoh runs its callbacks on its own Rust threads, and each one takes the GIL. The daemon
-therefore declares no Python callbacks at all: queries to ``<prefix>/params`` land in a
-bounded FIFO channel that the supervisor's main loop drains (:meth:`DaemonInterface.poll`),
+therefore declares no Python callbacks at all: queries to ``<prefix>/params`` and
+``<prefix>/tare`` land in bounded FIFO channels that the supervisor's main loop drains (:meth:`DaemonInterface.poll`),
 and state/stats are published from that same loop. A burst of queries can only fill the
 channel; it never stalls anything but the main loop's own next tick.
 
@@ -17,18 +17,17 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
-from admittance.daemon.messages import Codec, ParamsReply, SetReply, decode, decode_set_request
+from admittance.daemon.messages import (
+    Codec, ParamsReply, SetReply, decode, decode_set_request, decode_tare_request,
+)
 from admittance.errors import DataError, DeviceError
 
 QUERY_BACKLOG = 32
 
-SetParams = Callable[[dict[str, float]], tuple[bool, str]]
-GetParams = Callable[[], dict[str, float]]
 
 
 def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
@@ -60,15 +59,24 @@ def _short(message: str) -> str:
     return re.sub(r"\s+at \S+\.rs:\d+\.?", "", message).replace("[", "").replace("]", "").strip()
 
 
-class DaemonInterface:
-    """``<prefix>/state``, ``/stats`` (publications), ``/params`` (queryable), ``/alive`` (token)."""
+class Handler(Protocol):
+    """What the interface asks of the supervisor (all called from the supervisor's own thread)."""
 
-    def __init__(self, zcfg, codec: Codec, get_params: GetParams, set_params: SetParams) -> None:
+    def get_params(self) -> dict[str, Any]: ...
+
+    def set_params(self, request: dict[str, Any]) -> tuple[bool, str]: ...
+
+    def tare(self, samples: int) -> tuple[bool, str]: ...
+
+
+class DaemonInterface:
+    """``<prefix>/state``, ``/stats`` (publications), ``/params``, ``/tare`` (queryables), ``/alive``."""
+
+    def __init__(self, zcfg, codec: Codec, handler: Handler) -> None:
         self.prefix = zcfg.prefix
         self._codec = codec
-        self._get_params = get_params
-        self._set_params = set_params
-        listen = zcfg.listen if zcfg.listen else None
+        self._handler = handler
+        listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
         conf = make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting)
         self._session = open_session(conf, f"listening on {', '.join(zcfg.listen) or 'defaults'}")
         encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
@@ -78,9 +86,11 @@ class DaemonInterface:
         self._state_pub = declare(f"{self.prefix}/state", encoding=encoding,
                                   congestion_control=zenoh.CongestionControl.DROP, express=True)
         self._stats_pub = declare(f"{self.prefix}/stats", encoding=encoding)
-        self._params_key = f"{self.prefix}/params"
-        self._queryable = self._session.declare_queryable(self._params_key,
-                                                          zenoh.handlers.FifoChannel(QUERY_BACKLOG))
+        self._queryables = {
+            f"{self.prefix}/{leaf}": (self._session.declare_queryable(
+                f"{self.prefix}/{leaf}", zenoh.handlers.FifoChannel(QUERY_BACKLOG)), answer)
+            for leaf, answer in (("params", self._answer_params), ("tare", self._answer_tare))
+        }
         self._token = self._session.liveliness().declare_token(f"{self.prefix}/alive")
         self.queries = 0
 
@@ -91,37 +101,47 @@ class DaemonInterface:
         self._stats_pub.put(self._codec.encode(message))
 
     def poll(self) -> int:
-        """Answer every pending params query; returns how many were answered."""
+        """Answer every pending query; returns how many were answered."""
         answered = 0
-        while (query := self._queryable.try_recv()) is not None:
-            try:
-                query.reply(self._params_key, self._codec.encode(self._answer(query)), encoding=self._encoding)
-            finally:
-                query.drop()
-            answered += 1
+        for key, (queryable, answer) in self._queryables.items():
+            while (query := queryable.try_recv()) is not None:
+                try:
+                    payload = query.payload.to_bytes() if query.payload is not None else b""
+                    query.reply(key, self._codec.encode(answer(payload)), encoding=self._encoding)
+                finally:
+                    query.drop()
+                answered += 1
         self.queries += answered
         return answered
 
-    def _answer(self, query: Any) -> ParamsReply | SetReply:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
+    def _answer_params(self, payload: bytes) -> ParamsReply | SetReply:
         if not payload.strip():
-            return ParamsReply(params=self._get_params())
+            return ParamsReply(params=self._handler.get_params())
         try:
             request = decode_set_request(payload)
         except DataError as exc:
             return SetReply(accepted=False, reason=str(exc))
-        accepted, reason = self._set_params(request)
+        accepted, reason = self._handler.set_params(request)
+        return SetReply(accepted=accepted, reason="" if accepted else reason)
+
+    def _answer_tare(self, payload: bytes) -> SetReply:
+        try:
+            samples = decode_tare_request(payload)
+        except DataError as exc:
+            return SetReply(accepted=False, reason=str(exc))
+        accepted, reason = self._handler.tare(samples)
         return SetReply(accepted=accepted, reason="" if accepted else reason)
 
     def close(self) -> None:
         """Withdraw the liveliness token first, so watchers see the daemon leave at once."""
-        for entity in (self._token, self._queryable, self._state_pub, self._stats_pub):
+        queryables = [queryable for queryable, _ in self._queryables.values()]
+        for entity in (self._token, *queryables, self._state_pub, self._stats_pub):
             entity.undeclare()
         self._session.close()
 
 
 class Client:
-    """A short-lived session for ``monitor`` and ``set``: connects to a daemon, listens nowhere."""
+    """A short-lived session for ``monitor``, ``set`` and ``tare``: connects to a daemon, listens nowhere."""
 
     def __init__(self, connect: list[str]) -> None:
         self.connect = connect
@@ -134,17 +154,19 @@ class Client:
     def __exit__(self, *_exc) -> None:
         self._session.close()
 
-    def query_params(self, prefix: str, request: dict[str, float] | None = None,
+    def query_params(self, prefix: str, request: dict[str, Any] | None = None,
                      timeout: float = 3.0) -> dict[str, Any]:
-        """Query ``<prefix>/params``; the first reply as a dict. DeviceError when no daemon answers."""
-        payload = json.dumps(request).encode() if request is not None else None
-        kwargs = {"payload": payload} if payload is not None else {}
-        for reply in self._session.get(f"{prefix}/params", timeout=timeout, **kwargs):
+        """Query ``<prefix>/params`` (a set when ``request`` is given); the reply as a dict."""
+        return self.query(f"{prefix}/params", request, timeout)
+
+    def query(self, key: str, request: dict[str, Any] | None = None, timeout: float = 3.0) -> dict[str, Any]:
+        """The first reply to a get on ``key`` as a dict; DeviceError when no daemon answers."""
+        kwargs = {"payload": json.dumps(request).encode()} if request is not None else {}
+        for reply in self._session.get(key, timeout=timeout, **kwargs):
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes())
-            raise DeviceError(f"{prefix}/params: the daemon replied with an error: "
-                              f"{reply.err.payload.to_string()}")
-        raise DeviceError(f"no daemon answered on {prefix}/params via {', '.join(self.connect)} "
+            raise DeviceError(f"{key}: the daemon replied with an error: {reply.err.payload.to_string()}")
+        raise DeviceError(f"no daemon answered on {key} via {', '.join(self.connect)} "
                           f"within {timeout:g} s (is `admittance run` up, with the same prefix?)")
 
     def try_stream(self, prefix: str) -> Any:

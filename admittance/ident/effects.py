@@ -2,7 +2,7 @@
 admit one only when held-back trials clearly improve.
 
 **Ranking (a score test).** At the current fit, each candidate's parameter sits at its "off"
-value (0). The linearised effect of switching it on is the sensitivity column ∂θ/∂p, by finite
+value (its Contract 1 default: 0, or 1 for ``torque_gain``). The linearised effect of switching it on is the sensitivity column ∂θ/∂p, by finite
 difference. Least squares of the residual on [current Jacobian | candidate columns] tells how
 much of the residual's sum of squares the candidate could remove *beyond what refitting the
 current parameters and initial states already can*: the explained fraction. Every candidate's
@@ -15,7 +15,7 @@ means "not this effect" and scores zero.
 **Admission.** The ranking only orders the work. An effect is added only when (1) refitting
 with it lowers the output error on *validation* trials (held back from this fit, and distinct
 from the reported held-out trials) by more than ``min_gain`` relative, and (2) one of its
-evidence parameters is at least ``min_sigma`` standard errors from zero, with σ corrected for
+evidence parameters is at least ``min_sigma`` standard errors from its "off" value, with σ corrected for
 the residual's autocorrelation (fit.py) and the threshold raised for effects whose shape was
 searched on a grid (:func:`required_sigma`). Both are needed: a better validation score alone can
 be luck on few trials, and significance alone follows from having thousands of samples. On
@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from admittance.ident.fit import FitResult, Progress, fit_initial_states, fit_output_error, normal_equations
-from admittance.ident.model import EFFECTS, INDEX, Simulator
+from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
 from admittance.ident.residual import ljung_box, noise_estimate
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
@@ -46,8 +46,9 @@ SHAPE_STARTS = 3  # best variants (by explained fraction) refitted with their sh
 WHITE_P = 0.01  # Ljung–Box p above which the residual counts as white
 NOISE_RATIO = 1.1  # RMSE within this factor of the noise estimate: at the noise floor
 TIE = 0.02  # validation RMSEs within 2 % are a tie
-PREFERENCE = ("angle_offset", "torque_bias", "time_delay", "asymmetric_coulomb", "quadratic_drag",
+PREFERENCE = ("angle_offset", "torque_bias", "torque_gain", "time_delay", "asymmetric_coulomb", "quadratic_drag",
               "load_dependent_coulomb", "stribeck", "cogging")
+OPTIONAL_PARAMS = ("torque_drift",)  # kept only when significant on their own
 RANK_RESOLUTION = 0.01  # explained fractions closer than this rank as equal
 
 
@@ -126,6 +127,7 @@ def variants(effect: str, torque_scale: float) -> list[Variant]:
         "angle_offset": ("angle_offset", 2e-3),
         "quadratic_drag": ("quadratic_drag", 1e-4 * torque_scale),
         "time_delay": ("time_delay", 5e-3),
+        "torque_gain": ("torque_gain", 1e-2),
     }
     if effect == "torque_bias":
         bias = Column((), "torque_bias", torque_step)
@@ -136,8 +138,11 @@ def variants(effect: str, torque_scale: float) -> list[Variant]:
     return [Variant(effect, param, (Column((), param, step),))]
 
 
-def candidate_effects(present: Sequence[str], with_tau: bool) -> list[str]:
-    return [name for name, e in EFFECTS.items() if name not in present and (with_tau or not e.needs_torque)]
+def candidate_effects(present: Sequence[str], with_tau: bool, mode: str = "geometry") -> list[str]:
+    """The effects not yet in the model that the data can show: torque corrections need a
+    measured torque, and a torque gain needs geometry (lumped mode fits it as κ)."""
+    return [name for name, e in EFFECTS.items() if name not in present and (with_tau or not e.needs_torque)
+            and (mode == "geometry" or not e.geometry_only)]
 
 
 def rank_candidates(sim: Simulator, fit: FitResult, candidates: Sequence[str], torque_scale: float) -> list[Evidence]:
@@ -207,10 +212,11 @@ def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
         a, b = coef
         start.update(cogging_amplitude=float(math.hypot(a, b)), cogging_phase=float(math.atan2(b, a)))
     else:
+        defaults = default_vector()
         for col, value in zip(variant.columns, coef):
-            start[col.param] = float(value)
-        nonneg = {"stribeck_torque", "load_coulomb", "quadratic_drag", "time_delay"}
-        plausible = all(start[c.param] > 0 for c in variant.columns if c.param in nonneg)
+            start[col.param] = float(defaults[INDEX[col.param]] + value)  # the step from "off"
+        positive = {"stribeck_torque", "load_coulomb", "quadratic_drag", "time_delay", "torque_gain"}
+        plausible = all(start[c.param] > 0 for c in variant.columns if c.param in positive)
     return Evidence(
         effect=variant.effect,
         variant=variant.label,
@@ -234,7 +240,8 @@ class SearchOutcome:
     effects: list[str]
     fit: FitResult  # the fit (on the fitting split) with the admitted effects; fit.free says what is free
     rounds: list[list[Evidence]]
-    validation_rmse: list[float]  # before any effect, then after each admitted one
+    validation_rmse: list[float]  # before any effect, then after each admitted (or removed) one
+    removed: list[str] = field(default_factory=list)  # admitted, then made redundant by a later one
 
 
 def score(sim: Simulator, fit: FitResult, x0: np.ndarray, progress: Progress | None = None) -> FitResult:
@@ -254,11 +261,13 @@ def search_effects(
     """Greedy forward selection on the fitting split, judged on the validation split."""
     with_tau = any(tr.tau is not None for tr in fit_sim.trials)
     effects: list[str] = []
+    removed: list[str] = []
     current = base
     val_rmse = [score(val_sim, current, val_x0).rmse]
     rounds: list[list[Evidence]] = []
     while len(effects) < settings.max_effects and not nothing_left(current):
-        ranking = rank_candidates(fit_sim, current, candidate_effects(effects, with_tau), torque_scale)
+        candidates = candidate_effects(effects + removed, with_tau, fit_sim.mode)
+        ranking = rank_candidates(fit_sim, current, candidates, torque_scale)
         rounds.append(ranking)
         results = []
         for evidence in _worth_trying(ranking, current, settings.top_k):
@@ -273,7 +282,44 @@ def search_effects(
         chosen, current, val = _choose(results)
         effects.append(chosen.effect)
         val_rmse.append(val)
-    return SearchOutcome(effects, current, rounds, val_rmse)
+        for dropped in _redundant(fit_sim, val_sim, current, effects, val_x0, torque_scale, settings, progress):
+            evidence, current, val = dropped
+            rounds[-1].append(evidence)
+            effects.remove(evidence.effect)
+            removed.append(evidence.effect)
+            val_rmse.append(val)
+    return SearchOutcome(effects, current, rounds, val_rmse, removed)
+
+
+def _redundant(fit_sim, val_sim, current: FitResult, effects: list[str], val_x0, torque_scale: float,
+               settings: SearchSettings, progress):
+    """Backward step: an earlier effect the newest one made unnecessary (at most one per round).
+
+    Effects can stand in for each other: a fine cogging ripple near the rest position acts like
+    breakaway friction, and on one synthetic Stribeck set it was admitted first; Stribeck came
+    next and explained what cogging had. Each earlier effect is dropped in turn; when the model
+    without it is no worse on validation than ``min_gain``, it goes (and is not tried again)."""
+    if len(effects) < 2:
+        return []
+    val_now = score(val_sim, current, val_x0).rmse
+    defaults = default_vector()
+    for effect in effects[:-1]:
+        if progress:
+            progress(f"checking {effect} is still needed")
+        params = EFFECTS[effect].params
+        vector = current.vector.copy()
+        for name in params:
+            vector[INDEX[name]] = defaults[INDEX[name]]
+        free = tuple(n for n in current.free if n not in params)
+        without = fit_output_error(fit_sim.with_tau_scale(current.tau_scale), vector, free, current.x0,
+                                   torque_scale=torque_scale, label=f"fit -{effect}")
+        val = score(val_sim, without, val_x0).rmse
+        if val <= val_now * (1.0 + settings.min_gain):
+            note = Evidence(effect, variant="removed", accepted=False, validation_gain=float(1.0 - val / val_now),
+                            reason=f"removed: {effects[-1]} explains it (validation without it within "
+                                   f"{100 * settings.min_gain:.0f} %)")
+            return [(note, without, val)]
+    return []
 
 
 def nothing_left(fit: FitResult) -> bool:
@@ -288,12 +334,12 @@ def _worth_trying(ranking: list[Evidence], current: FitResult, top_k: int) -> li
     """The top candidates by explained fraction, plus Stribeck when its linear test failed.
 
     The base fit absorbs breakaway friction into a higher Coulomb level, so at the base optimum
-    adding a Stribeck term looks harmful to first order (the "wrong sign") although the two
-    together fit far better. It is then tried from a start that keeps the static level:
+    adding a Stribeck term looks harmful or useless to first order (the "wrong sign", or a tiny
+    explained fraction) although the two together fit far better. It is then tried from a start that keeps the static level:
     Coulomb 0.7·F plus Stribeck 0.3·F."""
     tried = [e for e in ranking if e.plausible and e.explained >= MIN_EXPLAINED][:top_k]
     for evidence in ranking:
-        if evidence.effect == "stribeck" and not evidence.plausible:
+        if evidence.effect == "stribeck" and all(evidence is not e for e in tried):
             level = current.value("coulomb")
             starts = [{"stribeck_velocity": v, "stribeck_torque": 0.3 * level, "coulomb": 0.7 * level}
                       for v in STRIBECK_VELOCITIES]
@@ -353,29 +399,51 @@ def refit_with(sim: Simulator, current: FitResult, evidence: Evidence, torque_sc
 
 
 def grown(values: dict[str, float], effects: Sequence[str]) -> dict[str, float]:
-    """``values`` with the evidence parameters of ``effects`` doubled: a second start.
+    """``values`` with the evidence parameters of ``effects`` doubled (their distance from "off",
+    for a gain the distance from 1): a second start.
 
     With stick friction the cost is piecewise smooth, and a refit can stop where the new effect
     is only half grown while the base parameters still compensate (seen with load-dependent
     Coulomb: the effect at half its size, the inertia 7 % high, the validation gain below the
     bar). A restart from twice the linearised size is cheap insurance; the lower cost wins."""
     out = dict(values)
+    defaults = default_vector()
     for effect in effects:
         for name in EFFECTS[effect].evidence:
             if name in out:
-                out[name] *= 2.0
+                off = defaults[INDEX[name]]
+                out[name] = float(off + 2.0 * (out[name] - off))
     return out
+
+
+def _without_weak_optional(sim: Simulator, refit: FitResult, evidence: Evidence, min_sigma: float,
+                           torque_scale: float) -> FitResult:
+    """Refit without an optional parameter (a torque drift beside the bias) that is not
+    significant, so the simpler variant competes with its true parameter count."""
+    weak = [n for n in evidence.params if n in OPTIONAL_PARAMS
+            and abs(refit.value(n)) < min_sigma * refit.sigma.get(n, math.inf)]
+    if not weak:
+        return refit
+    defaults = default_vector()
+    vector = refit.vector.copy()
+    for name in weak:
+        vector[INDEX[name]] = defaults[INDEX[name]]
+    evidence.params = tuple(n for n in evidence.params if n not in weak)
+    evidence.variant += f" (without {', '.join(weak)}: not significant)"
+    free = tuple(n for n in refit.free if n not in weak)
+    return fit_output_error(sim.with_tau_scale(refit.tau_scale), vector, free, refit.x0, torque_scale=torque_scale,
+                            label=f"fit +{evidence.effect}")
 
 
 def _try_effect(fit_sim, val_sim, current, evidence, val_x0, torque_scale, val_before,
                 settings: SearchSettings) -> tuple[FitResult, float]:
-    refit = refit_with(fit_sim, current, evidence, torque_scale)
+    refit = _without_weak_optional(fit_sim, refit_with(fit_sim, current, evidence, torque_scale), evidence,
+                                   settings.min_sigma, torque_scale)
     val = score(val_sim, refit, val_x0).rmse
     evidence.validation_gain = float(1.0 - val / val_before) if val_before > 0 else 0.0
     main = EFFECTS[evidence.effect].evidence
     evidence.values = {n: (refit.value(n), refit.sigma.get(n, math.nan)) for n in evidence.params}
-    evidence.significance = float(max(abs(refit.value(n)) / max(refit.sigma.get(n, math.inf), 1e-300)
-                                      for n in main if n in evidence.params))
+    evidence.significance = significance(refit, [n for n in main if n in evidence.params])
     gain_ok = evidence.validation_gain > settings.min_gain
     needed = required_sigma(settings.min_sigma, len(variants(evidence.effect, torque_scale)))
     sig_ok = evidence.significance >= needed
@@ -385,8 +453,15 @@ def _try_effect(fit_sim, val_sim, current, evidence, val_x0, torque_scale, val_b
     elif not gain_ok:
         evidence.reason = f"validation gain {100 * evidence.validation_gain:.1f} % ≤ {100 * settings.min_gain:.0f} %"
     else:
-        evidence.reason = f"parameter only {evidence.significance:.1f} σ from zero (needs {needed:.1f} σ)"
+        evidence.reason = f"parameter only {evidence.significance:.1f} σ from its off value (needs {needed:.1f} σ)"
     return refit, val
+
+
+def significance(fit: FitResult, names: Sequence[str]) -> float:
+    """The largest distance, in σ, of any of ``names`` from its "off" value (its default)."""
+    defaults = default_vector()
+    return float(max(abs(fit.value(n) - defaults[INDEX[n]]) / max(fit.sigma.get(n, math.inf), 1e-300)
+                     for n in names))
 
 
 def required_sigma(min_sigma: float, looks: int) -> float:

@@ -54,6 +54,7 @@ ABS_STEP = {
     "time_delay": 2e-3,
     "load_coulomb": 1e-3,
     "tanh_k": 1.0,
+    "torque_gain": 1e-3,
 }
 
 Progress = Callable[[str], None]
@@ -61,7 +62,7 @@ Progress = Callable[[str], None]
 
 @dataclass
 class FitResult:
-    vector: np.ndarray  # the full 16-entry parameter vector (sim units)
+    vector: np.ndarray  # the full Contract 1 parameter vector (sim units)
     tau_scale: float
     free: tuple[str, ...]
     sigma: dict[str, float]

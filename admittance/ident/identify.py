@@ -238,7 +238,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
         effects = search.effects if search else []
         # Ranking what is left only matters when something is left (it is the costliest batch).
         remaining = [] if nothing_left(final) else rank_candidates(
-            sim_train, final, candidate_effects(effects, dataset.has_torque), torque_scale)
+            sim_train, final, candidate_effects(effects, dataset.has_torque, dataset.mode), torque_scale)
         residual = analyse(sim_train, final)
     return IdentifyResult(dataset, settings, heldout, training, validation, base, final, before, after, search,
                           remaining, residual, timings)

@@ -15,7 +15,7 @@ output-error LM, held-out scoring), so its numbers are comparable with ``identif
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,6 +34,9 @@ class Rung:
     heldout_rmse: list[float]  # rad, one per left-out trial
     pooled_rmse: float  # rad, RMS over every held-out sample
     params: dict[str, float]  # fitted on all trials (SI units; per inertia in lumped mode)
+    # Per fold, each effect parameter's value and σ as fitted on the other trials (geometry
+    # mode; σ is None in lumped mode, where the fit's σ is in sim units): how stable it is.
+    fold_values: list[dict[str, tuple[float, float | None]]] = field(default_factory=list)
 
     @property
     def label(self) -> str:
@@ -54,6 +57,10 @@ def effect_ladder(dataset, rungs: Sequence[Sequence[str]], friction: str = "stic
         unknown = [e for e in effects if e not in EFFECTS]
         if unknown:
             raise ConfigError(f"unknown effect(s) {', '.join(unknown)} (known: {', '.join(EFFECTS)})")
+        geometry_only = [e for e in effects if EFFECTS[e].geometry_only]
+        if dataset.mode == "lumped" and geometry_only:
+            raise ConfigError(f"{', '.join(geometry_only)} needs geometry: in lumped mode the fit already "
+                              "frees the torque's scale (the inverse inertia)")
     with_tau = dataset.has_torque
     torque_scale = 1.0
     if dataset.mode == "geometry":
@@ -63,13 +70,14 @@ def effect_ladder(dataset, rungs: Sequence[Sequence[str]], friction: str = "stic
     for effects in rungs:
         free = free_params(dataset.mode, effects, with_tau)
         folds = [_fold(dataset, k, free, start, x0_all, friction, max_step, torque_scale) for k in range(len(trials))]
-        residuals = np.concatenate([r for _, r in folds])
+        residuals = np.concatenate([r for _, r, _ in folds])
         everything = _fit(dataset, list(range(len(trials))), free, start, x0_all, friction, max_step, torque_scale)
         out.append(Rung(
             effects=tuple(effects),
-            heldout_rmse=[float(np.sqrt(np.mean(r**2))) for _, r in folds],
+            heldout_rmse=[float(np.sqrt(np.mean(r**2))) for _, r, _ in folds],
             pooled_rmse=float(np.sqrt(np.mean(residuals**2))),
             params=_reported(everything, dataset.mode, with_tau),
+            fold_values=[_effect_values(fit, effects, dataset.mode) for _, _, fit in folds],
         ))
     return out
 
@@ -80,6 +88,12 @@ def _reported(fit, mode: str, with_tau: bool) -> dict[str, float]:
     if mode == "lumped":
         params.update(lumped_ratios(fit.vector, fit.tau_scale if with_tau else None))
     return params
+
+
+def _effect_values(fit, effects: Sequence[str], mode: str) -> dict[str, tuple[float, float | None]]:
+    params = physical_params(fit.vector, mode)
+    names = [p for e in effects for p in EFFECTS[e].params]
+    return {n: (params[n], fit.sigma.get(n) if mode == "geometry" else None) for n in names}
 
 
 def _fit(dataset, indices, free, start, x0_all, friction, max_step, torque_scale):
@@ -99,7 +113,7 @@ def _fold(dataset, k, free, start, x0_all, friction, max_step, torque_scale):
     fit = _fit(dataset, training, free, start, x0_all, friction, max_step, torque_scale)
     held = Simulator([dataset.trials[k]], dataset.mode, friction, max_step, fit.tau_scale)
     scored = score(held, fit, x0_all[[k]])
-    return scored, scored.residuals[0]
+    return scored, scored.residuals[0], fit
 
 
 def to_markdown(rungs: Sequence[Rung], names: Sequence[str]) -> str:
@@ -116,7 +130,19 @@ def to_markdown(rungs: Sequence[Rung], names: Sequence[str]) -> str:
         active = set(base) | {p for e in r.effects for p in EFFECTS[e].params}
         cells += [f"{r.params[p]:.5g}" if p in active else "–" for p in shown]
         lines.append("| " + " | ".join(cells) + " |")
+    folds = [_fold_line(r) for r in rungs if r.effects]
+    if folds:
+        lines += ["", "Effect parameters per fold (fitted without the left-out trial, value ± σ):", *folds]
     return "\n".join(lines) + "\n"
+
+
+def _fold_line(rung: Rung) -> str:
+    def shown(value: float, sigma: float | None) -> str:
+        return f"{value:.5g}" if sigma is None else f"{value:.5g} ± {sigma:.2g}"
+
+    names = list(rung.fold_values[0]) if rung.fold_values else []
+    cells = [f"{n} " + " | ".join(shown(*fold[n]) for fold in rung.fold_values) for n in names]
+    return f"- {rung.label}: " + "; ".join(cells)
 
 
 def write_params(rungs: Sequence[Rung], dataset, folder, friction: str = "stick") -> list:

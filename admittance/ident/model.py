@@ -1,7 +1,7 @@
 """The model being identified: its parameters, the catalogue of effects, and the batch simulator.
 
-**Parameters.** The fit works on Contract 1's 16-entry vector. A model is that vector plus the
-names that are free. The base model frees ``motor_inertia``, ``damping`` and ``coulomb``; each
+**Parameters.** The fit works on Contract 1's parameter vector (17 entries). A model is that
+vector plus the names that are free. The base model frees ``motor_inertia``, ``damping`` and ``coulomb``; each
 effect of :data:`EFFECTS` frees its own parameters (the names of ``datasets.md``).
 
 **Lumped mode ("sim units").** Without geometry only ratios are identifiable. Contract 1 states
@@ -13,6 +13,11 @@ finite-difference row. So Γ becomes an ordinary parameter and one batch call st
 whole Jacobian. The per-inertia values are ``p_sim · Γ``; :func:`physical_params` converts.
 A measured torque in lumped mode enters scaled by κ/Γ (κ = 1/I, the inverse inertia); that one
 scale lives in the trials, so :class:`Simulator` rebuilds them when it changes.
+
+**Torque gain.** ``torque_gain`` scales the measured torque. In geometry mode it is separable
+from the inertia: the geometry fixes the load's inertia and gravity torque, so the ratio of
+gravity to inertia is known and only the torque's scale is free. In lumped mode it *is* the
+inverse inertia κ already fitted (a free scale of τ), so the effect exists in geometry mode only.
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ LOWER = {
     "cogging_amplitude": 0.0,
     "time_delay": 0.0,
     "cogging_period": 1.5,
+    "torque_gain": 0.05,  # the plant refuses a gain <= 0: a reversed or dead sensor is no plant
     TAU_SCALE: 1e-12,
 }
 UPPER = {
@@ -65,6 +71,7 @@ UPPER = {
     "cogging_period": 64.0,
     "stribeck_velocity": 20.0,
     "time_delay": 0.5,
+    "torque_gain": 20.0,
 }
 
 
@@ -78,7 +85,9 @@ class Effect:
     summary: str = ""
     # The parameters whose significance decides whether the effect is real (any one of them);
     # shape parameters (a Stribeck velocity, a cogging phase) are not evidence by themselves.
+    # "Zero" is the parameter's Contract 1 default (0 for most, 1 for a gain).
     evidence: tuple[str, ...] = ()
+    geometry_only: bool = False  # lumped mode already fits it (torque_gain: the inverse inertia)
 
 
 EFFECTS: dict[str, Effect] = {
@@ -99,6 +108,8 @@ EFFECTS: dict[str, Effect] = {
         Effect("time_delay", ("time_delay",), True, "applied torque acts late", ("time_delay",)),
         Effect("torque_bias", ("torque_bias", "torque_drift"), True,
                "offset or drift of the measured torque", ("torque_bias", "torque_drift")),
+        Effect("torque_gain", ("torque_gain",), True, "the measured torque is off by a factor",
+               ("torque_gain",), geometry_only=True),
     )
 }
 
@@ -213,7 +224,7 @@ class Simulator:
 
     def run(self, rows: np.ndarray, x0: np.ndarray, velocity: bool = False) -> list[np.ndarray]:
         """θ per trial, shape (S, n_t) (or (S, n_t, 2) with ω when ``velocity``), for parameter
-        rows (S, 16) and initial states (S, T, 2)."""
+        rows (S, N_PARAMS) and initial states (S, T, 2)."""
         from admittance import _rtcore
 
         rows = np.ascontiguousarray(rows, dtype=float)

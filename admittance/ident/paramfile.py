@@ -39,6 +39,7 @@ PARAM_DEFAULTS: dict[str, float | None] = {
     "torque_bias": 0.0,
     "torque_drift": 0.0,
     "tanh_k": 100.0,
+    "torque_gain": 1.0,
 }
 PARAM_NAMES: tuple[str, ...] = tuple(PARAM_DEFAULTS)
 FRICTION_LAWS = ("stick", "tanh")

@@ -156,9 +156,10 @@ def model_torque(p: dict[str, float], inertia: float, gravity: float, theta, vel
 
 
 def corrected_torque(t: np.ndarray, tau: np.ndarray, p: dict[str, float]) -> np.ndarray:
-    """The measured torque as the model sees it: delayed, minus bias and drift (Contract 1)."""
+    """The measured torque as the model sees it: delayed, scaled by the gain, minus bias and drift
+    (Contract 1)."""
     delayed = np.interp(t - p["time_delay"], t, tau)
-    return delayed - p["torque_bias"] - p["torque_drift"] * (t - t[0])
+    return p["torque_gain"] * delayed - p["torque_bias"] - p["torque_drift"] * (t - t[0])
 
 
 def lag_of(grid: np.ndarray, calculated: np.ndarray, measured: np.ndarray, max_lag: float = MAX_LAG_S) -> float:

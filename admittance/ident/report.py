@@ -21,6 +21,7 @@ UNITS = {
     "stribeck_torque": "N·m", "stribeck_velocity": "rad/s", "load_coulomb": "–", "angle_offset": "rad",
     "quadratic_drag": "N·m·s²/rad²", "cogging_amplitude": "N·m", "cogging_period": "1/rev",
     "cogging_phase": "rad", "time_delay": "s", "torque_bias": "N·m", "torque_drift": "N·m/s", "tanh_k": "s/rad",
+    "torque_gain": "–",
 }
 
 

@@ -12,8 +12,9 @@ The data are simulated with the same Rust plant the fit uses, but at a 10× fine
 
 Torque-driven trials (``with_torque``) start at rest near the bottom and are pushed by a
 scripted "hand": a sum of three smooth sinusoids (0.3–1.2 Hz) with a soft start. The recorded
-``tau`` column is what a force sensor would report; ``torque_bias`` and ``time_delay`` act on
-it exactly as Contract 1 defines them.
+``tau`` column is what a force sensor would report; ``torque_gain``, ``torque_bias`` and
+``time_delay`` act on it exactly as Contract 1 defines them: the sensor records
+(τ_true + bias) / gain, which the plant turns back into τ_true.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ EFFECT_MAIN = {
     "cogging": ("cogging_amplitude", {"cogging_period": 8.0, "cogging_phase": 0.4}),
     "time_delay": ("time_delay", {}),
     "torque_bias": ("torque_bias", {}),
+    "torque_gain": ("torque_gain", {}),
 }
 
 
@@ -82,6 +84,8 @@ def true_params(spec: SynthSpec) -> dict[str, float]:
         else:
             known = ", ".join([*EFFECT_MAIN, *PARAM_NAMES])
             raise ConfigError(f"unknown effect or parameter {name!r} (known: {known})")
+    if params.get("torque_gain", 1.0) <= 0:
+        raise ConfigError(f"torque_gain must be > 0, got {params['torque_gain']}")
     return params
 
 
@@ -113,7 +117,7 @@ def generate(out_dir: str | Path, spec: SynthSpec) -> Path:
         inertia, gravity = load_geometry(ROD, BOB, entry["bob_distance"])
         sign = 1.0 if entry["direction"] == "cw" else -1.0
         theta0 = 0.0 if spec.with_torque else sign * (spec.release + rng.uniform(-0.08, 0.08))
-        recorded_tau = None if tau is None else tau + params.get("torque_bias", 0.0)
+        recorded_tau = None if tau is None else _recorded(tau, params)
         trial = _rtcore.Trial(t, recorded_tau, load_inertia=inertia, gravity_torque=gravity)
         x0 = np.array([[[theta0, 0.0]]])
         theta = _rtcore.simulate_batch([trial], row, x0, max_step=GENERATION_STEP)[0][0]
@@ -125,6 +129,12 @@ def generate(out_dir: str | Path, spec: SynthSpec) -> Path:
              "trials": plan, "noise": spec.noise}
     (out / "truth.json").write_text(json.dumps(truth, indent=2))
     return out
+
+
+def _recorded(tau: np.ndarray, params: dict[str, float]) -> np.ndarray:
+    """What the torque sensor reports for a true torque ``tau``: Contract 1's correction
+    gain·τ_measured − bias, inverted."""
+    return (tau + params.get("torque_bias", 0.0)) / params.get("torque_gain", 1.0)
 
 
 def _noise(rng: np.random.Generator, sigma: float, rho: float, n: int) -> np.ndarray:

@@ -31,6 +31,7 @@ from admittance.mockbench.sensor import (
 )
 
 PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
+SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
 SENSOR_KINDS = ("optoforce", "can")
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
@@ -80,7 +81,9 @@ def load_plant(model: str, params_file: str | None, effects: Mapping[str, float]
     if not path.is_file():
         raise ConfigError(f"no fitted parameters for {model}: {path} does not exist (give one with --params FILE)")
     fitted = paramfile.load(path)
-    params = dict(fitted["params"])
+    # A fitted file may carry corrections of the *torque sensor* it was fitted with (gain, bias,
+    # drift); they describe that measurement, not the horn, so the simulated servo drops them.
+    params = {k: v for k, v in fitted["params"].items() if k not in SENSOR_CORRECTIONS}
     params.update(paramfile.validate_params(dict(effects), where="mock-bench effect"))
     return params, str(fitted["model"].get("friction", "stick"))
 

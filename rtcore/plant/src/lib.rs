@@ -1,9 +1,9 @@
 //! The pendulum/admittance plant: friction models and a fixed-step batch simulator (no I/O).
 //!
-//! `I·ω' = τ(t − delay) − bias − drift·t − G·sin(θ − offset) − cogging(θ) − B·ω − c·ω|ω| + friction`
+//! `I·ω' = gain·τ(t − delay) − bias − drift·t − G·sin(θ − offset) − cogging(θ) − B·ω − c·ω|ω| + friction`
 //! (docs/architecture.md, Contract 1; docs/plant.md for the reasoning).
 //!
-//! - `params`: the 16-entry parameter vector and its names (`PARAM_NAMES`).
+//! - `params`: the 17-entry parameter vector and its names (`PARAM_NAMES`).
 //! - `friction`: the friction level and the stick / tanh laws.
 //! - `model`: one semi-implicit Euler substep of the plant (`step`), used by the mock bus.
 //! - `trial`: a trial's inputs and its simulation at the sample times.

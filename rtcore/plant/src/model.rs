@@ -2,8 +2,9 @@
 //!
 //! `step` takes the applied torque as a number: the trial simulator (`crate::trial`)
 //! interpolates and delays it, the mock bus passes its motor + hand torque directly. The
-//! torque-measurement corrections (bias, drift·t) are applied here so every caller that uses
-//! them gets the same definition; callers without a measured torque leave them at 0.
+//! torque-measurement corrections (gain, bias, drift·t) are applied here so every caller that
+//! uses them gets the same definition; callers without a measured torque leave them at their
+//! defaults (gain 1, bias and drift 0).
 use crate::friction::{self, FrictionLaw};
 use crate::params::Params;
 
@@ -31,7 +32,7 @@ pub struct State {
 #[inline]
 pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
     let inertia = p.motor_inertia + load.inertia;
-    let tau_corrected = tau - p.torque_bias - p.torque_drift * t;
+    let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
     let gravity = load.gravity_torque * (state.theta - p.angle_offset).sin();
     let cogging = if p.cogging_amplitude != 0.0 {
         p.cogging_amplitude * (p.cogging_period * state.theta + p.cogging_phase).sin()

@@ -6,7 +6,7 @@
 use crate::error::{require_finite, PlantError};
 
 /// Number of entries of the parameter vector.
-pub const N_PARAMS: usize = 16;
+pub const N_PARAMS: usize = 17;
 
 /// Parameter names in vector order (SI units; see docs/architecture.md, Contract 1).
 pub const PARAM_NAMES: [&str; N_PARAMS] = [
@@ -26,6 +26,7 @@ pub const PARAM_NAMES: [&str; N_PARAMS] = [
     "torque_bias",
     "torque_drift",
     "tanh_k",
+    "torque_gain",
 ];
 
 /// Physical parameters of a joint (motor + gearbox); the load is separate (`Load`).
@@ -63,6 +64,9 @@ pub struct Params {
     pub torque_drift: f64,
     /// s/rad, steepness of the thesis's tanh friction.
     pub tanh_k: f64,
+    /// Dimensionless scale of the measured applied torque: the torque that acts is
+    /// `torque_gain · τ_measured` (a driver whose current-based estimate reads high).
+    pub torque_gain: f64,
 }
 
 impl Default for Params {
@@ -86,6 +90,7 @@ impl Default for Params {
             torque_bias: 0.0,
             torque_drift: 0.0,
             tanh_k: 100.0,
+            torque_gain: 1.0,
         }
     }
 }
@@ -113,6 +118,7 @@ impl Params {
             torque_bias: a[13],
             torque_drift: a[14],
             tanh_k: a[15],
+            torque_gain: a[16],
         })
     }
 
@@ -135,11 +141,14 @@ impl Params {
             self.torque_bias,
             self.torque_drift,
             self.tanh_k,
+            self.torque_gain,
         ]
     }
 
     /// Refuses values that would make the simulation meaningless or produce NaN: non-finite
-    /// entries, a non-positive motor inertia, and a Stribeck term without a positive velocity.
+    /// entries, a non-positive motor inertia, a non-positive torque gain (a sensor that reads
+    /// zero or reversed torque is a wiring error, not a plant), and a Stribeck term without a
+    /// positive velocity.
     ///
     /// Negative damping or friction coefficients are allowed on purpose: finite-difference
     /// Jacobians probe just below zero, and the friction level is clipped at 0 anyway.
@@ -151,6 +160,12 @@ impl Params {
             return Err(PlantError::InvalidValue(format!(
                 "motor_inertia must be > 0, got {}",
                 self.motor_inertia
+            )));
+        }
+        if self.torque_gain <= 0.0 {
+            return Err(PlantError::InvalidValue(format!(
+                "torque_gain must be > 0, got {}",
+                self.torque_gain
             )));
         }
         if self.stribeck_torque != 0.0 && self.stribeck_velocity <= 0.0 {

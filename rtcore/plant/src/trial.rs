@@ -157,8 +157,8 @@ pub fn validate_max_step(max_step: f64) -> Result<(), PlantError> {
 /// Simulates `trial` from `x0` and hands the state at every sample time to `record(i, &state)`
 /// (i = 0 is `x0` itself). Expects validated `p` and `max_step`.
 ///
-/// Bias and drift correct a *measured* torque, so on a trial without `tau` they are left out
-/// (the applied torque is then truly zero). Drift is counted from the trial's first sample.
+/// Gain, bias and drift correct a *measured* torque, so on a trial without `tau` they are left
+/// out (the applied torque is then truly zero; the gain multiplies that zero). Drift is counted from the trial's first sample.
 pub fn simulate_into<F: FnMut(usize, &State)>(
     trial: &Trial,
     p: &Params,

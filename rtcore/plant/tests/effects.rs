@@ -120,7 +120,7 @@ fn tau_trial(tau: impl Fn(f64) -> f64) -> Trial {
 /// A correction parameter on the measured torque moves the joint exactly as the corrected
 /// torque, given directly, moves the uncorrected plant.
 fn assert_correction_is(corrected: Params, measured: impl Fn(f64) -> f64, true_torque: impl Fn(f64) -> f64) {
-    let base = Params { torque_bias: 0.0, torque_drift: 0.0, ..corrected };
+    let base = Params { torque_bias: 0.0, torque_drift: 0.0, torque_gain: 1.0, ..corrected };
     let a = run(&tau_trial(measured), &corrected, FrictionLaw::Stick, at(0.1, 0.0), H);
     let b = run(&tau_trial(true_torque), &base, FrictionLaw::Stick, at(0.1, 0.0), H);
     for (x, y) in a.iter().zip(&b) {
@@ -141,9 +141,25 @@ fn torque_drift_grows_linearly_from_the_first_sample() {
 }
 
 #[test]
-fn bias_and_drift_do_not_act_on_a_free_swing() {
+fn torque_gain_scales_the_measured_torque_before_the_bias() {
+    let low = Params { damping: 0.01, coulomb: 0.01, torque_gain: 0.85, torque_bias: 0.01, ..bare(I) };
+    assert_correction_is(low, |x| 0.05 * (3.0 * x).sin(), |x| 0.85 * 0.05 * (3.0 * x).sin() - 0.01);
+}
+
+#[test]
+fn torque_gain_must_be_positive_and_finite() {
+    for bad in [0.0, -0.5, f64::NAN, f64::INFINITY] {
+        let p = Params { torque_gain: bad, ..bare(I) };
+        let err = p.validate().unwrap_err().to_string();
+        assert!(err.contains("torque_gain"), "{bad}: {err}");
+    }
+    assert!(Params { torque_gain: 1e-3, ..bare(I) }.validate().is_ok());
+}
+
+#[test]
+fn bias_drift_and_gain_do_not_act_on_a_free_swing() {
     let base = Params { damping: 0.01, ..bare(I) };
-    let corrected = Params { torque_bias: 0.02, torque_drift: 0.01, ..base };
+    let corrected = Params { torque_bias: 0.02, torque_drift: 0.01, torque_gain: 0.7, ..base };
     let trial = gravity_trial(0.1, 1.0);
     let a = run(&trial, &base, FrictionLaw::Stick, at(0.4, 0.0), H);
     let b = run(&trial, &corrected, FrictionLaw::Stick, at(0.4, 0.0), H);

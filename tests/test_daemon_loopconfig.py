@@ -1,0 +1,56 @@
+"""The RT loop's configuration dict: addresses from the model table, limits the servo can reach,
+and a dict the real `_rtcore.AdmittanceLoop` accepts (constructed only: no I/O)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from admittance import _rtcore
+from admittance.daemon import config
+from admittance.daemon.loopconfig import loop_config
+from admittance.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def cfg_for(tmp_path: Path, protocol: int, **joint) -> config.DaemonConfig:
+    doc = {"bus": {"port": "/dev/ttyUSB0", "protocol": protocol},
+           "joints": [{"id": 1, "model": "MX-64", **joint}, {"id": 2, "model": "MX-28"}],
+           "sensor": {"kind": "optoforce", "port": "/dev/ttyACM0", "lever_arm": -0.1, "axis": "y"}}
+    path = tmp_path / "d.toml"
+    path.write_text(tomli_w.dumps(doc))
+    return config.load_config(path)
+
+
+@pytest.mark.parametrize("protocol, goal, present, torque", [(2, 116, 132, 64), (1, 30, 36, 24)])
+def test_addresses_come_from_the_model_table(tmp_path, protocol, goal, present, torque):
+    d = loop_config(cfg_for(tmp_path, protocol), "/dev/pts/9")
+    assert d["port"] == "/dev/pts/9" and d["protocol"] == protocol
+    for j in d["joints"]:
+        assert (j["goal_address"], j["present_address"], j["torque_enable_address"]) == (goal, present, torque)
+        assert j["axis"] == "y" and j["lever_arm"] == -0.1
+    assert d["joints"][0]["virtual_inertia"] == pytest.approx(0.01467)
+
+
+def test_position_limits_are_clipped_to_what_the_goal_range_reaches(tmp_path):
+    cfg = cfg_for(tmp_path, 2, zero_tick=3500, limits={"position_min": -1.0, "position_max": 3.0})
+    limits = loop_config(cfg, "/dev/x")["joints"][0]["limits"]
+    assert limits["position_min"] == -1.0
+    assert limits["position_max"] == pytest.approx((4095 - 3500) * 2 * 3.141592653589793 / 4096)
+
+
+def test_the_real_loop_accepts_the_dict(tmp_path):
+    loop = _rtcore.AdmittanceLoop(loop_config(cfg_for(tmp_path, 2, direction=-1), "/dev/null"))
+    assert list(loop.ids) == [1, 2]
+    params = loop.params()
+    assert params["1.virtual_damping"] == pytest.approx(0.03471) and params["2.lever_arm"] == -0.1
+
+
+def test_a_zero_tick_outside_the_goal_range_is_a_config_error(tmp_path):
+    cfg = cfg_for(tmp_path, 2)
+    bad = config.dataclasses.replace(cfg, joints=(config.dataclasses.replace(cfg.joints[0], zero_tick=5000),))
+    with pytest.raises(ConfigError, match="zero_tick: 5000 is outside"):
+        loop_config(bad, "/dev/x")
