@@ -142,9 +142,6 @@ class DaemonConfig:
     bench: BenchConfig
     source: Path  # the file it came from (relative paths are resolved beside it)
 
-    def joint(self, joint_id: int) -> JointConfig:
-        return next(j for j in self.joints if j.id == joint_id)
-
 
 TABLES = {"bus": BusConfig, "sensor": SensorConfig, "loop": LoopConfig, "stop": StopConfig,
           "zenoh": ZenohConfig, "record": RecordConfig, "bench": BenchConfig}
@@ -314,12 +311,10 @@ def summary(cfg: DaemonConfig) -> str:
     return "\n".join(lines)
 
 
-def with_overrides(cfg: DaemonConfig, *, record: str | None = None, listen: list[str] | None = None) -> DaemonConfig:
+def with_overrides(cfg: DaemonConfig, *, record: str | None = None) -> DaemonConfig:
     """A copy with command-line overrides applied (they win over the file)."""
     if record is not None:
         cfg = dataclasses.replace(cfg, record=dataclasses.replace(cfg.record, path=str(Path(record).resolve())))
-    if listen is not None:
-        cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=listen))
     return cfg
 
 

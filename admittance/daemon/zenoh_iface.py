@@ -117,20 +117,10 @@ class DaemonInterface:
     def _answer_params(self, payload: bytes) -> ParamsReply | SetReply:
         if not payload.strip():
             return ParamsReply(params=self._handler.get_params())
-        try:
-            request = decode_set_request(payload)
-        except DataError as exc:
-            return SetReply(accepted=False, reason=str(exc))
-        accepted, reason = self._handler.set_params(request)
-        return SetReply(accepted=accepted, reason="" if accepted else reason)
+        return _apply(decode_set_request, self._handler.set_params, payload)
 
     def _answer_tare(self, payload: bytes) -> SetReply:
-        try:
-            samples = decode_tare_request(payload)
-        except DataError as exc:
-            return SetReply(accepted=False, reason=str(exc))
-        accepted, reason = self._handler.tare(samples)
-        return SetReply(accepted=accepted, reason="" if accepted else reason)
+        return _apply(decode_tare_request, self._handler.tare, payload)
 
     def close(self) -> None:
         """Withdraw the liveliness token first, so watchers see the daemon leave at once."""
@@ -138,6 +128,16 @@ class DaemonInterface:
         for entity in (self._token, *queryables, self._state_pub, self._stats_pub):
             entity.undeclare()
         self._session.close()
+
+
+def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
+    """Decode a request and hand it to the supervisor; a malformed one is rejected with why."""
+    try:
+        request = decode_request(payload)
+    except DataError as exc:
+        return SetReply(accepted=False, reason=str(exc))
+    accepted, reason = apply(request)
+    return SetReply(accepted=accepted, reason="" if accepted else reason)
 
 
 class Client:
