@@ -52,7 +52,7 @@ class RunOptions:
 
 @dataclass
 class Backends:
-    """Factories for the parts other engineers own (see admittance.daemon.backends)."""
+    """Factories for the other parts of the project (the real ones are in admittance.daemon.backends)."""
 
     start_bench: Callable[[DaemonConfig], Any]  # -> context manager of (bus, sensor, start_hand)
     check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings

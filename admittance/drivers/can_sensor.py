@@ -85,7 +85,7 @@ class CanForceReader(ForceSensor):
             options["bitrate"] = int(self.bitrate)
         try:
             self._bus = can.Bus(**options)
-        except (can.CanError, OSError, ImportError, NotImplementedError, ValueError, TypeError) as exc:
+        except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
             raise DeviceError(
                 f"cannot open the CAN force sensor (interface {self.interface!r}, channel {self.channel!r}): {exc}"
             ) from None

@@ -279,7 +279,7 @@ class SimulatedCanOptoForce(_StreamingSensor):
         self.can_id = can_id
         try:
             self._bus = can.Bus(interface=interface, channel=channel, ignore_config=True, receive_own_messages=False)
-        except (can.CanError, OSError, ImportError, NotImplementedError, ValueError) as exc:
+        except (can.CanError, OSError, ImportError, ValueError) as exc:
             raise DeviceError(f"cannot open the simulated CAN sensor on {interface} channel {channel!r}: {exc}") from None
         self._message = can.Message
         self._can_error = can.CanError
