@@ -72,6 +72,15 @@ def test_prepare_sets_rdt_zero_and_position_mode_with_torque_off(p2_bus):
         assert p2_bus.register(1, "Torque Enable") == 1
 
 
+def test_a_servo_already_set_up_gets_no_eeprom_write_and_keeps_its_torque(p2_bus):
+    with ServoBus(p2_bus.port_path) as servos:
+        servos.prepare(1)  # first start: RDT 250 -> 0 written, torque went off
+        servos.set_torque(1, True)
+        servos.prepare(1)  # restart: nothing differs, so no EEPROM write turns torque off
+        assert servos.read_raw(1, "Torque Enable") == 1
+    assert p2_bus.register(1, "Torque Enable") == 1
+
+
 def test_protocol_1_uses_the_angle_limits_for_joint_mode(p1_bus):
     with ServoBus(p1_bus.port_path, protocol=1) as servos:
         servos.write_raw(4, "CCW Angle Limit", 0)  # wheel mode

@@ -330,19 +330,30 @@ class ServoBus:
         self.write_raw(servo_id, "Torque Enable", 1 if on else 0)
 
     def set_return_delay_time(self, servo_id: int, seconds: float = 0.0) -> None:
-        """An EEPROM item: torque is turned off first (and left off) on Protocol 2.0."""
-        if self.protocol == 2:
-            self.set_torque(servo_id, False)
-        self.write(servo_id, "Return Delay Time", seconds)
+        """An EEPROM item: written only when it differs (torque off first on Protocol 2.0)."""
+        self._ensure_eeprom(servo_id, "Return Delay Time", self._item(servo_id, "Return Delay Time").unit.from_si(seconds))
 
     def set_position_mode(self, servo_id: int) -> None:
-        """P2: Operating Mode 3 with torque off first (left off); P1: joint mode via the angle limits."""
+        """P2: Operating Mode 3; P1: joint mode via the angle limits. Only what differs is written."""
+        if self.protocol == 2:
+            self._ensure_eeprom(servo_id, "Operating Mode", POSITION_MODE)
+        else:
+            self._ensure_eeprom(servo_id, "CW Angle Limit", P1_JOINT_MODE_LIMITS[0])
+            self._ensure_eeprom(servo_id, "CCW Angle Limit", P1_JOINT_MODE_LIMITS[1])
+
+    def _ensure_eeprom(self, servo_id: int, name: str, raw: int) -> None:
+        """Write an EEPROM item only when its value differs.
+
+        EEPROM survives about 100,000 writes, and a daemon that restarts (systemd
+        Restart=on-failure) must not wear it out by rewriting the same setup at every start.
+        On Protocol 2.0 EEPROM is write-locked while torque is on, so torque goes off first
+        (and stays off: the caller turns it on when the loop is ready).
+        """
+        if self.read_raw(servo_id, name) == int(raw):
+            return
         if self.protocol == 2:
             self.set_torque(servo_id, False)
-            self.write_raw(servo_id, "Operating Mode", POSITION_MODE)
-        else:
-            self.write_raw(servo_id, "CW Angle Limit", P1_JOINT_MODE_LIMITS[0])
-            self.write_raw(servo_id, "CCW Angle Limit", P1_JOINT_MODE_LIMITS[1])
+        self.write_raw(servo_id, name, raw)
 
     def hardware_error(self, servo_id: int) -> list[str]:
         """The causes of the servo's alert: Hardware Error Status (P2) or the status error bits (P1)."""
@@ -376,9 +387,10 @@ class ServoBus:
         return causes
 
     def prepare(self, servo_id: int) -> ServoInfo:
-        """Everything the loop needs from one servo: found, torque off, RDT 0, position mode, no alert.
+        """Everything the loop needs from one servo: found, RDT 0, position mode, no alert.
 
-        Torque is left off; the caller turns it on when the loop is about to command the servo.
+        Torque is switched off only when an EEPROM item has to change (a servo already set up
+        keeps holding its arm); the caller turns torque on when the loop is about to command it.
         """
         info = self.ping(servo_id)
         if info is None:
