@@ -12,20 +12,31 @@ so that no environment variable or ~/.canrc silently changes it, with an accepta
 ``can_id`` (the kernel drops other traffic on socketcan). The reader drains every queued
 frame before parsing, so one parse serves a burst: at 2 kHz of frames the thread wakes at
 most once per frame and usually less.
+
+With ``interface="slcan"`` (a USB-CAN adapter speaking the Lawicel ASCII protocol on a serial
+port) two things differ. python-can waits ``sleep_after_open`` (2 s) after opening the port,
+for adapters that reset when the port opens; a pseudo-terminal has nothing to reset, so the
+reader waits 0 s there and keeps python-can's wait on real devices. And the frames arrive as
+text that python-can decodes in ``recv``: a corrupted line raises there instead of being
+dropped, so the reader counts it in ``undecodable_frames``, empties python-can's line buffer
+and goes on; the bytes lost with it cost a checksum error or a resync, as a lost frame does.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 from admittance.drivers.optoforce import SampleConverter
+from admittance.drivers.ports import open_error_message
 from admittance.drivers.sensor import ForceSensor, Sink, require_key
 from admittance.errors import DeviceError
 
 STANDARD_ID_MAX = 0x7FF
 EXTENDED_ID_MAX = 0x1FFFFFFF
 MAX_FRAMES_PER_BATCH = 256
+PTY_DIR = "/dev/pts/"
 
 
 class CanForceReader(ForceSensor):
@@ -45,18 +56,23 @@ class CanForceReader(ForceSensor):
         axes: int = 3,
         sensor_index: int = 0,
         recv_timeout: float = 0.05,
+        open_delay: float | None = None,
     ):
+        """``open_delay`` (slcan only): seconds to wait after opening the serial port; by
+        default 0 on a pseudo-terminal and python-can's own wait on a real device."""
         super().__init__(sink)
         self.channel = channel
         self.interface = interface
         self.can_id = int(can_id)
         self.bitrate = bitrate
         self.recv_timeout = recv_timeout
+        self.open_delay = open_delay
         self.extended_id = self.can_id > STANDARD_ID_MAX
         self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index)
         self._bus = None
         self.can_frames = 0
         self.foreign_frames = 0
+        self.undecodable_frames = 0
 
     @classmethod
     def from_config(cls, section: Mapping[str, Any], sink: Sink) -> CanForceReader:
@@ -83,28 +99,54 @@ class CanForceReader(ForceSensor):
         }
         if self.bitrate is not None:
             options["bitrate"] = int(self.bitrate)
+        if self.interface == "slcan":
+            options |= self._slcan_options()
         try:
             self._bus = can.Bus(**options)
-        except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
-            raise DeviceError(
-                f"cannot open the CAN force sensor (interface {self.interface!r}, channel {self.channel!r}): {exc}"
-            ) from None
+        except (can.CanError, OSError, ImportError, ValueError, TypeError, NotImplementedError) as exc:
+            # NotImplementedError: an unknown interface name. python-can wraps the serial or
+            # socket error; its errno gives the actionable hint (unplugged, no permission...).
+            cause = exc if getattr(exc, "errno", None) else (exc.__cause__ or exc)
+            where = f"(interface {self.interface!r}, channel {self.channel!r})"
+            raise DeviceError(open_error_message("the CAN force sensor", where, cause)) from None
+
+    def _slcan_options(self) -> dict[str, Any]:
+        delay = self.open_delay
+        if delay is None:
+            port = str(self.channel).partition("@")[0]  # python-can's "port@tty_baudrate" form
+            delay = 0.0 if os.path.realpath(port).startswith(PTY_DIR) else None
+        return {} if delay is None else {"sleep_after_open": float(delay)}
 
     def _poll(self) -> None:
-        bus = self._bus
-        msg = bus.recv(self.recv_timeout)
-        if msg is None:
-            return
         chunk = bytearray()
+        timeout = self.recv_timeout
         for _ in range(MAX_FRAMES_PER_BATCH):
-            self._append_payload(msg, chunk)
-            msg = bus.recv(0.0)
+            msg = self._recv(timeout)
             if msg is None:
                 break
-        else:
             self._append_payload(msg, chunk)
+            timeout = 0.0
         if chunk:
             self._emit_all(self._converter.forces(chunk))
+
+    def _recv(self, timeout: float) -> Any:
+        try:
+            return self._bus.recv(timeout)
+        except Exception as exc:
+            if not is_undecodable_frame(exc):
+                raise  # the device failed: ForceSensor._run reports it
+            self.undecodable_frames += 1
+            if isinstance(exc.__cause__, UnicodeDecodeError):
+                self._drop_stuck_line()
+            return None
+
+    def _drop_stuck_line(self) -> None:
+        # python-can's slcan reader keeps a non-ASCII line in its buffer (it fails to decode it
+        # before clearing it), so every later line would fail too. Its flush() empties that
+        # buffer, and the serial input with it: a few frames more are lost, one resync.
+        flush = getattr(self._bus, "flush", None)
+        if callable(flush):
+            flush()
 
     def _append_payload(self, msg: Any, chunk: bytearray) -> None:
         if (
@@ -124,7 +166,21 @@ class CanForceReader(ForceSensor):
             self._bus = None
 
     def stats(self) -> dict[str, Any]:
-        return super().stats() | self._converter.stats() | {"can_frames": self.can_frames, "foreign_frames": self.foreign_frames}
+        return super().stats() | self._converter.stats() | {
+            "can_frames": self.can_frames,
+            "foreign_frames": self.foreign_frames,
+            "undecodable_frames": self.undecodable_frames,
+        }
+
+
+def is_undecodable_frame(exc: BaseException) -> bool:
+    """Whether python-can raised over one text frame (slcan) it could not decode, not a dead port.
+
+    Its slcan parser raises ValueError or IndexError on a bad line; a non-ASCII byte fails
+    earlier, in its serial reader, which wraps every error as CanOperationError, so only the
+    UnicodeDecodeError underneath tells that case from an unplugged adapter.
+    """
+    return isinstance(exc, ValueError | IndexError) or isinstance(exc.__cause__, UnicodeDecodeError)
 
 
 def split_into_can_payloads(data: bytes, size: int = 8) -> list[bytes]:

@@ -28,11 +28,12 @@ from admittance.mockbench.sensor import (
     ForceModel,
     SimulatedCanOptoForce,
     SimulatedOptoForce,
+    SimulatedSlcanOptoForce,
 )
 
 PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
-SENSOR_KINDS = ("optoforce", "can")
+SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
 MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name")
@@ -153,8 +154,10 @@ class MockBench:
         self.sensor = self._make_sensor()
         self._running = False
 
-    def _make_sensor(self) -> SimulatedOptoForce | SimulatedCanOptoForce:
+    def _make_sensor(self) -> SimulatedOptoForce | SimulatedCanOptoForce | SimulatedSlcanOptoForce:
         cfg = self.config
+        if cfg.sensor == "slcan":
+            return SimulatedSlcanOptoForce(self._hand_torque, self.force_model, can_id=cfg.can_id, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed)
         if cfg.sensor == "can":
             return SimulatedCanOptoForce(
                 self._hand_torque,
@@ -178,13 +181,18 @@ class MockBench:
 
     @property
     def sensor_port(self) -> str | None:
-        """The sensor's pty (None with the CAN sensor)."""
+        """The sensor's pty (None with the CAN sensor on python-can; the adapter's with slcan)."""
         return getattr(self.sensor, "port_path", None)
+
+    @property
+    def can_interface(self) -> str | None:
+        """The python-can interface that reads the sensor (None with the serial sensor)."""
+        return {"can": self.config.can_interface, "slcan": "slcan"}.get(self.config.sensor)
 
     @property
     def can_channel(self) -> str | None:
         """The python-can channel of the CAN sensor (None with the serial sensor)."""
-        return self.config.can_channel if self.config.sensor == "can" else None
+        return {"can": self.config.can_channel, "slcan": self.sensor_port}.get(self.config.sensor)
 
     def start(self) -> None:
         if self._running:
@@ -209,8 +217,8 @@ class MockBench:
     def ports(self) -> dict[str, Any]:
         """The JSON object that ``admittance mock-bench --print-ports`` prints."""
         ports: dict[str, Any] = {"bus": self.bus_port, "sensor": self.sensor_port}
-        if self.config.sensor == "can":
-            ports["can"] = {"interface": self.config.can_interface, "channel": self.can_channel, "can_id": self.config.can_id}
+        if self.can_interface is not None:
+            ports["can"] = {"interface": self.can_interface, "channel": self.can_channel, "can_id": self.config.can_id}
         return ports
 
     def stats(self) -> dict[str, Any]:

@@ -1,7 +1,8 @@
 """``admittance mock-bench``: run the simulated bench alone, for any client to drive.
 
 With ``--print-ports`` the first line on stdout is one JSON object,
-``{"bus": "/dev/pts/N", "sensor": "/dev/pts/M"}`` (flushed at once), so a test or a script
+``{"bus": "/dev/pts/N", "sensor": "/dev/pts/M"}`` (flushed at once; with a CAN sensor it adds
+``"can": {"interface", "channel", "can_id"}``), so a test or a script
 can start the bench as a subprocess and read where to connect; nothing else goes to stdout.
 The bench then runs until SIGINT or SIGTERM (or ``--duration``) and exits 0.
 """
@@ -32,13 +33,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--params", metavar="FILE", help="fitted parameter file (default config/params/<model>.toml)")
     parser.add_argument("--baudrate", type=int, default=1_000_000)
     parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau")
-    parser.add_argument("--sensor", choices=("optoforce", "can"), default="optoforce")
+    parser.add_argument(
+        "--sensor",
+        choices=("optoforce", "can", "slcan"),
+        default="optoforce",
+        help="optoforce: serial frames on a pty; can: python-can (--can-interface); slcan: a USB-CAN adapter in slcan mode on a pty",
+    )
     parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate (default 1000)")
     parser.add_argument("--noise", type=float, default=0.0, metavar="N", help="sensor noise std in N (default 0)")
     parser.add_argument("--bias", type=float, default=0.0, metavar="N", help="sensor bias in N (default 0)")
     parser.add_argument("--lever-arm", type=float, default=0.105, metavar="M", help="hand-to-axis distance in m (default 0.105)")
     parser.add_argument("--can-interface", default="virtual", help="python-can interface of the CAN sensor (virtual is in-process only)")
     parser.add_argument("--can-channel", default="admittance-mock")
+    parser.add_argument("--can-id", type=parse_can_id, default=0x100, metavar="ID", help="CAN identifier of the data frames (default 0x100; configuration on ID+1)")
     parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones (repeatable)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
@@ -56,6 +63,14 @@ def parse_effects(items: list[str]) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"--effect takes NAME=VALUE with a number, not '{item}'") from None
     return effects
+
+
+def parse_can_id(text: str) -> int:
+    """An identifier in any base Python reads (0x100, 256); argparse turns the error into one line."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a CAN identifier is a number such as 0x100, not '{text}'") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         lever_arm=args.lever_arm,
         can_interface=args.can_interface,
         can_channel=args.can_channel,
+        can_id=args.can_id,
         seed=args.seed,
     )
     stop = threading.Event()
@@ -96,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
 def _describe(bench) -> None:
     cfg = bench.config
     print(f"mock bus:    {bench.bus_port}  ({len(bench.servo_ids)} × {cfg.model}, Protocol {cfg.protocol}.0, IDs {bench.servo_ids}, {cfg.baudrate} baud)")
-    if bench.sensor_port:
+    if cfg.sensor == "slcan":
+        print(f"mock sensor: {bench.sensor_port}  (slcan USB-CAN adapter, OptoForce frames on id {cfg.can_id:#x} at {cfg.sensor_rate_hz:g} Hz)")
+    elif bench.sensor_port:
         print(f"mock sensor: {bench.sensor_port}  (OptoForce 3-axis frames at {cfg.sensor_rate_hz:g} Hz)")
     else:
         print(f"mock sensor: CAN {cfg.can_interface} channel {bench.can_channel!r}, id {cfg.can_id:#x}")

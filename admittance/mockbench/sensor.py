@@ -5,16 +5,20 @@ reads F = τ / lever_arm on its configured axis; that force becomes counts with 
 sensitivity (counts_per_newton), plus an optional constant bias and seeded Gaussian noise, and
 is clipped to int16 with the overload bit set, as the DAQ does.
 
-Three outputs share that model:
+Four outputs share that model:
 
 - :class:`SimulatedOptoForce` streams OptoForce frames on a pseudo-terminal, so the real
-  serial reader (or any OptoForce client) reads it as it would a ``/dev/ttyACM*``. It follows
-  protocols.md §6: raw mode on the slave, the slave kept open for the mock's whole life, and
-  non-blocking writes; when the pty is full because nobody reads, whole samples are dropped
-  (never half a frame), exactly as a DAQ's USB buffer overflows.
+  serial reader (or any OptoForce client) reads it as it would a ``/dev/ttyACM*``. Its
+  :class:`PtyPort` follows protocols.md §6: raw mode on the slave, the slave kept open for the
+  mock's whole life, and non-blocking writes; when the pty is full because nobody reads, whole
+  samples are dropped (never half a frame), exactly as a DAQ's USB buffer overflows.
 - :class:`SimulatedCanOptoForce` sends the same bytes over python-can (the in-process
   ``virtual`` bus by default), split into 8-byte frames with the data identifier, and takes
   configuration packets on the identifier after it (0x100 → 0x101).
+- :class:`SimulatedSlcanOptoForce` puts those CAN frames behind a simulated USB-CAN adapter
+  in slcan mode (:mod:`admittance.mockbench.slcan`) on a :class:`PtyPort`, so that another
+  process reads them with python-can's ``slcan`` interface, as from a CANable. The virtual
+  bus cannot do that (it is in-process only), and socketcan's vcan needs root to create.
 - :class:`ScriptedForceSensor` is the registry's ``"mock"`` kind: a ForceSensor that pushes
   forces straight to a sink, with no wire at all.
 
@@ -42,6 +46,7 @@ from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import split_into_can_payloads
 from admittance.drivers.sensor import AXES, ForceSensor, Sink, counts_per_unit
 from admittance.errors import ConfigError, DeviceError
+from admittance.mockbench import slcan
 from admittance.mockbench.hand import Profile, make_profile
 
 log = logging.getLogger(__name__)
@@ -216,18 +221,22 @@ class _StreamingSensor(abc.ABC):
         }
 
 
-class SimulatedOptoForce(_StreamingSensor):
-    """OptoForce frames on a pseudo-terminal: open ``port_path`` as you would /dev/ttyACM0."""
+class PtyPort:
+    """The device end of a pseudo-terminal, as protocols.md §6 asks of a mock serial device.
 
-    def __init__(self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
-        super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
+    The slave is in raw mode and stays open for the port's whole life (so a host that closes
+    and reopens ``path`` never makes the master see EIO), and writes are non-blocking.
+    """
+
+    def __init__(self) -> None:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
-        self.port_path = os.ttyname(self._slave)
+        self.path = os.ttyname(self._slave)
         self._backlog = b""
 
-    def _send(self, data: bytes) -> bool:
+    def send(self, data: bytes) -> bool:
+        """Write one whole frame; False if it had to be dropped because the pty is full."""
         # A frame cut short by a full pty is finished before anything new is written, so the
         # stream stays whole frames; a new frame that does not fit at all is dropped.
         if self._backlog:
@@ -244,17 +253,74 @@ class SimulatedOptoForce(_StreamingSensor):
         except OSError:  # EAGAIN when the pty is full
             return 0
 
-    def _receive(self) -> bytes:
+    def receive(self) -> bytes:
+        """What the host wrote since the last call (non-blocking)."""
         try:
             return os.read(self._master, 4096)
         except (BlockingIOError, OSError):
             return b""
 
-    def _release(self) -> None:
+    def close(self) -> None:
         for fd in (self._master, self._slave):
             if fd >= 0:
                 os.close(fd)
         self._master = self._slave = -1
+
+
+class SimulatedOptoForce(_StreamingSensor):
+    """OptoForce frames on a pseudo-terminal: open ``port_path`` as you would /dev/ttyACM0."""
+
+    def __init__(self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
+        super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
+        self._pty = PtyPort()
+        self.port_path = self._pty.path
+
+    def _send(self, data: bytes) -> bool:
+        return self._pty.send(data)
+
+    def _receive(self) -> bytes:
+        return self._pty.receive()
+
+    def _release(self) -> None:
+        self._pty.close()
+
+
+class SimulatedSlcanOptoForce(_StreamingSensor):
+    """The CAN sensor behind a simulated USB-CAN adapter in slcan mode, on a pseudo-terminal.
+
+    Open ``port_path`` with python-can's ``slcan`` interface as you would /dev/ttyACM0 with a
+    CANable. Frames reach the host only while the adapter's channel is open (after ``O``, until
+    ``C``); a sample sent while it is closed, or that does not fit in a full pty, counts as
+    dropped. Configuration packets arrive as transmitted frames on ``can_id + 1``, as on
+    :class:`SimulatedCanOptoForce`.
+    """
+
+    def __init__(self, torque_source: Profile, model: ForceModel, *, can_id: int = 0x100, rate_hz: float = 1000.0, seed: int = 0):
+        super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
+        if not 0 <= can_id < slcan.EXTENDED_ID_MAX:
+            raise ConfigError(f"the simulated sensor's CAN identifier must be in 0..0x1FFFFFFE, got {can_id:#x}")
+        self.can_id = can_id
+        self.adapter = slcan.SlcanAdapter()
+        self._pty = PtyPort()
+        self.port_path = self._pty.path
+
+    def _send(self, data: bytes) -> bool:
+        if not self.adapter.is_open:
+            return False
+        now_ms = time.monotonic_ns() // 1_000_000
+        return self._pty.send(self.adapter.frame_lines(self.can_id, split_into_can_payloads(data), now_ms))
+
+    def _receive(self) -> bytes:
+        replies, frames = self.adapter.feed(self._pty.receive())
+        if replies:
+            self._pty.send(replies)
+        return b"".join(f.data for f in frames if f.can_id == self.can_id + 1)
+
+    def _release(self) -> None:
+        self._pty.close()
+
+    def stats(self) -> dict[str, Any]:
+        return super().stats() | self.adapter.stats()
 
 
 class SimulatedCanOptoForce(_StreamingSensor):
