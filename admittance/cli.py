@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 
 from admittance import __version__
@@ -16,10 +18,10 @@ from admittance.errors import AdmittanceError
 
 # Modules that register subcommands, in the order they appear in --help.
 SUBCOMMAND_MODULES = (
-    "admittance.daemon.cli",  # run, monitor, set
+    "admittance.daemon.cli",  # run, monitor, set, tare
     "admittance.mockbench.cli",  # mock-bench
-    "admittance.ident.cli",  # identify
-    "admittance.ident.tools_cli",  # thesis, breakaway, predict
+    "admittance.ident.cli",  # identify, synth
+    "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
 )
 
 
@@ -48,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # stdout closed by the reader (`| head`): stop quietly, as `cat` does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 128 + signal.SIGPIPE
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, SimulatedCanOptoForce
 
-from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
+from helpers import wait_until
 
 _channels = itertools.count()
 

@@ -20,8 +20,7 @@ from admittance.mockbench import slcan
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, PtyPort, SimulatedSlcanOptoForce
 
-from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
-from test_mockbench_cli import _first_line, _start
+from helpers import first_line, start_mock_bench, wait_until
 
 CPN = 200.0
 
@@ -187,9 +186,9 @@ def test_a_configuration_packet_sent_through_the_adapter_is_acknowledged_and_app
 @contextlib.contextmanager
 def _mock_bench(*args: str) -> Iterator[dict]:
     """``admittance mock-bench --print-ports ARGS`` in a subprocess: its ports; on exit, SIGTERM and a clean exit."""
-    proc = _start(*args)
+    proc = start_mock_bench(*args)
     try:
-        yield json.loads(_first_line(proc))
+        yield json.loads(first_line(proc))
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=30)
         assert (proc.returncode, out) == (0, ""), err  # nothing on stdout after the JSON line

@@ -70,7 +70,7 @@ def test_record_identify_reload_round_trip(tmp_path):
     """A bench session recorded by the daemon is refitted by `identify`; the fit, reloaded as the
     joint's parameter file, gives back the felt (virtual) joint: inertia and damping within 30 %,
     Coulomb within 50 % + 5 mN·m (the servo's own following error shows in the measured angle)."""
-    from test_zenoh_iface import free_endpoint
+    from helpers import free_endpoint
 
     from admittance.daemon import config
     from admittance.ident.identify import IdentifySettings, identify_dataset
@@ -90,7 +90,7 @@ def test_record_identify_reload_round_trip(tmp_path):
     path.write_text(tomli_w.dumps(cfg))
     admittance = Path(sys.executable).with_name("admittance")
     result = subprocess.run([str(admittance), "run", "--config", str(path), "--duration", "6.5"],
-                            capture_output=True, text=True, timeout=60)
+                            capture_output=True, text=True, timeout=180)
     assert result.returncode == 0, result.stderr
 
     dataset = load_dataset(tmp_path / "rec")

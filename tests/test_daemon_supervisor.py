@@ -247,6 +247,7 @@ def test_torque_off_policy_releases_the_servos_when_the_start_fails_before_the_l
 
 def test_sigterm_stops_cleanly_with_the_torque_policy(tmp_path):
     h = Harness(tmp_path, policy="torque_off")
+    previous = signal.getsignal(signal.SIGTERM)
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM))
     timer.start()
     try:
@@ -256,6 +257,7 @@ def test_sigterm_stops_cleanly_with_the_torque_policy(tmp_path):
     assert h.loop.stopped_with == "torque_off"
     assert json.loads(h.stats_path.read_text())["cycles"] > 0
     assert signal.getsignal(signal.SIGTERM) is not h.supervisor.request_stop  # handlers restored
+    assert signal.getsignal(signal.SIGTERM) is previous
 
 
 def test_recording_writes_a_dataset_of_the_rows_with_a_present_position(tmp_path):

@@ -14,6 +14,8 @@ from admittance.drivers.dynamixel import ServoAlert, ServoError, ServoStatusErro
 from admittance.drivers.dynamixel import ServoBus as _ServoBus
 from admittance.errors import ConfigError, DeviceError
 
+from helpers import wait_until
+
 PLANT = {"motor_inertia": 0.0147, "damping": 0.0347, "coulomb": 0.0843}
 # The test machine is shared and loaded: give the simulated bus's replies a generous deadline.
 SLACK_MS = 200.0
@@ -144,6 +146,29 @@ def test_servo_errors_are_typed(p2_bus):
             servos.write_raw(1, "Return Delay Time", 300)
         with pytest.raises(ConfigError, match="no control-table item 'Goal Torque'"):
             servos.read(1, "Goal Torque")
+
+
+def test_clear_folds_a_multi_turn_position_into_one_turn_at_rest_only():
+    bus = _rtcore.MockBus(servos=[{"id": 1, "model": "MX-64", "protocol": 2, "params": PLANT, "initial_theta": 7.0}],
+                          baudrate=1_000_000, wire_delay=True)
+    bus.start()
+    try:
+        with ServoBus(bus.port_path) as servos:
+            before = servos.read_raw(1, "Present Position")
+            assert before > 4095  # more than a turn from the centre tick
+            servos.clear_turns(1)
+            assert servos.read_raw(1, "Present Position") == before - 4096
+            bus.set_external_torque(1, 1.0)  # a hand spins the torque-free horn
+            assert wait_until(lambda: bus.servo_state(1)["omega"] > 1.0)
+            with pytest.raises(ServoStatusError, match="Result Fail"):
+                servos.clear_turns(1)
+    finally:
+        bus.stop()
+
+
+def test_protocol_1_has_no_clear(p1_bus):
+    with ServoBus(p1_bus.port_path, protocol=1) as servos, pytest.raises(DeviceError, match="no CLEAR"):
+        servos.clear_turns(1)
 
 
 def test_a_missing_port_is_a_device_error_naming_the_path():

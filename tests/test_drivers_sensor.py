@@ -14,7 +14,7 @@ from admittance.errors import ConfigError, DataError, DeviceError
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, ScriptedForceSensor
 
-from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
+from helpers import wait_until
 
 
 def test_bias_is_the_mean_of_still_samples():

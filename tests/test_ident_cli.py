@@ -90,10 +90,19 @@ def test_missing_dataset_and_bad_options(tmp_path, capsys):
     assert "dataset folder not found" in capsys.readouterr().err
     assert main(["identify", str(tmp_path), "--json", str(tmp_path / "no" / "o.json")]) != 0
     assert "does not exist" in capsys.readouterr().err
+    assert main(["identify", str(tmp_path), "--json", str(tmp_path)]) != 0
+    assert "is a folder" in capsys.readouterr().err
+    (tmp_path / "taken").write_text("")
+    assert main(["identify", str(tmp_path), "--json", str(tmp_path / "o.json"), "--report", str(tmp_path / "taken")]) != 0
+    assert "not a folder" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "s"), "--effect", "wobble=1"]) != 0
     assert "unknown effect" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "s"), "--effect", "stribeck"]) != 0
     assert "NAME=NUMBER" in capsys.readouterr().err
+    for option, value in (("--duration", "nan"), ("--duration", "inf"), ("--noise", "nan"), ("--jitter", "-1")):
+        assert main(["synth", str(tmp_path / "s"), option, value]) != 0
+        assert option in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
 
 
 def test_synth_with_torque_writes_a_tau_column(tmp_path):
@@ -103,4 +112,5 @@ def test_synth_with_torque_writes_a_tau_column(tmp_path):
     assert first == "t,theta,tau"
     assert "[rod]" not in (out / "manifest.toml").read_text()
     truth = json.loads((out / "truth.json").read_text())
+    assert len({trial["bob_distance"] for trial in truth["trials"]}) == 1  # lumped: one load
     assert truth["params"]["motor_inertia"] == pytest.approx(0.0147)

@@ -58,6 +58,14 @@ def test_lumped_when_no_geometry_and_columns_in_any_order(tmp_path):
     np.testing.assert_allclose(ds.trials[0].tau, 0.5)
 
 
+def test_spreadsheet_csv_with_byte_order_mark_and_crlf(tmp_path):
+    body = "\ufeff" + _csv().replace("\n", "\r\n")
+    (tmp_path / "a.csv").write_text(body, encoding="utf-8", newline="")
+    t, theta, tau = read_csv_trial(tmp_path / "a.csv")
+    assert t.size == 20 and tau is None
+    np.testing.assert_allclose(theta[:2], [1.0, math.cos(0.1)], atol=1e-6)
+
+
 @pytest.mark.parametrize(
     "manifest, files, fragment",
     [
@@ -66,6 +74,7 @@ def test_lumped_when_no_geometry_and_columns_in_any_order(tmp_path):
         (MANIFEST, {"a.csv": _csv().replace("0.008333,", "nan,")}, "NaN"),
         (MANIFEST, {"a.csv": _csv().replace("0.008333,", "abc,")}, "not a number"),
         (MANIFEST, {"a.csv": "t,theta\n"}, "empty trial"),
+        (MANIFEST, {"a.csv": _csv().replace("t,theta", "t,theta,theta", 1)}, "appears 2 times"),
         (MANIFEST, {"a.csv": ""}, "empty file"),
         (MANIFEST, {"a.csv": _csv(n=5)}, "only 5 samples"),
         (MANIFEST, {}, "trial file not found"),

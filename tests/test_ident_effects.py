@@ -137,3 +137,15 @@ def test_backward_step_drops_an_effect_a_later_one_explains(tmp_path):
     dropped = _redundant(fit_sim, val_sim, both, effects, x0[3:], 0.4, SearchSettings(), None)
     assert [d[0].effect for d in dropped] == ["angle_offset"]
     assert "angle_offset" not in dropped[0][1].free
+
+
+def test_large_torque_bias_is_not_lost_to_a_compensating_drift(tmp_path):
+    """A bias of 0.05 N·m: fitted with a drift, the two cancel (bias 0.75, drift not
+    significant); without the drift the refit must restart from the model before the effect,
+    or it stalls there and an asymmetric Coulomb level (the same equation) takes its place."""
+    folder = generate(tmp_path, SynthSpec(n_trials=6, duration=5.0, seed=7, jitter=0.1, with_torque=True,
+                                          effects={"torque_bias": 0.05}))
+    j = identify_dataset(load_dataset(folder)).to_json()
+    assert j["effects"] == ["torque_bias"]
+    assert j["params"]["torque_bias"] == pytest.approx(0.05, rel=0.05)
+    assert j["rmse_after"] < 0.0025

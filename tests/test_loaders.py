@@ -305,6 +305,9 @@ def test_convert_cli_writes_a_geometry_dataset(tmp_path, capsys):
     assert manifest["trials"] == [{"file": "data_measured.csv", "bob_distance": 0.5}]
     assert main(["convert", "dfki", str(src), "--out", str(out), "--option", "colour"]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
+    bad_geometry = tmp_path / "bad"
+    assert main(["convert", "dfki", str(src), "--out", str(bad_geometry), "--bob", "-0.5", "0.5"]) == 2
+    assert "--bob" in capsys.readouterr().err and not bad_geometry.exists()
 
 
 def test_dataset_loader_dispatches_trial_formats(tmp_path):

@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
-import select
 import signal
-import subprocess
-import sys
 
 import pytest
 
@@ -18,32 +14,15 @@ from admittance.errors import ConfigError
 from admittance.mockbench.bench import MockBench, params_path
 from admittance.mockbench.cli import parse_effects
 
+from helpers import first_line, start_mock_bench
+
 CPN = 451.89
 
 
-def _start(*args: str) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen(
-        [sys.executable, "-m", "admittance", "mock-bench", "--print-ports", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-
-
-def _first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    if not ready:
-        proc.kill()
-        pytest.fail(f"mock-bench printed nothing; stderr: {proc.stderr.read()}")
-    return proc.stdout.readline()
-
-
 def test_print_ports_gives_one_json_line_working_ports_and_a_clean_sigterm():
-    proc = _start("--profile", "still:torque=0.105")
+    proc = start_mock_bench("--profile", "still:torque=0.105")
     try:
-        ports = json.loads(_first_line(proc))
+        ports = json.loads(first_line(proc))
         assert set(ports) == {"bus", "sensor"}
         assert ports["bus"].startswith("/dev/pts/") and ports["sensor"].startswith("/dev/pts/")
         with ServoBus(ports["bus"], reply_slack_ms=200.0) as servos:
@@ -62,9 +41,9 @@ def test_print_ports_gives_one_json_line_working_ports_and_a_clean_sigterm():
 
 
 def test_options_reach_the_bench_and_sigint_also_exits_zero():
-    proc = _start("--servos", "2", "--model", "MX-28", "--protocol", "1", "--effect", "cogging_amplitude=0.01")
+    proc = start_mock_bench("--servos", "2", "--model", "MX-28", "--protocol", "1", "--effect", "cogging_amplitude=0.01")
     try:
-        ports = json.loads(_first_line(proc))
+        ports = json.loads(first_line(proc))
         with ServoBus(ports["bus"], protocol=1, reply_slack_ms=200.0) as servos:
             assert [(s.id, s.model) for s in servos.scan(range(0, 4))] == [(1, "MX-28"), (2, "MX-28")]
         proc.send_signal(signal.SIGINT)
@@ -76,7 +55,7 @@ def test_options_reach_the_bench_and_sigint_also_exits_zero():
 
 
 def test_a_bad_option_is_one_line_on_stderr_and_a_non_zero_exit():
-    proc = _start("--profile", "wobble")
+    proc = start_mock_bench("--profile", "wobble")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode != 0
     assert err.strip().count("\n") == 0 and "unknown hand profile 'wobble'" in err

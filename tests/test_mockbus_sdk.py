@@ -261,6 +261,7 @@ def test_p1_reboot_is_an_instruction_error(open_bus):
         ([servo(1), servo(2, protocol=1)], "same protocol"),
         ([servo(1, model="AX-12")], "unknown servo model"),
         ([servo(1, colour="red")], "unknown servo key"),
+        ([{**servo(1), 5: "five"}], "keys must be strings"),
         ([{"id": 1, "params": {"motor_inertia": 0.01, "dampnig": 0.1}}], "unknown plant parameter"),
         ([{"id": 1}], "params"),
         ([servo(1, registers={"Return Delay Time": 300})], "Return Delay Time"),

@@ -14,7 +14,7 @@ from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce
 
-from test_drivers_polling import wait_until  # tests/ is on sys.path under pytest
+from helpers import wait_until
 
 CPN = (400.0, 500.0, 250.0)
 

@@ -130,3 +130,10 @@ def test_cli_writes_metrics_and_appendix_b_plots(tmp_path, capsys):
     assert metrics[0]["trial"] == "push.csv" and np.isfinite(metrics[0]["position_rmse"])
     assert sorted(p.name for p in out.glob("*.png")) == [
         "push_position.png", "push_position_torque.png", "push_torque.png"]
+
+
+@pytest.mark.parametrize("k", ["nan", "-1", "0"])
+def test_cli_bad_thesis_k_is_a_one_line_error(tmp_path, capsys, k):
+    assert main(["predict", str(tmp_path), "--params", str(tmp_path / "p.toml"), "--thesis-k", k]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--thesis-k" in err

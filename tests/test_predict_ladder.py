@@ -72,6 +72,14 @@ def test_cli_writes_table_json_and_parameter_files(offset_set, tmp_path, capsys)
     assert (params / "base.toml").is_file()
 
 
+
+@pytest.mark.parametrize("start", ["cogging_period=abc", "cogging_period=nan", "cogging_period=1,2", "cogging_period"])
+def test_cli_start_value_that_is_not_a_number_is_one_line(offset_set, start, capsys):
+    assert main(["ladder", str(offset_set), "--rung", "", "--start", start]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "--start" in err and "\n" not in err
+
+
 def test_start_values_apply_only_to_rungs_that_free_them(offset_set):
     dataset = load_dataset(offset_set)
     plain, with_start = ladder.effect_ladder(dataset, [()]), ladder.effect_ladder(

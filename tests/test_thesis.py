@@ -162,3 +162,11 @@ def test_cli_missing_dataset_is_one_line_error(tmp_path, capsys):
     assert main(["thesis", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "not found" in err
+
+
+@pytest.mark.parametrize("option", [["--cycles", "0"], ["--initial-inertia", "-1"], ["--initial-friction", "nan"],
+                                    ["--initial-damping", "inf"]])
+def test_cli_bad_starting_values_are_one_line_errors(tmp_path, capsys, option):
+    assert main(["thesis", str(tmp_path / "nope"), *option]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and option[0] in err

@@ -4,7 +4,6 @@ and the `admittance set` / `monitor` commands against them."""
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
@@ -16,11 +15,7 @@ from admittance.daemon.messages import Codec, JointState, State, decode
 from admittance.daemon.zenoh_iface import Client, DaemonInterface
 from admittance.errors import DeviceError
 
-
-def free_endpoint() -> str:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+from helpers import free_endpoint
 
 
 class FakeHandler:

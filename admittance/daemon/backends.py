@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
 from admittance.daemon.loopconfig import loop_config
 from admittance.daemon.supervisor import Backends
+from admittance.daemon.telemetry import TICKS_PER_REV
 from admittance.errors import DeviceError
 
 
@@ -96,7 +98,9 @@ def reply_slack_ms(port: str) -> float:
     Setup is not time-critical, so the simulated bus gets a generous slack and hardware the
     driver's default.
     """
-    return PTY_REPLY_SLACK_MS if os.path.realpath(port).startswith("/dev/pts/") else 10.0
+    from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS
+
+    return PTY_REPLY_SLACK_MS if os.path.realpath(port).startswith("/dev/pts/") else DEFAULT_REPLY_SLACK_MS
 
 
 def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
@@ -118,9 +122,42 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
             if info.model.lower() != joint.model.lower():
                 raise DeviceError(f"servo {joint.id} on {port} is a {info.model}, but the configuration "
                                   f"says {joint.model} ([[joints]] model)")
-            bus.write_raw(joint.id, "Goal Position", bus.read_raw(joint.id, "Present Position"))
+            bus.write_raw(joint.id, "Goal Position", present_within_one_turn(bus, joint.id))
             bus.set_torque(joint.id, True)
     return warnings
+
+
+CLEAR_TURNS_TIMEOUT_S = 5.0
+RESULT_FAIL = 1  # the Protocol 2.0 status a servo gives CLEAR while its horn moves
+
+
+def present_within_one_turn(bus: Any, servo_id: int) -> int:
+    """The present tick, folded into the one turn that position mode's goal accepts.
+
+    A horn turned past a revolution with torque off reports a multi-turn position; CLEAR folds
+    it, but a servo only accepts CLEAR at rest, so a horn still coasting gets a few seconds.
+    """
+    from admittance.drivers.dynamixel import ServoStatusError
+
+    present = bus.read_raw(servo_id, "Present Position")
+    if 0 <= present < TICKS_PER_REV:
+        return present
+    deadline = time.monotonic() + CLEAR_TURNS_TIMEOUT_S
+    while True:
+        try:
+            bus.clear_turns(servo_id)
+            break
+        except ServoStatusError as exc:
+            if exc.code != RESULT_FAIL or time.monotonic() >= deadline:
+                raise DeviceError(f"servo {servo_id} on {bus.port} is at tick {present}, more than one turn "
+                                  f"from its goal range, and CLEAR failed ({exc}): hold the joint still and "
+                                  "start again, or power-cycle the servo") from None
+            time.sleep(0.05)
+    present = bus.read_raw(servo_id, "Present Position")
+    if not 0 <= present < TICKS_PER_REV:
+        raise DeviceError(f"servo {servo_id} on {bus.port} still reports tick {present} after CLEAR; "
+                          "power-cycle the servo")
+    return present
 
 
 def release_servos(cfg: DaemonConfig, port: str) -> None:

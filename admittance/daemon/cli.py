@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 from admittance.errors import ConfigError
@@ -72,6 +73,14 @@ def _positive(text: str) -> float:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from admittance.daemon.stopsignals import stop_signals_call
+
+    stop = threading.Event()
+    with stop_signals_call(lambda *_: stop.set()):
+        return _run(args, stop)
+
+
+def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     from admittance.daemon import config
 
     cfg = config.load_config(args.config) if args.config else config.load_default()
@@ -82,7 +91,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from admittance.daemon.backends import real_backends
     from admittance.daemon.supervisor import RunOptions, Supervisor
 
-    options = RunOptions(duration=args.duration, stats_json=args.stats_json)
+    options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop)
     return Supervisor(cfg, real_backends(), options).run()
 
 

@@ -229,16 +229,18 @@ def _or(value: float | None, fallback: float) -> float:
 
 
 def resolve_params_path(joint: JointConfig, config_path: Path, where: str) -> Path:
-    """The joint's parameter file: beside the config file first, then from the repository root."""
+    """The joint's parameter file: beside the config file first, then from the repository root
+    (where the fitted files ship), and last from the working directory."""
     name = joint.params or f"params/{joint.model.lower().replace('-', '')}.toml"
     candidates = [Path(name)] if Path(name).is_absolute() else [
-        config_path.resolve().parent / name, REPO_ROOT / name, REPO_ROOT / "config" / name]
+        config_path.resolve().parent / name, REPO_ROOT / name, REPO_ROOT / "config" / name, Path.cwd() / name]
     for candidate in candidates:
         if candidate.is_file():
             return candidate
     if not joint.params:
         raise ConfigError(f"{where}.params: required (no default parameter file for model {joint.model!r})")
-    raise ConfigError(f"{where}.params: file {name!r} not found beside {config_path} nor in {REPO_ROOT}")
+    raise ConfigError(f"{where}.params: file {name!r} not found beside {config_path}, in {REPO_ROOT} "
+                      "nor in the working directory")
 
 
 def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> None:

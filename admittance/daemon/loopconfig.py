@@ -13,10 +13,14 @@ import math
 from typing import Any
 
 from admittance.daemon.config import DaemonConfig, JointConfig
+from admittance.daemon.telemetry import TICKS_PER_REV
 from admittance.errors import ConfigError
 
-TICKS_PER_REV = 4096.0
 GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Torque Enable"
+# The loop's first read of the present positions. The servos answered the setup checks a
+# moment before, so only a busy host or a simulated bus in another process (a pty) is slow
+# here; the loop's 200 ms default is tight for those, and a start is not time-critical.
+START_TIMEOUT_MS = 2000.0
 
 
 def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
@@ -29,6 +33,7 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
         "rt_priority": lp.rt_priority,
         "lock_memory": lp.lock_memory,
         "sync_read_divisor": lp.sync_read_divisor,
+        "start_timeout_ms": START_TIMEOUT_MS,
         "deadband": s.deadband,
         "lowpass_hz": s.lowpass_hz,
         "stale_timeout_ms": lp.stale_timeout_ms,
@@ -44,7 +49,7 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
     goal, present, torque = (table.item(name) for name in (GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM))
     # Position mode (set up by the servo checks): one turn, whatever wider range the Goal
     # Position item allows in the extended or multi-turn modes.
-    tick_min, tick_max = 0, int(TICKS_PER_REV) - 1
+    tick_min, tick_max = 0, TICKS_PER_REV - 1
     if not tick_min <= joint.zero_tick <= tick_max:
         raise ConfigError(f"[joints.{joint.id}].zero_tick: {joint.zero_tick} is outside the {joint.model}'s "
                           f"goal range {tick_min}..{tick_max}")
@@ -56,7 +61,7 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "goal_address": goal.address, "goal_size": goal.size,
         "present_address": present.address, "present_size": present.size,
         "torque_enable_address": torque.address,
-        "zero_tick": joint.zero_tick, "direction": joint.direction, "ticks_per_rev": TICKS_PER_REV,
+        "zero_tick": joint.zero_tick, "direction": joint.direction, "ticks_per_rev": float(TICKS_PER_REV),
         "tick_min": tick_min, "tick_max": tick_max,
         "axis": axis,
         "virtual_inertia": joint.virtual_inertia,

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import signal
 import sys
 import threading
 import time
@@ -38,9 +37,11 @@ from admittance.daemon.config import DaemonConfig, record_dir
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.recording import Recorder
+from admittance.daemon.stopsignals import stop_signals_call
 from admittance.errors import DeviceError
 
 STATS_PERIOD_S = 1.0
+TARE_MIN_RATE_HZ = 30.0
 
 
 @dataclass
@@ -48,6 +49,8 @@ class RunOptions:
     duration: float | None = None
     stats_json: Path | None = None
     log: Callable[[str], None] = field(default=lambda line: print(f"admittance run: {line}", file=sys.stderr))
+    # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals).
+    stop: threading.Event = field(default_factory=threading.Event)
 
 
 @dataclass
@@ -92,7 +95,7 @@ class Supervisor:
         self.backends = backends
         self.options = options or RunOptions()
         self.notifier = notifier or Notifier()
-        self.stop_event = threading.Event()
+        self.stop_event = self.options.stop
         self.loop: Any = None
         self.sensor: Any = None
         self.interface: Any = None
@@ -106,7 +109,7 @@ class Supervisor:
     # -- lifecycle ---------------------------------------------------------------------------
 
     def run(self) -> int:
-        with self._signals_set(), contextlib.ExitStack() as stack:
+        with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
             self._start(stack)
             self._serve()
             self._stop()
@@ -115,18 +118,6 @@ class Supervisor:
 
     def request_stop(self, *_args: Any) -> None:
         self.stop_event.set()
-
-    @contextlib.contextmanager
-    def _signals_set(self):
-        if threading.current_thread() is not threading.main_thread():
-            yield
-            return
-        previous = {sig: signal.signal(sig, self.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
 
     def _start(self, stack: contextlib.ExitStack) -> None:
         self.notifier.status("starting: bus")
@@ -174,7 +165,9 @@ class Supervisor:
         n = self.cfg.sensor.tare_samples
         if n == 0:
             return
-        result = self.sensor.tare(n, timeout=max(2.0, 5.0 * n / 1000.0))
+        # The daemon does not set the DAQ's rate, so the sensor may stream as slowly as 30 Hz
+        # (OptoForce's slower settings); a start-up tare is not time-critical, so wait for that.
+        result = self.sensor.tare(n, timeout=max(5.0, n / TARE_MIN_RATE_HZ))
         if not result.accepted:
             raise DeviceError(f"sensor: tare refused: {result.reason}")
 
@@ -211,6 +204,15 @@ class Supervisor:
         self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
+        self.options.log(self._summary_line(self.final_stats))
+
+    def _summary_line(self, stats: dict[str, Any]) -> str:
+        """What a user wants to see at the end of a run: how many cycles, how well timed."""
+        period = stats.get("period_us", {})
+        return (f"stopped ({self.cfg.stop.torque_policy}) after {stats.get('cycles', 0)} cycles: "
+                f"{stats.get('overruns', 0)} overruns, {stats.get('bus_errors', 0)} bus errors, "
+                f"{stats.get('sensor_stale_events', 0)} stale-sensor events; "
+                f"wake-up lateness p99 {period.get('p99', float('nan')):.0f} µs")
 
     # -- the main thread's tick --------------------------------------------------------------
 

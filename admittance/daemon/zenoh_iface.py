@@ -29,7 +29,6 @@ from admittance.errors import DataError, DeviceError
 QUERY_BACKLOG = 32
 
 
-
 def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
                 scouting: bool = False) -> zenoh.Config:
     conf = zenoh.Config()

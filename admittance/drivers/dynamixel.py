@@ -68,6 +68,7 @@ P1_ERROR_BITS = {
 P1_HARDWARE_BITS = 0x01 | 0x04 | 0x20
 HARDWARE_ERROR_BITS = {0: "input voltage", 2: "overheating", 3: "motor encoder", 4: "electrical shock", 5: "overload"}
 REBOOT_WAIT_S = 3.0
+DEFAULT_REPLY_SLACK_MS = 20.0  # a servo's firmware plus a desktop host's scheduling
 
 
 # ---------------------------------------------------------------------------------------------
@@ -153,7 +154,7 @@ class ServoBus:
         baudrate: int = 1_000_000,
         protocol: int = 2,
         auto_recover: bool = True,
-        reply_slack_ms: float = 20.0,
+        reply_slack_ms: float = DEFAULT_REPLY_SLACK_MS,
         retries: int = 1,
         sysfs_root: str = "/sys",
     ):
@@ -328,6 +329,17 @@ class ServoBus:
 
     def set_torque(self, servo_id: int, on: bool) -> None:
         self.write_raw(servo_id, "Torque Enable", 1 if on else 0)
+
+    def clear_turns(self, servo_id: int) -> None:
+        """CLEAR (Protocol 2.0): fold a multi-turn Present Position back into one turn.
+
+        With torque off a hand can turn the horn past a full revolution; the firmware then
+        reports a position that position mode's Goal Position refuses (Data Limit Error). The
+        servo answers Result Fail (a ``ServoStatusError``) while the horn still moves.
+        """
+        if self.protocol == 1:
+            raise DeviceError(f"servo {servo_id}: Protocol 1.0 has no CLEAR (its position is always one turn)")
+        self._call(servo_id, "CLEAR", self._packet.clearMultiTurn)
 
     def set_return_delay_time(self, servo_id: int, seconds: float = 0.0) -> None:
         """An EEPROM item: written only when it differs (torque off first on Protocol 2.0)."""

@@ -2,8 +2,11 @@
 
 The pipeline, one module per step:
 
-- ``dataset``: read and validate a dataset folder (shared/contracts/datasets.md) → ``Dataset``
-- ``equation_error``: smoothed derivatives and a bounded linear fit, the starting point
+- ``dataset``: read and validate a dataset folder (shared/contracts/datasets.md) → ``Dataset``;
+  ``loaders``: recorder formats (Motive, encoder logs, DFKI) and conversion to datasets
+- ``split``: the deterministic held-out and validation picks
+- ``equation_error`` (with ``smoothing``): smoothed derivatives and a bounded linear fit, the
+  starting point
 - ``model`` / ``fit``: the Rust batch simulator and a structured Levenberg–Marquardt on the
   output error (simulated − measured angle), shared parameters + per-trial initial states
 - ``effects``: rank candidate effects on the residual, admit them on validation trials
@@ -11,6 +14,10 @@ The pipeline, one module per step:
 - ``identify``: the orchestration and its result (JSON, parameter file)
 - ``report``: Markdown + PNG report; ``synthetic``: datasets with known truth
 - ``paramfile``: Contract 2 parameter files
+
+Beside the pipeline, the thesis's own procedures (``tools_cli``: ``admittance thesis``,
+``breakaway``, ``predict``, ``ladder``, ``convert``): ``thesis`` and its SciPy-only twin
+``baseline_thesis`` (the benchmark's baseline), ``breakaway``, ``predict`` and ``ladder``.
 
 Python API (what ``admittance identify`` does)::
 

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from admittance.errors import ConfigError, DataError
 
+LUMPED_BOB_DISTANCE = 0.30  # m: the one load of a `synth --lumped` dataset
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -51,7 +53,8 @@ def register(subparsers) -> None:
     s.add_argument("--jitter", type=float, default=0.1, metavar="FRACTION", help="sampling-time jitter")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--with-torque", action="store_true", help="torque-driven trials with a tau column")
-    s.add_argument("--lumped", action="store_true", help="leave the geometry out of the manifest")
+    s.add_argument("--lumped", action="store_true",
+                   help="leave the geometry out of the manifest (all trials then share one load)")
     s.set_defaults(func=run_synth)
 
 
@@ -64,13 +67,16 @@ def run_identify(args: argparse.Namespace) -> int:
     if not (0.0 <= args.min_gain < 1.0):
         raise ConfigError(f"--min-gain must be in [0, 1), got {args.min_gain}")
     json_path = _writable(args.json_out, "--json")
+    params_path = _writable(args.params_out, "--params-out") if args.params_out else None
+    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
+        raise DataError(f"--report {args.report}: exists and is not a folder")
     dataset = load_dataset(args.dataset)
     settings = IdentifySettings(friction=args.friction, max_effects=args.max_effects, min_gain=args.min_gain,
                                 quiet=args.quiet)
     result = identify_dataset(dataset, settings)
-    json_path.write_text(json.dumps(_finite(result.to_json()), indent=2) + "\n")
-    if args.params_out:
-        result.write_params(_writable(args.params_out, "--params-out"),
+    _write_json(json_path, result.to_json())
+    if params_path:
+        result.write_params(params_path,
                             source=f"admittance identify {args.dataset} --friction {args.friction}")
     if args.report:
         from admittance.ident.report import write_report
@@ -86,22 +92,38 @@ def run_synth(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
-    if args.duration <= 0 or args.noise < 0 or not (0.0 <= args.noise_corr < 1.0):
-        raise ConfigError("--duration must be > 0, --noise >= 0 and --noise-corr in [0, 1)")
+    if not (0.0 < args.duration < math.inf) or not (0.0 <= args.noise < math.inf):
+        raise ConfigError(f"--duration must be finite and > 0 and --noise finite and >= 0, "
+                          f"got {args.duration} and {args.noise}")
+    if not (0.0 <= args.noise_corr < 1.0) or not (0.0 <= args.jitter < math.inf):
+        raise ConfigError(f"--noise-corr must be in [0, 1) and --jitter finite and >= 0, "
+                          f"got {args.noise_corr} and {args.jitter}")
+    # A lumped fit has one gravity-to-inertia ratio for all trials, so they must share one load.
+    loads = {"distances": (LUMPED_BOB_DISTANCE,)} if args.lumped else {}
     spec = SynthSpec(n_trials=args.trials, duration=args.duration, noise=args.noise,
                      noise_correlation=args.noise_corr, jitter=args.jitter,
                      effects=parse_effect_args(args.effect), with_torque=args.with_torque,
-                     geometry=not args.lumped, seed=args.seed)
+                     geometry=not args.lumped, seed=args.seed, **loads)
     out = generate(args.out_dir, spec)
     print(f"wrote {args.trials} trials to {out}")
     return 0
 
 
 def _writable(path: str, option: str) -> Path:
+    """Checked before the fit, so a typo in an output path does not cost a whole run."""
     p = Path(path)
-    if p.parent and not p.parent.is_dir():
+    if p.is_dir():
+        raise DataError(f"{option} {path}: is a folder, expected a file name")
+    if not p.parent.is_dir():
         raise DataError(f"{option} {path}: folder {p.parent} does not exist")
     return p
+
+
+def _write_json(path: Path, value) -> None:
+    try:
+        path.write_text(json.dumps(_finite(value), indent=2) + "\n")
+    except OSError as exc:
+        raise DataError(f"--json {path}: cannot write ({exc.strerror})") from None
 
 
 def _finite(value):

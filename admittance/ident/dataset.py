@@ -29,6 +29,8 @@ GRAVITY = 9.80665  # m/s², standard gravity
 MIN_SAMPLES = 10  # fewer cannot pin an initial state and three parameters
 MANIFEST = "manifest.toml"
 
+TrialArrays = tuple[np.ndarray, np.ndarray, np.ndarray | None]  # t, theta, tau (None: free swing)
+
 
 @dataclass(frozen=True)
 class TrialData:
@@ -145,31 +147,30 @@ def _load_entry(folder: Path, manifest_path: Path, index: int, entry: Any, rod, 
     path = folder / name
     if not path.is_file():
         raise DataError(f"{path}: trial file not found (listed in {manifest_path.name})")
-    t, theta, tau = _read_series(path, fmt)
-    _check_series(path, t, theta, tau)
+    t, theta, tau = check_series(path, *_read_series(path, fmt))
     inertia, gravity = load_geometry(rod, bob, distance)
     meta = {k: v for k, v in entry.items() if k != "file"}
     meta.setdefault("format", fmt)
     return TrialData(name=name, t=t, theta=theta, tau=tau, load_inertia=inertia, gravity_torque=gravity, meta=meta)
 
 
-def _read_series(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _read_series(path: Path, fmt: str) -> TrialArrays:
     if fmt == "csv":
         return read_csv_trial(path)
     from admittance.ident import loaders  # only datasets in recorder formats need it
 
-    t, theta, tau = loaders.load_trial(path, fmt)
-    return _floats(t), _floats(theta), _floats(tau)
+    return loaders.load_trial(path, fmt)
 
 
 def _floats(values) -> np.ndarray | None:
     return None if values is None else np.asarray(values, dtype=float)
 
 
-def read_csv_trial(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def read_csv_trial(path: Path) -> TrialArrays:
     """Columns ``t``, ``theta`` and optional ``tau``, by header name, in any order."""
     try:
-        with path.open(newline="") as fh:
+        # utf-8-sig: spreadsheet programs put a byte-order mark before the first header name.
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read ({exc})") from None
@@ -179,6 +180,9 @@ def read_csv_trial(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
     for required in ("t", "theta"):
         if required not in header:
             raise DataError(f"{path}: missing column {required!r} (header: {','.join(header)})")
+    for name in ("t", "theta", "tau"):
+        if header.count(name) > 1:  # which one is meant cannot be guessed
+            raise DataError(f"{path}: column {name!r} appears {header.count(name)} times in the header")
     wanted = {name: header.index(name) for name in ("t", "theta", "tau") if name in header}
     columns: dict[str, list[float]] = {name: [] for name in wanted}
     for line_no, row in enumerate(rows[1:], start=2):
@@ -200,13 +204,16 @@ def _cell(path: Path, line_no: int, name: str, row: list[str], col: int) -> floa
         raise DataError(f"{path}: line {line_no}: column {name!r}: not a number: {text!r}") from None
 
 
-def _check_series(path: Path, t: np.ndarray, theta: np.ndarray, tau: np.ndarray | None) -> None:
-    if t is None or theta is None or t.size == 0:
-        raise DataError(f"{path}: empty trial (no samples)")
+def check_series(path: Path, t, theta, tau=None, min_samples: int = MIN_SAMPLES) -> TrialArrays:
+    """Validate a trial's series (same lengths, enough samples, finite, time strictly
+    increasing) and return them as float arrays. Shared with the recorder-format loaders."""
+    t, theta, tau = _floats(t), _floats(theta), _floats(tau)
     if t.ndim != 1 or theta.shape != t.shape or (tau is not None and tau.shape != t.shape):
         raise DataError(f"{path}: columns have different lengths")
-    if t.size < MIN_SAMPLES:
-        raise DataError(f"{path}: only {t.size} samples; at least {MIN_SAMPLES} are needed")
+    if t.size == 0:
+        raise DataError(f"{path}: empty trial (no usable samples)")
+    if t.size < min_samples:
+        raise DataError(f"{path}: only {t.size} samples; at least {min_samples} usable samples are needed")
     for name, values in (("t", t), ("theta", theta), ("tau", tau)):
         if values is not None and not np.all(np.isfinite(values)):
             bad = int(np.flatnonzero(~np.isfinite(values))[0])
@@ -214,4 +221,6 @@ def _check_series(path: Path, t: np.ndarray, theta: np.ndarray, tau: np.ndarray 
     steps = np.diff(t)
     if np.any(steps <= 0):
         bad = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise DataError(f"{path}: time is not strictly increasing at sample {bad} (t = {t[bad]!r})")
+        raise DataError(f"{path}: time is not strictly increasing at sample {bad} "
+                        f"(t = {t[bad]:.9g} after {t[bad - 1]:.9g})")
+    return t, theta, tau

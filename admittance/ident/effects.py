@@ -2,9 +2,9 @@
 admit one only when held-back trials clearly improve.
 
 **Ranking (a score test).** At the current fit, each candidate's parameter sits at its "off"
-value (its Contract 1 default: 0, or 1 for ``torque_gain``). The linearised effect of switching it on is the sensitivity column ∂θ/∂p, by finite
-difference. Least squares of the residual on [current Jacobian | candidate columns] tells how
-much of the residual's sum of squares the candidate could remove *beyond what refitting the
+value (its Contract 1 default: 0, or 1 for ``torque_gain``). The linearised effect of
+switching it on is the sensitivity column ∂θ/∂p, by finite difference. Least squares of the
+residual on [current Jacobian | candidate columns] tells how much of the residual's sum of squares the candidate could remove *beyond what refitting the
 current parameters and initial states already can*: the explained fraction. Every candidate's
 columns come from ONE batch simulation at the current fit. Nonlinear shape parameters get a
 small grid of variants (Stribeck velocity; cogging period, whose amplitude and phase become
@@ -32,8 +32,8 @@ from typing import Sequence
 import numpy as np
 
 from admittance.ident.fit import FitResult, Progress, fit_initial_states, fit_output_error, normal_equations
-from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
-from admittance.ident.residual import ljung_box, noise_estimate
+from admittance.ident.model import EFFECTS, INDEX, LOWER, UPPER, Simulator, default_vector
+from admittance.ident.residual import WHITE_P, ljung_box, noise_estimate
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
 COGGING_PERIODS = tuple(range(2, 33))  # cycles/rev: 1 would be gravity itself
@@ -43,7 +43,6 @@ MIN_EXPLAINED = 0.002  # below this fraction of the residual a refit is not wort
 # is a nearby local optimum), while with the shape fixed the rest is nearly linear.
 SHAPE_PARAMS = {"stribeck": ("stribeck_velocity",), "cogging": ("cogging_period",)}
 SHAPE_STARTS = 3  # best variants (by explained fraction) refitted with their shape fixed
-WHITE_P = 0.01  # Ljung–Box p above which the residual counts as white
 NOISE_RATIO = 1.1  # RMSE within this factor of the noise estimate: at the noise floor
 TIE = 0.02  # validation RMSEs within 2 % are a tie
 PREFERENCE = ("angle_offset", "torque_bias", "torque_gain", "time_delay", "asymmetric_coulomb", "quadratic_drag",
@@ -302,14 +301,11 @@ def _redundant(fit_sim, val_sim, current: FitResult, effects: list[str], val_x0,
     if len(effects) < 2:
         return []
     val_now = score(val_sim, current, val_x0).rmse
-    defaults = default_vector()
     for effect in effects[:-1]:
         if progress:
             progress(f"checking {effect} is still needed")
         params = EFFECTS[effect].params
-        vector = current.vector.copy()
-        for name in params:
-            vector[INDEX[name]] = defaults[INDEX[name]]
+        vector = switched_off(current.vector, params)
         free = tuple(n for n in current.free if n not in params)
         without = fit_output_error(fit_sim.with_tau_scale(current.tau_scale), vector, free, current.x0,
                                    torque_scale=torque_scale, label=f"fit -{effect}")
@@ -335,8 +331,8 @@ def _worth_trying(ranking: list[Evidence], current: FitResult, top_k: int) -> li
 
     The base fit absorbs breakaway friction into a higher Coulomb level, so at the base optimum
     adding a Stribeck term looks harmful or useless to first order (the "wrong sign", or a tiny
-    explained fraction) although the two together fit far better. It is then tried from a start that keeps the static level:
-    Coulomb 0.7·F plus Stribeck 0.3·F."""
+    explained fraction) although the two together fit far better. It is then tried from a start
+    that keeps the static level: Coulomb 0.7·F plus Stribeck 0.3·F."""
     tried = [e for e in ranking if e.plausible and e.explained >= MIN_EXPLAINED][:top_k]
     for evidence in ranking:
         if evidence.effect == "stribeck" and all(evidence is not e for e in tried):
@@ -416,29 +412,40 @@ def grown(values: dict[str, float], effects: Sequence[str]) -> dict[str, float]:
     return out
 
 
-def _without_weak_optional(sim: Simulator, refit: FitResult, evidence: Evidence, min_sigma: float,
-                           torque_scale: float) -> FitResult:
+def _without_weak_optional(sim: Simulator, current: FitResult, refit: FitResult, evidence: Evidence,
+                           min_sigma: float, torque_scale: float) -> FitResult:
     """Refit without an optional parameter (a torque drift beside the bias) that is not
     significant, so the simpler variant competes with its true parameter count."""
     weak = [n for n in evidence.params if n in OPTIONAL_PARAMS
             and abs(refit.value(n)) < min_sigma * refit.sigma.get(n, math.inf)]
     if not weak:
         return refit
-    defaults = default_vector()
-    vector = refit.vector.copy()
-    for name in weak:
-        vector[INDEX[name]] = defaults[INDEX[name]]
     evidence.params = tuple(n for n in evidence.params if n not in weak)
     evidence.variant += f" (without {', '.join(weak)}: not significant)"
     free = tuple(n for n in refit.free if n not in weak)
-    return fit_output_error(sim.with_tau_scale(refit.tau_scale), vector, free, refit.x0, torque_scale=torque_scale,
-                            label=f"fit +{evidence.effect}")
+    sim = sim.with_tau_scale(refit.tau_scale)
+    # Two starts: the values found with the optional parameter, and the model before the effect.
+    # A weak drift can drag its bias far from the bias's own optimum (the two cancel over a
+    # trial), and from there the refit without the drift can stall in a local minimum.
+    starts = [(switched_off(refit.vector, weak), refit.x0), (current.vector, current.x0)]
+    fits = [fit_output_error(sim, vector, free, x0, torque_scale=torque_scale, label=f"fit +{evidence.effect}")
+            for vector, x0 in starts]
+    return min(fits, key=lambda fit: fit.rmse)
+
+
+def switched_off(vector: np.ndarray, names: Sequence[str]) -> np.ndarray:
+    """``vector`` with the parameters ``names`` back at their "off" value (their default)."""
+    defaults = default_vector()
+    out = vector.copy()
+    for name in names:
+        out[INDEX[name]] = defaults[INDEX[name]]
+    return out
 
 
 def _try_effect(fit_sim, val_sim, current, evidence, val_x0, torque_scale, val_before,
                 settings: SearchSettings) -> tuple[FitResult, float]:
-    refit = _without_weak_optional(fit_sim, refit_with(fit_sim, current, evidence, torque_scale), evidence,
-                                   settings.min_sigma, torque_scale)
+    refit = refit_with(fit_sim, current, evidence, torque_scale)
+    refit = _without_weak_optional(fit_sim, current, refit, evidence, settings.min_sigma, torque_scale)
     val = score(val_sim, refit, val_x0).rmse
     evidence.validation_gain = float(1.0 - val / val_before) if val_before > 0 else 0.0
     main = EFFECTS[evidence.effect].evidence
@@ -477,8 +484,6 @@ def required_sigma(min_sigma: float, looks: int) -> float:
 
 
 def _clip_start(vector: np.ndarray, free: Sequence[str]) -> np.ndarray:
-    from admittance.ident.model import LOWER, UPPER
-
     out = vector.copy()
     for name in free:
         if name in INDEX:

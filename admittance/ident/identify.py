@@ -30,7 +30,7 @@ from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, SearchOutcome, SearchSettings, candidate_effects, rank_candidates
 from admittance.ident.effects import grown, nothing_left, score, search_effects
 from admittance.ident.equation_error import fit_equation_error, initial_states
-from admittance.ident.fit import FitResult, fit_output_error, rmse
+from admittance.ident.fit import FitResult, fit_initial_states, fit_output_error, rmse
 from admittance.ident.model import (
     EFFECTS,
     INDEX,
@@ -45,7 +45,9 @@ from admittance.ident.paramfile import PARAM_DEFAULTS
 from admittance.ident.residual import analyse
 from admittance.ident.split import stratified_pick
 
-FIT_MAX_STEP = 1e-3  # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM iterations) and less accurate
+# s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM
+# iterations) and less accurate.
+FIT_MAX_STEP = 1e-3
 
 
 @dataclass
@@ -105,10 +107,13 @@ class IdentifyResult:
         return {k: (v * gamma if k in TORQUE_PARAMS else v) for k, v in fit.sigma.items()
                 if k not in (TAU_SCALE, "motor_inertia")}
 
+    def lumped(self, fit: FitResult) -> dict[str, float]:
+        """The identifiable ratios of a lumped-mode fit (with κ when the trials carry a torque)."""
+        return lumped_ratios(fit.vector, fit.tau_scale if self.dataset.has_torque else None)
+
     def base_summary(self) -> dict[str, float]:
         if self.mode == "lumped":
-            with_tau = self.dataset.has_torque
-            return lumped_ratios(self.base.vector, self.base.tau_scale if with_tau else None)
+            return self.lumped(self.base)
         p = self.base_params
         return {k: p[k] for k in ("motor_inertia", "damping", "coulomb")}
 
@@ -144,7 +149,7 @@ class IdentifyResult:
             "timings": self.timings,
         }
         if self.mode == "lumped":
-            out["lumped"] = lumped_ratios(self.final.vector, self.final.tau_scale if self.dataset.has_torque else None)
+            out["lumped"] = self.lumped(self.final)
         return out
 
     def write_params(self, path: str | Path, source: str = "") -> None:
@@ -154,7 +159,7 @@ class IdentifyResult:
         model = {"motor": self.dataset.motor, "friction": self.settings.friction, "mode": self.mode,
                  "source": source or f"admittance identify {self.dataset.folder}"}
         if self.mode == "lumped":
-            model.update(self.to_json()["lumped"])
+            model.update(self.lumped(self.final))
         fit = {"effects": self.effects, "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
                "heldout": [self.dataset.trials[i].name for i in self.heldout],
                "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
@@ -262,7 +267,7 @@ def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | No
     for start in _restarts(search.fit.vector, search.effects):
         # The initial states belong to the base model; refit them to the new model first (cheap,
         # three simulations per trial and iteration) so the joint fit starts near its optimum.
-        x0 = fit_output_error(sim, start, (), base.x0, label="final fit").x0
+        x0 = fit_initial_states(sim, start, base.x0, label="final fit").x0
         fit = fit_output_error(sim, start, search.fit.free, x0, torque_scale=torque_scale, progress=progress,
                                label="final fit")
         if best is None or fit.rmse < best.rmse:

@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 
 from admittance.errors import DataError
+from admittance.ident.dataset import TrialArrays, check_series
 
-TrialArrays = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 
 TICKS_PER_REV = 4096
+MIN_SAMPLES = 3  # a converted recording may be short; identify asks for more (dataset.MIN_SAMPLES)
 MOTIVE_AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -65,7 +66,7 @@ def load_trial(
     except TypeError as exc:  # an unknown or misspelt option
         raise DataError(f"{path}: bad option for format {format!r}: {exc}") from None
     t, theta, tau = loader(path, **options)
-    return check_series(path, *_window(path, t, theta, tau, t_start, t_stop, every))
+    return check_series(path, *_window(path, t, theta, tau, t_start, t_stop, every), min_samples=MIN_SAMPLES)
 
 
 def _window(path: Path, t, theta, tau, t_start, t_stop, every) -> TrialArrays:
@@ -80,28 +81,6 @@ def _window(path: Path, t, theta, tau, t_start, t_stop, every) -> TrialArrays:
     index = np.flatnonzero(keep)[::every]
     pick = lambda a: None if a is None else np.asarray(a, dtype=float)[index]  # noqa: E731
     return t[index], pick(theta), pick(tau)
-
-
-def check_series(path: Path, t, theta, tau=None) -> TrialArrays:
-    """Validate a parsed trial: same lengths, finite, time strictly increasing, ≥ 3 samples."""
-    t = np.asarray(t, dtype=float)
-    theta = np.asarray(theta, dtype=float)
-    tau = None if tau is None else np.asarray(tau, dtype=float)
-    if t.ndim != 1 or theta.shape != t.shape or (tau is not None and tau.shape != t.shape):
-        raise DataError(f"{path}: t, theta and tau must be 1-D series of the same length")
-    if t.size < 3:
-        raise DataError(f"{path}: {t.size} usable samples; at least 3 are needed")
-    for name, arr in (("t", t), ("theta", theta), ("tau", tau)):
-        if arr is not None and not np.all(np.isfinite(arr)):
-            raise DataError(f"{path}: {name} has NaN or infinite values (first at sample {_first_bad(arr)})")
-    steps = np.diff(t)
-    if np.any(steps <= 0):
-        raise DataError(f"{path}: time is not strictly increasing (at sample {int(np.argmax(steps <= 0)) + 1})")
-    return t, theta, tau
-
-
-def _first_bad(arr: np.ndarray) -> int:
-    return int(np.argmax(~np.isfinite(arr)))
 
 
 # --------------------------------------------------------------------------- OptiTrack Motive
@@ -399,7 +378,7 @@ def write_dataset(out_dir: str | Path, trials: Sequence[ConvertedTrial], header:
     out.mkdir(parents=True, exist_ok=True)
     entries = []
     for trial in trials:
-        t, theta, tau = check_series(Path(trial.name), trial.t, trial.theta, trial.tau)
+        t, theta, tau = check_series(Path(trial.name), trial.t, trial.theta, trial.tau, min_samples=MIN_SAMPLES)
         file = f"{trial.name}.csv"
         _write_csv(out / file, t, theta, tau)
         entries.append({"file": file, **trial.extra})

@@ -23,6 +23,7 @@ from admittance.ident.model import Simulator
 from admittance.ident.smoothing import chi2_sf
 
 LJUNG_BOX_LAGS = 20
+WHITE_P = 0.01  # Ljung–Box p above which the residual counts as white
 N_BINS = 5
 
 
@@ -87,7 +88,7 @@ def analyse(sim: Simulator, fit: FitResult) -> dict:
         "rmse_over_noise": rmse / noise if noise > 0 else float("inf"),
         "ljung_box_q": q,
         "ljung_box_p": p,
-        "white": bool(p > 0.01),
+        "white": bool(p > WHITE_P),
         "autocorrelation_time": autocorrelation_time(fit.residuals),
         "bins": bins,
         "largest": worst,

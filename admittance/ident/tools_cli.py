@@ -17,6 +17,7 @@ Registration imports nothing heavy: SciPy, matplotlib and the Rust core load in 
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -97,6 +98,7 @@ def _run_thesis(args) -> int:
     from admittance.ident import thesis
     from admittance.ident.dataset import load_dataset
 
+    _check_thesis_options(args)
     dataset = load_dataset(args.dataset)
     progress = (lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None
     rows = thesis.fit_dataset(dataset, cycles=args.cycles, x0=args.x0, initial_friction=args.initial_friction,
@@ -107,6 +109,18 @@ def _run_thesis(args) -> int:
     if args.out:
         _write(args.out, {"thesis_table.md": markdown, "thesis_table.csv": thesis.to_csv(rows)})
     return 0
+
+
+def _check_thesis_options(args) -> None:
+    from admittance.errors import ConfigError
+
+    if args.cycles < 1:
+        raise ConfigError(f"--cycles must be >= 1, got {args.cycles}")
+    if not (math.isfinite(args.initial_inertia) and args.initial_inertia > 0):
+        raise ConfigError(f"--initial-inertia must be a finite number > 0, got {args.initial_inertia}")
+    for option, value in (("--initial-damping", args.initial_damping), ("--initial-friction", args.initial_friction)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"{option} must be a finite number >= 0, got {value}")
 
 
 def _run_breakaway(args) -> int:
@@ -125,6 +139,10 @@ def _run_predict(args) -> int:
     from admittance.ident import predict
     from admittance.ident.dataset import load_dataset
 
+    if args.thesis_k is not None and not (math.isfinite(args.thesis_k) and args.thesis_k > 0):
+        from admittance.errors import ConfigError
+
+        raise ConfigError(f"--thesis-k must be a finite number > 0, got {args.thesis_k}")
     dataset = load_dataset(args.dataset)
     predictions = predict.predict_dataset(dataset, args.params, args.thesis_k, args.x0)
     print(predict.metrics_table(predictions), end="")
@@ -143,7 +161,7 @@ def _run_ladder(args) -> int:
 
     dataset = load_dataset(args.dataset)
     rungs = [tuple(e.strip() for e in rung.split(",") if e.strip()) for rung in args.rung]
-    start = {key: float(value) for key, value in (_parse_option(item) for item in args.start)}
+    start = dict(_parse_start(item) for item in args.start)
     result = ladder.effect_ladder(dataset, rungs, args.friction, start)
     print(ladder.to_markdown(result, [tr.name for tr in dataset.trials]), end="")
     if args.json:
@@ -159,6 +177,11 @@ def _run_convert(args) -> int:
     options = dict(_parse_option(item) for item in args.option)
     header: dict = {"motor": args.motor} if args.motor else {}
     extra = {}
+    for option, values in (("--rod", args.rod), ("--bob", args.bob)):
+        if values and not all(math.isfinite(v) and v > 0 for v in values):
+            from admittance.errors import ConfigError
+
+            raise ConfigError(f"{option} takes two positive finite numbers, got {' '.join(map(str, values))}")
     if args.rod:
         header["rod"] = {"mass": args.rod[0], "length": args.rod[1]}
     if args.bob:
@@ -169,13 +192,23 @@ def _run_convert(args) -> int:
     return 0
 
 
-def _parse_option(item: str) -> tuple[str, object]:
+def _parse_start(item: str) -> tuple[str, float]:
+    """``NAME=NUMBER`` of ``ladder --start``."""
+    from admittance.errors import ConfigError
+
+    key, value = _parse_option(item, "--start")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"--start {item!r}: expected NAME=NUMBER, e.g. cogging_period=8")
+    return key, float(value)
+
+
+def _parse_option(item: str, option: str = "--option") -> tuple[str, object]:
     """``KEY=VALUE``: a number, a comma list (``axes=x,z``), or a string."""
     from admittance.errors import ConfigError
 
     key, sep, value = item.partition("=")
     if not sep or not key.strip():
-        raise ConfigError(f"--option {item!r}: expected KEY=VALUE")
+        raise ConfigError(f"{option} {item!r}: expected KEY=VALUE")
     if "," in value:
         return key.strip(), [_number_or_text(v) for v in value.split(",")]
     return key.strip(), _number_or_text(value)

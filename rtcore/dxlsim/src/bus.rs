@@ -16,17 +16,10 @@ use crate::table::TableError;
 
 pub const BROADCAST_ID: u8 = 0xFE;
 
-/// Why an instruction failed, before it becomes a protocol's error byte.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Fault {
-    ResultFail,
-    Instruction,
-    Crc,
-    DataRange,
-    DataLength,
-    DataLimit,
-    Access,
-}
+/// Why an instruction failed, before it becomes a protocol's error byte. P2's error numbers
+/// are the richest vocabulary the two protocols have (P1 folds several into one bit), so the
+/// bus speaks them and `error_byte` narrows them for P1.
+pub use protocol2::ErrorCode as Fault;
 
 impl From<TableError> for Fault {
     fn from(e: TableError) -> Fault {
@@ -329,19 +322,7 @@ fn ping_data(protocol: Protocol, servo: &Servo) -> Vec<u8> {
 /// The protocol's error byte for a fault plus the servo's hardware state.
 pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) -> u8 {
     match protocol {
-        Protocol::V2 => {
-            let code = match fault {
-                None => 0,
-                Some(Fault::ResultFail) => 0x01,
-                Some(Fault::Instruction) => 0x02,
-                Some(Fault::Crc) => 0x03,
-                Some(Fault::DataRange) => 0x04,
-                Some(Fault::DataLength) => 0x05,
-                Some(Fault::DataLimit) => 0x06,
-                Some(Fault::Access) => 0x07,
-            };
-            code | if hardware_error != 0 { 0x80 } else { 0 }
-        }
+        Protocol::V2 => protocol2::StatusError { alert: hardware_error != 0, code: fault }.raw(),
         Protocol::V1 => {
             let bit = match fault {
                 None => 0,
@@ -349,7 +330,7 @@ pub fn error_byte(protocol: Protocol, fault: Option<Fault>, hardware_error: u8) 
                 Some(Fault::Crc) => protocol1::ErrorBits::CHECKSUM,
                 Some(Fault::DataLimit) => protocol1::ErrorBits::ANGLE_LIMIT,
                 // P1 has one bit for every refused value or address: Range.
-                Some(Fault::DataRange | Fault::DataLength | Fault::Access | Fault::ResultFail) => {
+                Some(Fault::DataRange | Fault::DataLength | Fault::Access | Fault::ResultFail | Fault::Other(_)) => {
                     protocol1::ErrorBits::RANGE
                 }
             };

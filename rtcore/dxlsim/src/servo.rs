@@ -34,11 +34,11 @@ const DEFAULT_MOVING_THRESHOLD: f64 = 10.0 * P2_VELOCITY_UNIT;
 const THERMAL_RESISTANCE: f64 = 5.0;
 const HEAT_CAPACITY: f64 = 60.0;
 
-/// Everything that defines a simulated servo besides its control-table layout.
+/// Everything that defines a simulated servo besides its control-table layout (which carries
+/// the model): a `setup::ServoConfig` after its defaults are resolved and its values checked.
 #[derive(Clone, Debug)]
 pub struct ServoSpec {
     pub id: u8,
-    pub model: String,
     pub protocol: Protocol,
     pub params: Params,
     pub load: Load,

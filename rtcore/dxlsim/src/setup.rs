@@ -99,7 +99,6 @@ fn build_servo(config: ServoConfig, baudrate: u32) -> Result<Servo, String> {
     }
     let spec = ServoSpec {
         id,
-        model: model.name.to_string(),
         protocol: config.protocol,
         params: config.params,
         load: config.load,

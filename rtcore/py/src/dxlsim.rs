@@ -12,6 +12,7 @@ use dxlsim::{build_bus, BusConfig, MockBus, ServoConfig};
 use plant::{param_index, FrictionLaw, Load, Params, PARAM_NAMES};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
+use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
@@ -34,13 +35,7 @@ const SERVO_KEYS: [&str; 14] = [
 
 /// `key` of a servo dict as `T`, or `default` when absent.
 fn field<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, default: T) -> PyResult<T> {
-    match d.get_item(key)? {
-        Some(v) if !v.is_none() => v.extract::<T>().map_err(|e| {
-            let e: PyErr = e.into();
-            config_error(d.py(), format!("servo key {key:?} has a bad value: {e}"))
-        }),
-        _ => Ok(default),
-    }
+    Ok(opt(d, key, "servo")?.unwrap_or(default))
 }
 
 fn plant_params(d: &Bound<'_, PyDict>, id: u8) -> PyResult<Params> {
@@ -63,11 +58,8 @@ fn plant_params(d: &Bound<'_, PyDict>, id: u8) -> PyResult<Params> {
 
 fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
     let py = d.py();
-    for key in d.keys() {
-        let key: String = key.extract()?;
-        if !SERVO_KEYS.contains(&key.as_str()) {
-            return Err(config_error(py, format!("unknown servo key {key:?} (known: {})", SERVO_KEYS.join(", "))));
-        }
+    if let Some(key) = first_unknown_key(d, &SERVO_KEYS, "servo")? {
+        return Err(config_error(py, format!("unknown servo key {key:?} (known: {})", SERVO_KEYS.join(", "))));
     }
     let id: i64 = d
         .get_item("id")?

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyType;
 
 /// An `admittance.errors.<class_name>` carrying `message`.
-pub fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
+fn admittance_error(py: Python<'_>, class_name: &str, message: String) -> PyErr {
     let class = py.import("admittance.errors").and_then(|m| m.getattr(class_name));
     match class.map(|c| c.cast_into::<PyType>()) {
         Ok(Ok(ty)) => PyErr::from_type(ty, message),

@@ -6,8 +6,10 @@
 //! - `dxl.rs`: Dynamixel codec, model table, serial port
 //! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
 //! - `rt.rs`: the real-time admittance loop
+//! - `dict_fields.rs`: the configuration-dict rules `dxlsim.rs` and `rt.rs` share
 use pyo3::prelude::*;
 
+mod dict_fields;
 mod dxl;
 mod dxlsim;
 mod errors;

@@ -15,7 +15,8 @@ use rtloop::sched::{Policy, RtRequest};
 use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
 use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
-use crate::errors::{admittance_error, config_error};
+use crate::dict_fields::{first_unknown_key, opt};
+use crate::errors::{config_error, device_error};
 
 const LOOP_KEYS: [&str; 19] = [
     "port",
@@ -64,26 +65,9 @@ const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "
 const AXES: [&str; 6] = ["x", "y", "z", "tx", "ty", "tz"];
 
 fn check_keys(d: &Bound<'_, PyDict>, known: &[&str], where_: &str) -> PyResult<()> {
-    for key in d.keys() {
-        let key: String = key.extract().map_err(|_| config_error(d.py(), format!("{where_}: keys must be strings")))?;
-        if !known.contains(&key.as_str()) {
-            return Err(config_error(d.py(), format!("{where_}: unknown key {key:?} (known: {})", known.join(", "))));
-        }
-    }
-    Ok(())
-}
-
-/// `d[key]` as `T` when present and not None.
-fn opt<'py, T: FromPyObjectOwned<'py>>(d: &Bound<'py, PyDict>, key: &str, where_: &str) -> PyResult<Option<T>> {
-    match d.get_item(key)? {
-        Some(v) if !v.is_none() => v
-            .extract::<T>()
-            .map(Some)
-            .map_err(|e| {
-                let e: PyErr = e.into();
-                config_error(d.py(), format!("{where_}.{key}: bad value {v}: {e}"))
-            }),
-        _ => Ok(None),
+    match first_unknown_key(d, known, where_)? {
+        Some(key) => Err(config_error(d.py(), format!("{where_}: unknown key {key:?} (known: {})", known.join(", ")))),
+        None => Ok(()),
     }
 }
 
@@ -228,7 +212,7 @@ fn param_value(name: &str, v: &Bound<'_, PyAny>) -> Result<ParamValue, String> {
 fn start_error(py: Python<'_>, e: StartError) -> PyErr {
     match e {
         StartError::AlreadyStarted => PyRuntimeError::new_err(e.to_string()),
-        other => admittance_error(py, "DeviceError", other.to_string()),
+        other => device_error(py, other.to_string()),
     }
 }
 
@@ -286,7 +270,7 @@ impl PyAdmittanceLoop {
             "torque_off" => StopPolicy::TorqueOff,
             other => return Err(config_error(py, format!("torque_policy must be \"hold\" or \"torque_off\", got {other:?}"))),
         };
-        py.detach(|| self.inner.stop(policy)).map_err(|e| admittance_error(py, "DeviceError", e))
+        py.detach(|| self.inner.stop(policy)).map_err(|e| device_error(py, e))
     }
 
     fn force_sink(&self) -> PyForceSink {

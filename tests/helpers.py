@@ -1,0 +1,58 @@
+"""Helpers that several test modules share: waiting on another thread or process without timed
+assertions, a free Zenoh endpoint, and `admittance mock-bench` as a subprocess.
+
+A plain module rather than conftest fixtures because the helpers are called with arguments
+in the middle of a test (pytest puts tests/ on sys.path, so ``from helpers import ...`` works).
+A wait polls a condition with a generous deadline and the test asserts on the state it
+reached, never on how long that took: the machine the suite runs on is shared and noisy.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import pytest
+
+
+def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:
+    """Poll ``condition`` every 10 ms; True as soon as it holds, False at the deadline."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return bool(condition())
+
+
+def free_endpoint() -> str:
+    """A loopback TCP endpoint on a port the OS just reported free."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+
+
+def start_mock_bench(*args: str) -> subprocess.Popen:
+    """``admittance mock-bench --print-ports ARGS`` with unbuffered output (the ports line comes at once)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen(
+        [sys.executable, "-m", "admittance", "mock-bench", "--print-ports", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+
+
+def first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
+    """The process's first stdout line; fails the test (with its stderr) if none comes in time."""
+    ready, _, _ = select.select([proc.stdout], [], [], timeout)
+    if not ready:
+        proc.kill()
+        pytest.fail(f"mock-bench printed nothing; stderr: {proc.stderr.read()}")
+    return proc.stdout.readline()

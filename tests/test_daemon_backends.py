@@ -1,0 +1,49 @@
+"""The daemon's servo checks (admittance.daemon.backends) against the simulated bus: a horn
+turned past a revolution with torque off is folded back into one turn before torque goes on."""
+
+from __future__ import annotations
+
+import pytest
+
+from admittance import _rtcore
+from admittance.daemon import backends
+from admittance.daemon.config import parse_config
+from admittance.errors import DeviceError
+
+from helpers import wait_until
+
+PLANT = {"motor_inertia": 0.0147, "damping": 0.0347, "coulomb": 0.0843}
+
+
+@pytest.fixture
+def turned_bus():
+    """One MX-64 (Protocol 2.0) whose horn sits more than a turn from the centre tick."""
+    bus = _rtcore.MockBus(servos=[{"id": 1, "model": "MX-64", "protocol": 2, "params": PLANT, "initial_theta": 7.0}],
+                          baudrate=1_000_000, wire_delay=True)
+    bus.start()
+    yield bus
+    bus.stop()
+
+
+def _config(tmp_path, port: str):
+    doc = {"bus": {"port": port}, "joints": [{"id": 1, "model": "MX-64"}],
+           "sensor": {"kind": "optoforce", "port": "/dev/null", "lever_arm": 0.1}}
+    return parse_config(doc, tmp_path / "daemon.toml")
+
+
+def test_a_multi_turn_position_is_folded_before_the_goal_is_set(tmp_path, turned_bus):
+    assert turned_bus.servo_state(1)["present_tick"] > 4095
+    assert backends.check_servos(_config(tmp_path, turned_bus.port_path), turned_bus.port_path) == []
+    state = turned_bus.servo_state(1)
+    assert 0 <= state["goal_tick"] <= 4095
+    assert state["torque_enabled"] and abs(state["present_tick"] - state["goal_tick"]) <= 2  # no jump
+
+
+def test_a_horn_that_keeps_spinning_is_one_clear_error(tmp_path, turned_bus, monkeypatch):
+    monkeypatch.setattr(backends, "CLEAR_TURNS_TIMEOUT_S", 0.2)
+    turned_bus.set_external_torque(1, 1.0)
+    assert wait_until(lambda: turned_bus.servo_state(1)["omega"] > 1.0)
+    with pytest.raises(DeviceError, match=r"servo 1 on .* more than one turn .* hold the joint still") as err:
+        backends.check_servos(_config(tmp_path, turned_bus.port_path), turned_bus.port_path)
+    assert "\n" not in str(err.value)
+    assert not turned_bus.servo_state(1)["torque_enabled"]
