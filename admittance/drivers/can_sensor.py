@@ -103,9 +103,10 @@ class CanForceReader(ForceSensor):
             options |= self._slcan_options()
         try:
             self._bus = can.Bus(**options)
-        except (can.CanError, OSError, ImportError, ValueError, TypeError, NotImplementedError) as exc:
-            # NotImplementedError: an unknown interface name. python-can wraps the serial or
-            # socket error; its errno gives the actionable hint (unplugged, no permission...).
+        except (can.CanError, OSError, ImportError, ValueError, TypeError, RuntimeError) as exc:
+            # RuntimeError: python-can raises its not-implemented error (a RuntimeError) for an
+            # unknown interface name. It wraps the serial or socket error; that errno gives the
+            # actionable hint (unplugged, no permission...).
             cause = exc if getattr(exc, "errno", None) else (exc.__cause__ or exc)
             where = f"(interface {self.interface!r}, channel {self.channel!r})"
             raise DeviceError(open_error_message("the CAN force sensor", where, cause)) from None
