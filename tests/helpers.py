@@ -1,5 +1,6 @@
 """Helpers that several test modules share: waiting on another thread or process without timed
-assertions, a free Zenoh endpoint, and `admittance mock-bench` as a subprocess.
+assertions, a free Zenoh endpoint, `admittance mock-bench` as a subprocess, and ROBOTIS's SDK
+opened on a MockBus.
 
 A plain module rather than conftest fixtures because the helpers are called with arguments
 in the middle of a test (pytest puts tests/ on sys.path, so ``from helpers import ...`` works).
@@ -9,13 +10,14 @@ reached, never on how long that took: the machine the suite runs on is shared an
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -28,6 +30,36 @@ def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:
             return True
         time.sleep(0.01)
     return bool(condition())
+
+
+# An MX-64-like plant for simulated servos (the thesis's averages, rounded).
+MX64_PLANT = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
+
+
+@contextlib.contextmanager
+def sdk_on_mock_bus() -> Iterator[Callable]:
+    """Yields ``open(servos, protocol=2, **bus_options) -> (bus, port, packet_handler)``: a started
+    MockBus with a dynamixel-sdk PortHandler open on it. Everything opened is closed on exit."""
+    import dynamixel_sdk as sdk
+
+    from admittance import _rtcore
+
+    opened = []
+
+    def _open(servos, protocol=2, **bus_options):
+        bus = _rtcore.MockBus(servos=servos, baudrate=1_000_000, **bus_options)
+        bus.start()
+        port = sdk.PortHandler(bus.port_path)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        opened.append((bus, port))
+        return bus, port, sdk.PacketHandler(float(protocol))
+
+    try:
+        yield _open
+    finally:
+        for bus, port in opened:
+            port.closePort()
+            bus.stop()
 
 
 def free_endpoint() -> str:

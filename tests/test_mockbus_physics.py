@@ -7,45 +7,29 @@ assertions are on where the horn goes, never on how fast the machine ran.
 from __future__ import annotations
 
 import math
-import time
 
 import pytest
 
 sdk = pytest.importorskip("dynamixel_sdk")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
-MX64 = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
+from helpers import MX64_PLANT, sdk_on_mock_bus, wait_until  # noqa: E402
+
+MX64 = MX64_PLANT
 P2_TORQUE_ENABLE, P2_GOAL_POSITION, P2_PRESENT_POSITION, P2_PROFILE_VELOCITY = 64, 116, 132, 112
 P1_TORQUE_ENABLE, P1_GOAL_POSITION, P1_PRESENT_POSITION = 24, 30, 36
 DEADLINE_S = 20.0
 
 
-def wait_for(condition, deadline_s: float = DEADLINE_S):
-    """Polls `condition()` until it returns a truthy value; returns the last value."""
-    end = time.monotonic() + deadline_s
-    value = condition()
-    while not value and time.monotonic() < end:
-        time.sleep(0.01)
-        value = condition()
-    return value
+def wait_for(condition, deadline_s: float = DEADLINE_S) -> bool:
+    return wait_until(condition, timeout=deadline_s)
 
 
 @pytest.fixture
 def started():
-    buses = []
-
-    def _start(*servos, protocol=2):
-        bus = _rtcore.MockBus(servos=[{"protocol": protocol, "params": dict(MX64), **s} for s in servos])
-        bus.start()
-        port = sdk.PortHandler(bus.port_path)
-        assert port.openPort()
-        buses.append((bus, port))
-        return bus, port, sdk.PacketHandler(float(protocol))
-
-    yield _start
-    for bus, port in buses:
-        port.closePort()
-        bus.stop()
+    with sdk_on_mock_bus() as open_:
+        yield lambda *servos, protocol=2: open_(
+            [{"protocol": protocol, "params": dict(MX64), **s} for s in servos], protocol)
 
 
 def test_torque_on_and_a_goal_drive_the_horn_there(started):

@@ -17,7 +17,9 @@ sdk = pytest.importorskip("dynamixel_sdk")
 serial = pytest.importorskip("serial")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
-MX64 = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
+from helpers import MX64_PLANT  # noqa: E402
+
+MX64 = MX64_PLANT
 # Longer than the mock's 1.5 ms inter-byte timeout, so a partial packet has been dropped.
 SETTLE_S = 0.01
 

@@ -13,8 +13,9 @@ sdk = pytest.importorskip("dynamixel_sdk")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
 from admittance.errors import ConfigError  # noqa: E402
+from helpers import MX64_PLANT, sdk_on_mock_bus  # noqa: E402
 
-MX64 = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
+MX64 = MX64_PLANT
 
 # MX(2.0) addresses (protocols.md §3.2).
 P2_RETURN_DELAY, P2_TORQUE_ENABLE, P2_LED, P2_HW_ERROR = 9, 64, 65, 70
@@ -31,20 +32,8 @@ def servo(servo_id: int, protocol: int = 2, **extra) -> dict:
 @pytest.fixture
 def open_bus():
     """Start a MockBus and an SDK port on it; both are closed after the test."""
-    opened = []
-
-    def _open(servos, protocol=2, **kwargs):
-        bus = _rtcore.MockBus(servos=servos, baudrate=1_000_000, **kwargs)
-        bus.start()
-        port = sdk.PortHandler(bus.port_path)
-        assert port.openPort() and port.setBaudRate(1_000_000)
-        opened.append((bus, port))
-        return bus, port, sdk.PacketHandler(float(protocol))
-
-    yield _open
-    for bus, port in opened:
-        port.closePort()
-        bus.stop()
+    with sdk_on_mock_bus() as open_:
+        yield open_
 
 
 def ok(result, error=0):
