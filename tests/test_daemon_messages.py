@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from admittance.daemon.messages import (
@@ -33,6 +33,7 @@ def test_set_requests_round_trip_in_both_encodings(encoding, request):
 
 
 @given(payload=st.binary(max_size=64))
+@example(payload=b"\x81\xa7\x00\x00\x00\x00\x00\x00\x80")  # MessagePack string with invalid UTF-8
 def test_arbitrary_bytes_never_escape_as_anything_but_data_error(payload):
     try:
         decode_set_request(payload)

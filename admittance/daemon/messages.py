@@ -113,7 +113,9 @@ def decode(payload: bytes, typ: type[T] = Any) -> T:  # type: ignore[assignment]
         if is_json(payload):
             return msgspec.json.decode(payload, type=typ)
         return msgspec.msgpack.decode(payload, type=typ)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+    except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as exc:
+        # msgspec's MessagePack decoder lets a string with invalid UTF-8 escape as a
+        # UnicodeDecodeError rather than its own DecodeError.
         raise DataError(f"malformed payload: {exc}") from None
 
 
