@@ -210,10 +210,13 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
     v1, v2 = (tau_model - coulomb) / b1, (tau_model - coulomb) / b2
     omega = rec["omega_model"]
     assert abs(omega.max() - v1) < 0.1 * v1
-    assert abs(np.median(omega[rec["t"] > rec["t"][-1] - 0.2]) - v2) < 0.1 * v2
-    speeds = np.abs(np.diff(rec["theta_model"])) / np.maximum(np.diff(rec["t"]), 1e-4)
+    assert abs(np.median(omega[rec["cycle"] > rec["cycle"][-1] - 200]) - v2) < 0.1 * v2
+    # Per cycle of model time: the loop integrates a fixed step h per cycle, while ``t`` is the
+    # wake-up time, whose jitter (a late wake followed by an on-time one) would fake a jump.
+    model_dt = np.diff(rec["cycle"]) / RATE_HZ
+    speeds = np.abs(np.diff(rec["theta_model"])) / model_dt
     assert speeds.max() < 1.5 * v1, "no cycle jumped"
-    assert np.all(np.abs(np.diff(omega)) <= 200.0 * np.diff(rec["t"]) + 1e-9), "within acceleration_max"
+    assert np.all(np.abs(np.diff(omega)) <= 200.0 * model_dt + 1e-9), "within acceleration_max"
 
 
 def test_sensor_silence_holds_the_joint(tmp_path):
