@@ -4,10 +4,7 @@ dropped; and a real session goes record → identify → reload (the `hil` test 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +12,6 @@ import tomli_w
 
 from admittance.daemon.recording import Recorder
 from admittance.ident.dataset import load_dataset
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
@@ -70,28 +65,33 @@ def test_record_identify_reload_round_trip(tmp_path):
     """A bench session recorded by the daemon is refitted by `identify`; the fit, reloaded as the
     joint's parameter file, gives back the felt (virtual) joint: inertia and damping within 30 %,
     Coulomb within 50 % + 5 mN·m (the servo's own following error shows in the measured angle)."""
+    from daemon_process import running_daemon, wait_alive, wait_for_cycles, wait_for_state
     from helpers import free_endpoint
 
     from admittance.daemon import config
+    from admittance.daemon.zenoh_iface import Client
     from admittance.ident.identify import IdentifySettings, identify_dataset
 
     inertia, damping, coulomb = 0.02, 0.1, 0.02
+    endpoint, prefix = free_endpoint(), "hil/rec"
     cfg = {
         "bus": {"port": "mock"},
         "joints": [{"id": 1, "model": "MX-64", "virtual_inertia": inertia, "virtual_damping": damping,
                     "virtual_coulomb": coulomb}],
         "sensor": {"kind": "optoforce", "port": "mock", "lever_arm": 0.105},
         "loop": {"sync_read_divisor": 2, "stale_timeout_ms": 1000.0},  # no hold when CI stalls the reader
-        "zenoh": {"prefix": "hil/rec", "listen": [free_endpoint()]},
+        "zenoh": {"prefix": prefix, "listen": [endpoint]},
         "record": {"path": "rec", "segment_s": 2.0},
         "bench": {"profile": "sine:amplitude=0.12,frequency=0.7", "hand_delay_s": 0.5},
     }
     path = tmp_path / "daemon.toml"
     path.write_text(tomli_w.dumps(cfg))
-    admittance = Path(sys.executable).with_name("admittance")
-    result = subprocess.run([str(admittance), "run", "--config", str(path), "--duration", "6.5"],
-                            capture_output=True, text=True, timeout=180)
-    assert result.returncode == 0, result.stderr
+    with running_daemon(path) as daemon:
+        wait_alive(endpoint, prefix)
+        with Client([endpoint]) as client:
+            pushed = wait_for_state(client, prefix, lambda m: abs(m["joints"][0]["tau"]) > 0.03, "the hand pushing")
+            wait_for_cycles(client, prefix, 5500, after=pushed)  # ≥ 5.5 s: about 4 periods, 3 segments
+    assert daemon.returncode == 0, daemon.stderr
 
     dataset = load_dataset(tmp_path / "rec")
     assert len(dataset.trials) >= 3 and dataset.has_torque

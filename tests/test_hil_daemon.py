@@ -19,8 +19,6 @@ import math
 import signal
 import socket
 import subprocess
-import sys
-import time
 import tomllib
 from pathlib import Path
 
@@ -30,12 +28,14 @@ import tomli_w
 
 from admittance.daemon.messages import STATS_KEYS
 
+from daemon_process import (ADMITTANCE, START_TIMEOUT_S, run_daemon, running_daemon, wait_alive, wait_for_cycles,
+                            wait_for_state)
 from helpers import free_endpoint
 
 pytestmark = pytest.mark.hil
 
 REPO = Path(__file__).resolve().parents[1]
-ADMITTANCE = Path(sys.executable).with_name("admittance")
+PREFIX = "hil/arm"
 MX64 = REPO / "config" / "params" / "mx64.toml"
 RATE_HZ = 1000.0
 TICK_RAD = 2 * math.pi / 4096
@@ -50,41 +50,13 @@ def daemon_config(tmp_path: Path, *, bus: str = "mock", sensor: str = "mock", jo
         "sensor": {"kind": "optoforce", "port": sensor, "lever_arm": 0.105, "tare_samples": 100},
         "loop": {"rate_hz": RATE_HZ, "sync_read_divisor": 1, **(loop or {})},
         "stop": {"torque_policy": stop},
-        "zenoh": {"prefix": "hil/arm", "listen": [endpoint]},
+        "zenoh": {"prefix": PREFIX, "listen": [endpoint]},
     }
     if bench is not None:
         doc["bench"] = bench
     path = tmp_path / "daemon.toml"
     path.write_text(tomli_w.dumps(doc))
     return path, endpoint
-
-
-# Deadlines for a loaded machine: a daemon start imports zenoh and NumPy and tares the sensor,
-# which takes well under a second when idle and has taken tens of seconds under load.
-START_TIMEOUT_S = 60.0
-EXIT_TIMEOUT_S = 60.0
-
-
-def run_daemon(config: Path, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run([str(ADMITTANCE), "run", "--config", str(config), *args], capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def start_daemon(config: Path, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([str(ADMITTANCE), "run", "--config", str(config), *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-
-
-def wait_alive(endpoint: str, prefix: str = "hil/arm", timeout: float = START_TIMEOUT_S) -> None:
-    from admittance.daemon.zenoh_iface import Client
-
-    deadline = time.monotonic() + timeout
-    with Client([endpoint]) as client:
-        while time.monotonic() < deadline:
-            if client.alive(prefix, timeout=0.5):
-                return
-            time.sleep(0.1)
-    raise AssertionError(f"the daemon never declared {prefix}/alive")
 
 
 def read_recording(folder: Path, joint_id: int = 1) -> dict[str, np.ndarray]:
@@ -133,13 +105,19 @@ def test_goal_positions_follow_the_admittance_model(tmp_path):
     row is missing. The stale timeout is raised to 1 s: on a loaded CI machine the sensor's
     reader thread can stall past the default 50 ms, and the loop would rightly hold, which a
     torque-only replay does not model."""
+    from admittance.daemon.zenoh_iface import Client
+
     inertia, damping, coulomb = 0.02, 0.1, 0.02
-    config, _ = daemon_config(tmp_path, joint={"virtual_inertia": inertia, "virtual_damping": damping,
-                                               "virtual_coulomb": coulomb},
-                              bench={"profile": "sine:amplitude=0.15,frequency=1", "hand_delay_s": 0.5},
-                              loop={"stale_timeout_ms": 1000.0})
-    result = run_daemon(config, "--duration", "3", "--record", str(tmp_path / "rec"))
-    assert result.returncode == 0, result.stderr
+    config, endpoint = daemon_config(tmp_path, joint={"virtual_inertia": inertia, "virtual_damping": damping,
+                                                      "virtual_coulomb": coulomb},
+                                     bench={"profile": "sine:amplitude=0.15,frequency=1", "hand_delay_s": 0.5},
+                                     loop={"stale_timeout_ms": 1000.0})
+    with running_daemon(config, "--record", str(tmp_path / "rec")) as daemon:
+        wait_alive(endpoint, PREFIX)
+        with Client([endpoint]) as client:
+            pushed = wait_for_state(client, PREFIX, lambda m: abs(m["joints"][0]["tau"]) > 0.05, "the hand pushing")
+            wait_for_cycles(client, PREFIX, 2 * int(RATE_HZ), after=pushed)  # two periods of the hand's sine
+    assert daemon.returncode == 0, daemon.stderr
     rec = read_recording(tmp_path / "rec")
     assert (np.abs(rec["tau"]) > 0.05).sum() > 300, "the hand pushed"
     assert np.ptp(rec["theta_goal"]) > 0.1, "the joint moved"
@@ -150,31 +128,9 @@ def test_goal_positions_follow_the_admittance_model(tmp_path):
     assert np.max(np.abs(rec["theta"] - rec["theta_goal"])) < 0.1
 
 
-def wait_for_state(client, condition, what: str, timeout: float = START_TIMEOUT_S) -> dict:
-    """Watch <prefix>/state until a message satisfies ``condition``; return that message."""
-    sub = client.try_stream("hil/arm")
-    deadline = time.monotonic() + timeout
-    try:
-        while time.monotonic() < deadline:
-            for kind, message in sub.drain():
-                if kind == "state" and condition(message):
-                    return message
-            time.sleep(0.02)
-    finally:
-        sub.close()
-    raise AssertionError(f"the daemon's state never showed {what}")
-
-
 def wait_for_speed(client, speed: float) -> dict:
-    """Watch <prefix>/state until the model's speed reaches ``speed``."""
-    return wait_for_state(client, lambda m: m["joints"][0]["omega"] >= speed, f"a speed of {speed} rad/s")
-
-
-def wait_for_cycles(client, after: dict, cycles: int) -> None:
-    """Wait until the loop has run ``cycles`` more cycles than at the state message ``after``:
-    loop time rather than wall time, so a starved loop still gets its full settling time."""
-    target = after["cycle"] + cycles
-    wait_for_state(client, lambda m: m["cycle"] >= target, f"cycle {target}")
+    """Watch the state until the model's speed reaches ``speed``."""
+    return wait_for_state(client, PREFIX, lambda m: m["joints"][0]["omega"] >= speed, f"a speed of {speed} rad/s")
 
 
 def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
@@ -188,22 +144,17 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
         tmp_path, joint={"virtual_inertia": 0.02, "virtual_damping": b1, "virtual_coulomb": coulomb},
         bench={"profile": f"still:torque={tau}", "hand_delay_s": 0.5},
         loop={"stale_timeout_ms": 1000.0})  # a stalled reader would hold (ω = 0 at once): not under test here
-    proc = start_daemon(config, "--record", str(tmp_path / "rec"))
-    try:
-        wait_alive(endpoint)
+    with running_daemon(config, "--record", str(tmp_path / "rec")) as daemon:
+        wait_alive(endpoint, PREFIX)
         with Client([endpoint]) as client:
             wait_for_speed(client, 0.95 * (tau - coulomb) / b1)
-            assert client.query_params("hil/arm", {"virtual_damping": b2}) == {"accepted": True}
-            assert client.query_params("hil/arm")["params"]["1.virtual_damping"] == b2
-            rejected = client.query_params("hil/arm", {"virtual_damping": 0.2, "virtual_inertia": -1.0})
+            assert client.query_params(PREFIX, {"virtual_damping": b2}) == {"accepted": True}
+            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2
+            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "virtual_inertia": -1.0})
             assert rejected["accepted"] is False and "inertia" in rejected["reason"]
-            assert client.query_params("hil/arm")["params"]["1.virtual_damping"] == b2  # all or nothing
-            after_set = wait_for_state(client, lambda message: True, "any state after the set")
-            wait_for_cycles(client, after_set, int(RATE_HZ))  # the 0.5 s ramp, then several I/B
-    finally:
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=EXIT_TIMEOUT_S)
-    assert proc.returncode == 0, err
+            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2  # all or nothing
+            wait_for_cycles(client, PREFIX, int(RATE_HZ))  # the 0.5 s ramp, then several I/B
+    assert daemon.returncode == 0, daemon.stderr
     rec = read_recording(tmp_path / "rec")
     tau_model = rec["tau"][-1]
     assert abs(tau_model - tau) < 0.01
@@ -230,23 +181,20 @@ def test_sensor_silence_holds_the_joint(tmp_path):
         config, endpoint = daemon_config(tmp_path, bus=bench.bus_port, sensor=bench.sensor_port,
                                          joint={"virtual_inertia": 0.02, "virtual_damping": 0.1,
                                                 "virtual_coulomb": 0.02})
-        proc = start_daemon(config, "--record", str(tmp_path / "rec"), "--stats-json", str(tmp_path / "s.json"))
-        try:
-            wait_alive(endpoint)
+        with running_daemon(config, "--record", str(tmp_path / "rec"), "--stats-json", str(tmp_path / "s.json"),
+                            stop=signal.SIGTERM) as daemon:
+            wait_alive(endpoint, PREFIX)
             bench.profile = make_profile("still:torque=0.1")  # the hand pushes once the loop runs
             with Client([endpoint]) as client:
                 wait_for_speed(client, 0.4)  # terminal speed (0.1 − 0.02)/0.1 = 0.8 rad/s
-            bench.sensor.stop()
-            time.sleep(1.0)
-        finally:
-            proc.send_signal(signal.SIGTERM)
-            _, err = proc.communicate(timeout=EXIT_TIMEOUT_S)
-    assert proc.returncode == 0, err
+                bench.sensor.stop()
+                wait_for_cycles(client, PREFIX, int(RATE_HZ))
+    assert daemon.returncode == 0, daemon.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["sensor_stale_events"] >= 1
     rec = read_recording(tmp_path / "rec")
     assert rec["omega_model"].max() > 0.3, "the joint was moving before the silence"
-    last = rec["t"] > rec["t"][-1] - 0.5  # the last half second: well after the silence began
+    last = rec["cycle"] > rec["cycle"][-1] - RATE_HZ / 2  # the last 500 cycles: well after the silence began
     assert np.all(rec["omega_model"][last] == 0.0)
     assert np.ptp(rec["theta_model"][last]) == 0.0
     assert np.max(np.abs(rec["theta"][last] - rec["theta_goal"][last])) < 3 * TICK_RAD
@@ -257,15 +205,11 @@ def test_a_clean_stop_exits_0_with_every_stats_key(tmp_path, sig):
     """(A tare over Zenoh on the way, from the `admittance tare` command.)"""
     config, endpoint = daemon_config(tmp_path, stop="torque_off", bench={"profile": "still"})
     stats_path = tmp_path / "stats.json"
-    proc = start_daemon(config, "--stats-json", str(stats_path))
-    try:
-        wait_alive(endpoint)
-        assert subprocess.run([str(ADMITTANCE), "tare", "--samples", "50", "--prefix", "hil/arm", "--connect",
+    with running_daemon(config, "--stats-json", str(stats_path), stop=sig) as daemon:
+        wait_alive(endpoint, PREFIX)
+        assert subprocess.run([str(ADMITTANCE), "tare", "--samples", "50", "--prefix", PREFIX, "--connect",
                                endpoint], capture_output=True, text=True, timeout=START_TIMEOUT_S).returncode == 0
-    finally:
-        proc.send_signal(sig)
-        _, err = proc.communicate(timeout=EXIT_TIMEOUT_S)
-    assert proc.returncode == 0, err
+    assert daemon.returncode == 0, daemon.stderr
     stats = json.loads(stats_path.read_text())
     assert set(STATS_KEYS) <= set(stats)
     for key in ("period_us", "latency_us"):
@@ -314,7 +258,7 @@ def test_no_config_runs_the_embedded_bench(tmp_path):
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
-    assert stats["cycles"] > 1000 and stats["sensor_samples"] > 500  # of ~3500 each: room for a loaded machine
+    assert stats["cycles"] > 500 and stats["sensor_samples"] > 200  # of ~3500 each: room for a loaded machine
 
 
 @pytest.mark.slow
@@ -331,4 +275,4 @@ def test_protocol_1_servos_and_the_can_sensor_run_end_to_end(tmp_path, bus, sens
     result = run_daemon(config, "--duration", "1.5", "--stats-json", str(tmp_path / "s.json"))
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
-    assert stats["sync_reads"] > 100 and stats["sensor_samples"] > 500
+    assert stats["sync_reads"] > 100 and stats["sensor_samples"] > 200  # of ~1500 each: room for a loaded machine
