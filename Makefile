@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 CARGO_MANIFEST := rtcore/Cargo.toml
 
-.PHONY: setup ext run test test-rust test-python bench clean
+.PHONY: setup ext run test test-rust test-python test-thorough bench clean
 
 setup: $(STAMP)
 
@@ -32,6 +32,10 @@ test-rust:
 
 test-python: setup
 	MPLBACKEND=Agg $(BIN)/python -m pytest
+
+# A bug hunt, not part of `make test`: every property test with 20x its examples.
+test-thorough: setup
+	HYPOTHESIS_SCALE=20 MPLBACKEND=Agg $(BIN)/python -m pytest -m "not hil and not slow"
 
 bench: setup
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

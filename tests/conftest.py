@@ -1,10 +1,23 @@
-"""Fixtures shared by every test module: where the repository and the shared data are."""
+"""Fixtures shared by every test module: where the repository and the shared data are; and the
+Hypothesis profiles.
+
+The Hypothesis profile drops the per-example deadline (200 ms), which measures the machine
+rather than the code: a loaded CI machine can stall one example past it, and Hypothesis then
+reports a flaky test. ``HYPOTHESIS_SCALE=N`` multiplies every property test's number of examples
+(here and through ``helpers.examples``), for a bug hunt: ``make test-thorough``.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+from helpers import examples
+
+settings.register_profile("admittance", deadline=None, max_examples=examples(100))
+settings.load_profile("admittance")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"

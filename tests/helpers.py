@@ -1,4 +1,4 @@
-"""Helpers that several test modules share: waiting on another thread or process without timed
+"""Helpers that several test modules share: property-test example counts, waiting on another thread or process without timed
 assertions, a free Zenoh endpoint, `admittance mock-bench` as a subprocess, and ROBOTIS's SDK
 opened on a MockBus.
 
@@ -20,6 +20,14 @@ import time
 from collections.abc import Callable, Iterator
 
 import pytest
+
+
+def examples(n: int) -> int:
+    """A property test's example count, times ``HYPOTHESIS_SCALE`` (default 1; a bug hunt sets more)."""
+    scale = os.environ.get("HYPOTHESIS_SCALE", "1")
+    if not scale.isdigit() or int(scale) < 1:
+        raise pytest.UsageError(f"HYPOTHESIS_SCALE: expected a positive integer, got {scale!r}")
+    return n * int(scale)
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:

@@ -16,6 +16,8 @@ from admittance.daemon import config
 from admittance.daemon.schema import describe
 from admittance.errors import ConfigError
 
+from helpers import examples
+
 REPO = Path(__file__).resolve().parents[1]
 MX64 = REPO / "config" / "params" / "mx64.toml"
 
@@ -133,7 +135,7 @@ def test_a_lumped_parameter_file_is_refused(tmp_path):
     assert "lumped fit" in error_of(tmp_path, doc)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60))
 @given(table=st.sampled_from(["bus", "sensor", "loop", "stop", "zenoh", "record"]),
        value=st.one_of(st.text(max_size=5), st.lists(st.integers(), max_size=2), st.booleans(),
                        st.floats(allow_nan=True), st.integers()))

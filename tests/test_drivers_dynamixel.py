@@ -14,7 +14,7 @@ from admittance.drivers.dynamixel import ServoAlert, ServoError, ServoStatusErro
 from admittance.drivers.dynamixel import ServoBus as _ServoBus
 from admittance.errors import ConfigError, DeviceError
 
-from helpers import wait_until
+from helpers import examples, wait_until
 
 PLANT = {"motor_inertia": 0.0147, "damping": 0.0347, "coulomb": 0.0843}
 # The test machine is shared and loaded: give the simulated bus's replies a generous deadline.
@@ -208,7 +208,7 @@ def _ranged_items():
     return [item for t in tables for item in t.items.values() if item.minimum is not None]
 
 
-@settings(max_examples=400)
+@settings(max_examples=examples(400))
 @given(item=st.sampled_from(_ranged_items()), fraction=st.floats(0.0, 1.0))
 def test_every_ranged_item_round_trips_through_si_units(item, fraction):
     raw = round(item.minimum + fraction * (item.maximum - item.minimum))

@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from admittance import _rtcore
 
+from helpers import examples
+
 STATUS = 0x55
 ids2 = st.integers(0, 0xFC)
 ids1 = st.integers(0, 0xFD)
@@ -61,7 +63,7 @@ def test_protocol_1_round_trip(id_, address, data):
     assert (p["id"], p["instruction"], p["params"]) == (id_, 0x03, bytes([address]) + data)
 
 
-@settings(max_examples=200)
+@settings(max_examples=examples(200))
 @given(st.binary(max_size=3000), st.integers(0, 1))
 def test_arbitrary_bytes_never_break_the_decoder(data, protocol_index):
     protocol = (1, 2)[protocol_index]

@@ -15,6 +15,8 @@ from hypothesis import strategies as st
 from admittance import _rtcore
 from tests.dxl_pty import FIRMWARE, MODEL_NUMBER, PtyServos
 
+from helpers import examples
+
 sdk = pytest.importorskip("dynamixel_sdk")
 
 
@@ -67,7 +69,7 @@ def test_write_tx_rx(bus):
 HEADER_RUN = b"\xff\xff\xfd"
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(40), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(id_=st.integers(0, 252), address=st.integers(0, 255), data=st.binary(min_size=1, max_size=40))
 def test_write_tx_only_any_data(bus, id_, address, data):
     servos, port, ph = bus
@@ -79,7 +81,7 @@ def test_write_tx_only_any_data(bus, id_, address, data):
     assert_sent(servos, enc(servos, "encode_write", id_, address, payload))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200))
 @given(data=st.lists(st.sampled_from([b"\xff", b"\xfd", b"\x00", HEADER_RUN, b"\x42"]), max_size=20).map(b"".join))
 def test_stuffing_matches_the_sdk_stuffer(data):
     """dynamixel-sdk 4.x's Protocol2PacketHandler.txPacket calls addStuffing but ignores the

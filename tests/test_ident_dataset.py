@@ -13,6 +13,8 @@ from hypothesis import strategies as st
 from admittance.errors import DataError
 from admittance.ident.dataset import GRAVITY, load_dataset, read_csv_trial
 
+from helpers import examples
+
 MANIFEST = """motor = "MX-64"
 [rod]
 mass = 0.0402
@@ -121,7 +123,7 @@ def test_other_formats_go_to_the_loaders(tmp_path, monkeypatch):
     assert ds.trials[0].n_samples == 15 and ds.trials[0].meta["format"] == "bam"
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60))
 @given(
     st.lists(st.floats(-10, 10, allow_nan=False), min_size=10, max_size=40),
     st.permutations(["t", "theta", "tau", "note"]),

@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
+from helpers import examples
+
 
 def test_round_trip(tmp_path):
     path = tmp_path / "mx64.toml"
@@ -65,7 +67,7 @@ def test_dump_refuses_bad_values_before_writing(tmp_path):
     assert not path.exists()
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=examples(50))
 @given(st.dictionaries(st.sampled_from(paramfile.PARAM_NAMES),
                        st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1))
 def test_round_trip_property(tmp_path_factory, params):

@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 
 from admittance.ident.smoothing import chi2_sf, nonneg_lstsq, savgol
 
+from helpers import examples
+
 
 @pytest.mark.parametrize("deriv", [0, 1, 2])
 def test_savgol_is_exact_on_cubics_including_the_edges(deriv):
@@ -27,7 +29,7 @@ def test_savgol_smooths_noise():
     assert np.std(savgol(y, 21, 3, 0, 1.0)) < 0.6
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=examples(40))
 @given(st.integers(0, 10_000))
 def test_nonneg_lstsq_matches_brute_force(seed):
     rng = np.random.default_rng(seed)

@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 from admittance.errors import DataError
 from admittance.ident.loaders import ConvertedTrial, convert_files, load_trial, parse_motive, trial_names, write_dataset
 
+from helpers import examples
+
 
 def motive_csv(path, t, axis_xyz, bob_xyz, *, rigid_body=False, timecode=False, names=("Pend:Axis", "Pend:Bob")):
     """A Motive 1.23-style export; a None row in a marker array leaves its cells blank."""
@@ -115,7 +117,7 @@ def test_motive_angle_is_unwrapped_through_pi(tmp_path):
     np.testing.assert_allclose(th, theta, atol=1e-7)
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(25), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(
     angles=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=40),
     radius=st.floats(0.05, 2.0),

@@ -17,7 +17,7 @@ sdk = pytest.importorskip("dynamixel_sdk")
 serial = pytest.importorskip("serial")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
-from helpers import MX64_PLANT  # noqa: E402
+from helpers import MX64_PLANT, examples  # noqa: E402
 
 MX64 = MX64_PLANT
 # Longer than the mock's 1.5 ms inter-byte timeout, so a partial packet has been dropped.
@@ -123,7 +123,7 @@ def test_a_length_field_beyond_the_limit_is_skipped(bus_and_port):
 
 
 @pytest.mark.parametrize("bus_and_port", [1, 2], indirect=True)
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(20), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(noise=st.binary(min_size=1, max_size=300))
 def test_any_garbage_leaves_the_bus_answering(bus_and_port, noise):
     bus, raw, port, ph = bus_and_port

@@ -10,6 +10,8 @@ from hypothesis import strategies as st
 from admittance.drivers import optoforce as of
 from admittance.errors import ConfigError
 
+from helpers import examples
+
 # A real captured frame and ack (shared protocols.md §5.1, checksums verified there).
 CAPTURED_FRAME = bytes.fromhex("AA 07 08 0A 2D 6A 00 00 FF F7 FF FB 00 07 05 51")
 CAPTURED_ACK = bytes.fromhex("AA 00 50 01 00 00 FB")
@@ -129,7 +131,7 @@ def test_an_ack_mid_stream_is_parsed_between_samples():
     assert out == [of.Sample(1, 0, (1, 2, 3)), of.Ack(0), of.Sample(2, 0, (4, 5, 6))]
 
 
-@settings(max_examples=50)
+@settings(max_examples=examples(50))
 @given(st.lists(st.lists(i16, min_size=3, max_size=3), min_size=1, max_size=20))
 def test_converter_scales_counts_per_axis_and_tracks_the_counter(samples):
     converter = of.SampleConverter([100.0, 200.0, 400.0], axes=3)

@@ -8,6 +8,8 @@ from hypothesis import strategies as st
 
 from admittance import sim
 
+from helpers import examples
+
 finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False)
 
 
@@ -38,7 +40,7 @@ plants = st.fixed_dictionaries({
 })
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=examples(25))
 @given(plants, st.sampled_from(sim.FRICTION_LAWS), st.floats(-1.5, 1.5), st.floats(-3.0, 3.0))
 def test_rust_matches_reference_on_random_plants(params, friction, theta0, omega0):
     t = np.linspace(0.0, 0.4, 41)
