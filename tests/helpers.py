@@ -1,6 +1,6 @@
-"""Helpers that several test modules share: property-test example counts, waiting on another thread or process without timed
-assertions, a free Zenoh endpoint, `admittance mock-bench` as a subprocess, and ROBOTIS's SDK
-opened on a MockBus.
+"""Helpers that several test modules share: property-test example counts, waiting on another
+thread or process without timed assertions, a free Zenoh endpoint, `admittance mock-bench` as a
+subprocess, and ROBOTIS's SDK opened on a MockBus.
 
 A plain module rather than conftest fixtures because the helpers are called with arguments
 in the middle of a test (pytest puts tests/ on sys.path, so ``from helpers import ...`` works).
