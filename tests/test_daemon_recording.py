@@ -18,7 +18,7 @@ def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
     t = t0 + np.arange(n) * 1e-3
     present = np.sin(t)
     present[np.arange(n) % read_every != 0] = np.nan
-    return {"t": t, "tau": 0.1 * np.cos(t), "force": np.cos(t), "theta_model": np.sin(t),
+    return {"t": t, "t_wake": t + 1e-5, "tau": 0.1 * np.cos(t), "force": np.cos(t), "theta_model": np.sin(t),
             "omega_model": np.cos(t), "theta_goal": np.sin(t), "theta_present": present,
             "cycle": np.round(t * 1e3)}
 
@@ -36,6 +36,40 @@ def test_a_recording_loads_as_a_geometry_dataset_with_measured_theta(tmp_path):
     assert np.allclose(trial.theta, np.sin(trial.t + 100.0))
     assert trial.load_inertia < 1e-9 and trial.gravity_torque < 1e-6
     assert tomllib.loads((tmp_path / "manifest.toml").read_text())["theta_source"] == "present position"
+
+
+def test_a_row_carries_the_next_cycles_torque_across_batches(tmp_path):
+    """The model's step at cycle k+1 uses τ_(k+1) over the interval that starts at row k; the
+    contract's simulator applies τ(t_k) there. So row k carries τ_(k+1), the batch's last cycle
+    waits for the next batch, and the very last one keeps its own torque."""
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
+    first, second = batch(0.0, 20), batch(0.02, 20)
+    rec.append(1, first)
+    rec.append(1, second)
+    rec.close()
+    trial = load_dataset(tmp_path).trials[0]
+    tau = np.concatenate([first["tau"], second["tau"]])
+    assert trial.n_samples == 40
+    assert np.allclose(trial.tau[:-1], tau[1:]) and trial.tau[-1] == tau[-1]
+    assert np.allclose(trial.t, np.arange(40) * 1e-3), "t is the cycle's deadline, not its wake-up"
+
+
+def test_targets_go_into_each_segments_manifest_entry(tmp_path):
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=False, t0=0.0, segment_s=1.0,
+                   joint_info={1: {"params_file": "p.toml", "rate_hz": 1000.0}})
+    rec.set_targets({"1.virtual_inertia": 0.02, "1.virtual_damping": 0.1, "1.virtual_coulomb": 0.0,
+                     "1.servo_compensation": 0.0, "deadband": 0.0})
+    rec.append(1, batch(0.0, 1000))
+    rec.set_targets({"1.virtual_inertia": 0.02, "1.virtual_damping": 0.1, "1.virtual_coulomb": 0.0,
+                     "1.servo_compensation": 1.0})
+    rec.append(1, batch(1.0, 1000))
+    rec.append(1, batch(2.0, 1000))  # opens the second segment
+    rec.close()
+    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    first, second = manifest["trials"]
+    assert first["servo_compensation"] == 0.0 and first["params_changed"] is True
+    assert second["servo_compensation"] == 1.0 and "params_changed" not in second
+    assert manifest["joints"] == [{"id": 1, "params_file": "p.toml", "rate_hz": 1000.0}]
 
 
 def test_segments_roll_over_and_a_short_tail_is_dropped(tmp_path):

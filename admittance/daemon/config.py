@@ -9,7 +9,9 @@ Two defaults are not constants and are filled after validation:
 - ``params`` of a joint defaults to ``config/params/<model>.toml`` (e.g. ``mx64.toml``); a
   relative path is looked up beside the configuration file, then at the repository root;
 - ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
-  ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively.
+  ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively;
+- ``servo_compensation`` defaults to 1 (on) when the parameter file carries a ``[servo]`` model
+  (``admittance fidelity --params-out``), else 0.
 """
 
 from __future__ import annotations
@@ -64,6 +66,10 @@ class JointConfig:
     virtual_damping: float | None = key("float", None, unit="N·m·s/rad", lo=0.0, live=True, doc="felt damping")
     virtual_coulomb: float | None = key("float", None, unit="N·m", lo=0.0, live=True, doc="felt Coulomb friction")
     lever_arm: float | None = key("float", None, unit="m", live=True, doc="this joint's lever arm; default [sensor].lever_arm")
+    # None = 1 when the parameter file has a [servo] model, else 0 (filled by _resolve_joint).
+    servo_compensation: float | None = key("float", None, lo=0.0, hi=1.0, live=True,
+                                           doc="weight of the servo compensation: 1 = on, 0 = off; "
+                                               "default 1 when `params` has a [servo] model, else 0")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
     # Filled by resolve(): the parsed limits and the loaded parameter file.
     resolved_limits: LimitsConfig | None = dataclasses.field(default=None, metadata={"internal": True})
@@ -213,12 +219,17 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
     fitted = plant["params"]
     if "motor_inertia" not in fitted:
         raise ConfigError(f"{where}.params: {params_path} has no motor_inertia")
+    compensation = _or(joint.servo_compensation, 1.0 if "servo" in plant else 0.0)
+    if compensation > 0 and "servo" not in plant:
+        raise ConfigError(f"{where}.servo_compensation: {params_path} has no [servo] model to compensate "
+                          "(make one with `admittance fidelity RECORDING --params-out FILE`)")
     return dataclasses.replace(
         joint,
         params=str(params_path),
         virtual_inertia=_or(joint.virtual_inertia, fitted["motor_inertia"]),
         virtual_damping=_or(joint.virtual_damping, fitted.get("damping", 0.0)),
         virtual_coulomb=_or(joint.virtual_coulomb, fitted.get("coulomb", 0.0)),
+        servo_compensation=compensation,
         resolved_limits=limits,
         plant=plant,
     )
@@ -303,7 +314,8 @@ def summary(cfg: DaemonConfig) -> str:
     for j in cfg.joints:
         lines.append(f"joint {j.id}: {j.model}, zero tick {j.zero_tick}, params {j.params}; virtual "
                      f"I={j.virtual_inertia:g} kg·m², B={j.virtual_damping:g} N·m·s/rad, "
-                     f"F={j.virtual_coulomb:g} N·m, lever arm {j.lever_arm:g} m")
+                     f"F={j.virtual_coulomb:g} N·m, lever arm {j.lever_arm:g} m; servo compensation "
+                     f"{j.servo_compensation:g}{'' if 'servo' in j.plant else ' (no [servo] model)'}")
     s = cfg.sensor
     lines.append(f"sensor: {s.kind} on {s.port or '-'}, axis {s.axis}, tare {s.tare_samples} samples")
     lines.append(f"loop: {cfg.loop.rate_hz:g} Hz, rt priority {cfg.loop.rt_priority}; "

@@ -68,6 +68,8 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "virtual_damping": joint.virtual_damping,
         "virtual_coulomb": joint.virtual_coulomb,
         "lever_arm": joint.lever_arm,
+        "servo": joint.plant.get("servo"),
+        "servo_compensation": joint.servo_compensation,
         "limits": {
             # The model may not go where the servo cannot follow: clip to the tick range.
             "position_min": max(limits.position_min, reachable[0]),

@@ -29,6 +29,7 @@ class JointState(msgspec.Struct, omit_defaults=True):
     omega: float  # rad/s, model velocity
     goal_tick: int
     present_tick: int | None = None  # the servo's position when it was read this cycle
+    rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
 
 
 class State(msgspec.Struct):

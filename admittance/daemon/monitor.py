@@ -29,6 +29,15 @@ def joint_line(joint: dict[str, Any]) -> str:
             f"goal {joint['goal_tick']:>5}  present {present if present is not None else '-':>5}")
 
 
+def rendering_line(stats: dict[str, Any]) -> list[str]:
+    """The horn's distance from the model, per joint (the daemon's running RMS, last ~1 s)."""
+    rms = stats.get("rendering_rms") or {}
+    if not rms:
+        return []
+    joints = "  ".join(f"joint {jid} {1e3 * value:6.2f} mrad" for jid, value in sorted(rms.items()))
+    return [f"render  |present − model| RMS  {joints}"]
+
+
 def stats_lines(stats: dict[str, Any]) -> list[str]:
     rt = stats.get("rt", {})
     period, latency = stats.get("period_us", {}), stats.get("latency_us", {})
@@ -42,6 +51,7 @@ def stats_lines(stats: dict[str, Any]) -> list[str]:
         f"sensor samples {stats.get('sensor_samples', 0)}  stale events {stats.get('sensor_stale_events', 0)}  "
         f"rt {rt.get('policy', '?')} prio {rt.get('priority', 0)} "
         f"mlock {'yes' if rt.get('memory_locked') else 'no'}",
+        *rendering_line(stats),
     ]
 
 
@@ -75,7 +85,7 @@ class View:
         else:
             self.stats = message
             if not self.tty:
-                self.out.write(stats_lines(message)[0] + "\n")
+                self.out.write("\n".join([stats_lines(message)[0], *rendering_line(message)]) + "\n")
 
     def render(self, now: float) -> None:
         if self.tty:

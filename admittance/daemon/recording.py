@@ -1,10 +1,23 @@
-"""Record a session as a pendulum dataset (../shared/contracts/datasets.md), for `identify`.
+"""Record a session as a pendulum dataset (../shared/contracts/datasets.md), for `identify`
+and `fidelity`.
 
 ``admittance run --record DIR`` writes ``DIR/manifest.toml`` and, per joint, CSV segments of
 ``[record].segment_s`` seconds (``joint1_000.csv``, ``joint1_001.csv``...), one trial each. The
 contract's columns are ``t`` (s from the start), ``theta`` (rad) and ``tau`` (N·m, the hand
 torque the model saw); extra columns keep the rest of the cycle (force, the model's angle and
-velocity, the goal angle, the cycle number) for plots and for replay checks.
+velocity, the goal angle, the cycle's wake-up time, the cycle number) for `fidelity`, plots
+and replay checks.
+
+Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
+(so `identify` with theta := theta_model returns the configured I, B, F):
+
+- ``t`` is the cycle's *deadline*, the model's own time (the loop integrates one step per
+  deadline, a skipped one included), not its wake-up time, which is late by the scheduler's
+  jitter; ``t_wake`` keeps the wake-up time, when the goal was written and the servo read.
+- ``tau`` on a row is the torque of the *next* cycle: the model's step at cycle k uses that
+  cycle's newest torque over the interval that ends at k, while the contract's simulator
+  applies τ(t) over the substep that *starts* at t. The recorder therefore holds each batch's
+  last cycle back until the next batch (or the close) shows what follows it.
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With
@@ -32,7 +45,9 @@ import tomli_w
 
 from admittance.errors import ConfigError
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "cycle")
+COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle")
+# The per-joint values written into each trial's manifest entry: what the loop ran.
+TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
@@ -47,12 +62,17 @@ class Recorder:
     """
 
     def __init__(self, folder: Path, joints: list[tuple[int, str]], *, measured_theta: bool, t0: float,
-                 segment_s: float = 10.0) -> None:
+                 segment_s: float = 10.0, joint_info: dict[int, dict] | None = None) -> None:
         self.folder = folder
         self.t0 = t0
         self.measured_theta = measured_theta
         self.segment_s = segment_s
         self.models = dict(joints)
+        # Per joint: the parameter file, plant and loop settings (the manifest's [[joints]]).
+        self.joint_info = joint_info or {}
+        self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
+        self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
+        self._pending: dict[int, dict[str, np.ndarray]] = {}
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
@@ -76,13 +96,15 @@ class Recorder:
         self._writers[joint_id] = csv.writer(fh)
         self._writers[joint_id].writerow(COLUMNS)
         self._segments[joint_id].append(name)
+        self._entries[joint_id].append(dict(self._targets[joint_id]))
         self._segment_rows[joint_id] = 0
         self._segment_start[joint_id] = t
         self._write_manifest()
 
     def _write_manifest(self) -> None:
-        trials = [{"file": name, "bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": jid, "motor": self.models[jid]}
-                  for jid, names in self._segments.items() for name in names]
+        trials = [{"file": name, "bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": jid, "motor": self.models[jid],
+                   **entry}
+                  for jid, names in self._segments.items() for name, entry in zip(names, self._entries[jid])]
         doc = {
             "motor": ", ".join(sorted(set(self.models.values()))),
             "source": "admittance run --record",
@@ -90,16 +112,53 @@ class Recorder:
             "bob": NEGLIGIBLE_BOB,
             "trials": trials,
         }
+        if self.joint_info:
+            doc["joints"] = [{"id": jid, **info} for jid, info in self.joint_info.items()]
         tmp = self.folder / "manifest.toml.tmp"
         tmp.write_text(tomli_w.dumps(doc))
         tmp.replace(self.folder / "manifest.toml")  # readers never see half a manifest
 
-    def append(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
-        """Append the rows of one joint; returns how many were written.
+    def set_targets(self, params: dict[str, float]) -> None:
+        """The loop's parameters (its flat ``params()``), recorded with each segment: a segment
+        opened after this carries them, one open now is marked ``params_changed``."""
+        for joint_id in self.models:
+            values = {key: float(params[f"{joint_id}.{key}"]) for key in TARGET_KEYS if f"{joint_id}.{key}" in params}
+            if values == self._targets[joint_id]:
+                continue
+            if self._targets[joint_id] and self._entries[joint_id]:
+                self._entries[joint_id][-1]["params_changed"] = True
+            self._targets[joint_id] = values
+            if self._entries[joint_id] and not self._entries[joint_id][-1]:
+                self._entries[joint_id][-1].update(values)  # the first segment, opened before the loop ran
+        self._write_manifest()
 
-        ``columns`` holds ``t`` (s, monotonic), ``tau``, ``force``, ``theta_model``,
-        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read) and ``cycle``.
+    def append(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
+        """Append the rows of one joint (every cycle of a drained batch); returns how many were written.
+
+        ``columns`` holds ``t`` (s, the cycle's deadline), ``t_wake``, ``tau``, ``force``,
+        ``theta_model``, ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read)
+        and ``cycle``. The batch's last cycle waits for the next batch (see the module doc).
         """
+        columns = self._with_next_tau(joint_id, columns)
+        return self._write(joint_id, columns) if columns is not None else 0
+
+    def _with_next_tau(self, joint_id: int, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
+        """The pending cycle plus this batch, each with the following cycle's torque, minus the new
+        last cycle (kept pending)."""
+        pending = self._pending.pop(joint_id, None)
+        if pending is not None:
+            columns = {k: np.concatenate([pending[k], v]) for k, v in columns.items()}
+        if len(columns["t"]) == 0:
+            return None
+        self._pending[joint_id] = {k: v[-1:] for k, v in columns.items()}
+        if len(columns["t"]) == 1:
+            return None
+        out = {k: v[:-1] for k, v in columns.items()}
+        follows = np.diff(columns["cycle"]) == 1  # a dropped record: keep the row's own torque
+        out["tau"] = np.where(follows, columns["tau"][1:], columns["tau"][:-1])
+        return out
+
+    def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
         keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
         if not keep.any():
             return 0
@@ -111,7 +170,7 @@ class Recorder:
         table = np.column_stack([
             t, theta[keep], columns["tau"][keep], columns["force"][keep],
             columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["cycle"][keep],
+            columns["t_wake"][keep] - self.t0, columns["cycle"][keep],
         ])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
@@ -120,10 +179,15 @@ class Recorder:
         return len(table)
 
     def close(self) -> None:
-        """Close the files; a last segment too short to fit on is dropped (file and manifest entry)."""
+        """Write the held-back cycles (with their own torque: nothing follows them), close the
+        files; a last segment too short to fit on is dropped (file and manifest entry)."""
+        for joint_id, pending in list(self._pending.items()):
+            self._write(joint_id, pending)
+        self._pending.clear()
         for joint_id, fh in self._files.items():
             fh.close()
             names = self._segments[joint_id]
             if self._segment_rows[joint_id] < MIN_ROWS and len(names) > 1:
                 (self.folder / names.pop()).unlink()
+                self._entries[joint_id].pop()
         self._write_manifest()

@@ -102,6 +102,7 @@ class Supervisor:
         self.recorder: Recorder | None = None
         self.final_stats: dict[str, Any] | None = None
         self._codec = Codec(cfg.zenoh.encoding)
+        self.rendering = telemetry.RenderingError(cfg)
         self._t0 = 0.0
         self._warned: set[str] = set()
         self.watchdog: Watchdog | None = None
@@ -177,8 +178,24 @@ class Supervisor:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
         self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
-                                 t0=self._t0, segment_s=self.cfg.record.segment_s)
+                                 t0=self._t0, segment_s=self.cfg.record.segment_s, joint_info=self._joint_info())
+        self.recorder.set_targets(self.loop.params())
         stack.callback(self.recorder.close)
+
+    def _joint_info(self) -> dict[int, dict]:
+        """What a recording needs to be judged later (`admittance fidelity`): each joint's plant
+        and servo model, and the loop's timing."""
+        info = {}
+        for j in self.cfg.joints:
+            plant = j.plant or {}
+            entry = {"params_file": j.params, "rate_hz": self.cfg.loop.rate_hz,
+                     "sync_read_divisor": self.cfg.loop.sync_read_divisor,
+                     "friction": str(plant.get("model", {}).get("friction", "stick")),
+                     "plant": dict(plant.get("params", {}))}
+            if "servo" in plant:
+                entry["servo"] = dict(plant["servo"])
+            info[j.id] = entry
+        return info
 
     def _start_interface(self, stack: contextlib.ExitStack) -> None:
         if self.backends.make_interface is None:
@@ -204,6 +221,7 @@ class Supervisor:
         self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
+        self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint()}
         self.options.log(self._summary_line(self.final_stats))
 
     def _summary_line(self, stats: dict[str, Any]) -> str:
@@ -249,17 +267,18 @@ class Supervisor:
         records = self.loop.drain_telemetry()
         if len(records) == 0:
             return None
+        self.rendering.update(records)
         if self.recorder is not None:
             for joint_id, columns in telemetry.columns_by_joint(records, self.cfg).items():
                 self.recorder.append(joint_id, columns)
-        return telemetry.latest_state(records, self.cfg)
+        return telemetry.latest_state(records, self.cfg, self.rendering)
 
     def _publish_stats(self) -> None:
         for warning in self.loop.warnings():
             self._warn(warning)
         if not self.loop.running():
             raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
-        stats = self.loop.stats()
+        stats = {**self.loop.stats(), "rendering_rms": self.rendering.by_joint()}
         self.notifier.status(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                              f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
@@ -279,6 +298,8 @@ class Supervisor:
         accepted, reason = self.loop.set_params(request)
         if accepted:
             self.options.log(f"params set: {json.dumps(request, sort_keys=True)}")
+            if self.recorder is not None:
+                self.recorder.set_targets(self.loop.params())
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:

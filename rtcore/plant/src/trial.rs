@@ -97,8 +97,9 @@ pub fn substep_count(dt: f64, max_step: f64) -> usize {
     ((dt / max_step) - 1e-9).ceil().max(1.0) as usize
 }
 
-/// Linear interpolation in a time series whose queries mostly move forward.
-struct TorqueCursor<'a> {
+/// Linear interpolation in a time series whose queries mostly move forward (the applied torque
+/// here; the servo model's goal and torque in `crate::servo`).
+pub(crate) struct TorqueCursor<'a> {
     t: &'a [f64],
     tau: &'a [f64],
     j: usize,
@@ -108,7 +109,7 @@ struct TorqueCursor<'a> {
 }
 
 impl<'a> TorqueCursor<'a> {
-    fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
+    pub(crate) fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
         let mut cursor = TorqueCursor { t, tau, j: 0, slope: 0.0 };
         cursor.update_slope();
         cursor
@@ -122,7 +123,7 @@ impl<'a> TorqueCursor<'a> {
     }
 
     #[inline]
-    fn at(&mut self, q: f64) -> f64 {
+    pub(crate) fn at(&mut self, q: f64) -> f64 {
         let (t, tau) = (self.t, self.tau);
         let last = t.len() - 1;
         if q <= t[0] {

@@ -7,8 +7,10 @@
 //!    accepted sets is itself stable. The position state is never touched, so nothing jumps.
 //! 2. `take_force`: drain the sample ring to the newest sample (stale check, tare feed).
 //! 3. `condition_force`: bias, deadband, low-pass.
-//! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state,
-//!    or a hold (velocity zero, no integration) while the force is stale.
+//! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state
+//!    per deadline since the last cycle (a skipped deadline is integrated too, so the model's
+//!    time is the deadlines' time), or a hold (velocity zero, no integration) while the force is
+//!    stale; the goal is the model's angle plus the servo compensation's lead (`compensation`).
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
@@ -17,6 +19,7 @@
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
+use crate::compensation::Compensation;
 use crate::filter::{deadband, LowPass, TareAverager};
 use crate::joint::{integrate, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
@@ -46,7 +49,12 @@ struct JointSlot {
     force: f64,
     torque: f64,
     present: i64,
+    compensation: Compensation,
 }
+
+/// At most this many steps catch up on skipped deadlines in one cycle (50 ms at 1 kHz); a
+/// longer stall loses the rest of its time rather than integrating it in one burst.
+const MAX_CATCH_UP_STEPS: u64 = 50;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
@@ -78,6 +86,8 @@ pub struct Controller {
     bus: JointBus,
     sync_read_divisor: u64,
     cycle: u64,
+    /// The deadline the model has been integrated up to.
+    model_ns: Option<u64>,
     latency_from_ns: Option<u64>,
     telemetry: rtrb::Producer<Record>,
     shared: Arc<Shared>,
@@ -101,6 +111,7 @@ impl Controller {
                 force: 0.0,
                 torque: 0.0,
                 present: -1,
+                compensation: Compensation::new(jp.servo, jp.compensation),
             })
             .collect::<Vec<_>>();
         let mut lowpass = LowPass::default();
@@ -123,6 +134,7 @@ impl Controller {
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
             cycle: 0,
+            model_ns: None,
             latency_from_ns: None,
             telemetry: parts.telemetry,
             shared: parts.shared,
@@ -172,7 +184,8 @@ impl Controller {
         self.advance_ramp();
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
-        self.step_joints(&force, intake.stale);
+        let steps = self.steps_due(deadline_ns);
+        self.step_joints(&force, intake.stale, steps);
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
         let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
@@ -189,6 +202,7 @@ impl Controller {
             slot.ramp_from = slot.gains;
             slot.ramp_to = jp.gains;
             slot.limits = jp.limits;
+            slot.compensation.retarget(jp.servo, jp.compensation);
         }
         self.ramp_progress = 0.0;
         self.ramp_time_s = p.ramp_time_s;
@@ -241,16 +255,36 @@ impl Controller {
         self.lowpass.apply(&f)
     }
 
-    fn step_joints(&mut self, force: &[f64; 6], hold: bool) {
+    /// Model steps due at this deadline: one per deadline since the last cycle's, so the model
+    /// keeps the deadlines' time through an overrun (recordings and `identify` rely on it).
+    fn steps_due(&mut self, deadline_ns: u64) -> u64 {
+        let steps = match self.model_ns {
+            Some(last) => ((deadline_ns.saturating_sub(last) + self.period_ns / 2) / self.period_ns).clamp(1, MAX_CATCH_UP_STEPS),
+            None => 1,
+        };
+        self.model_ns = Some(deadline_ns);
+        steps
+    }
+
+    fn step_joints(&mut self, force: &[f64; 6], hold: bool, steps: u64) {
         for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
+            let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
             } else {
-                integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
+                for _ in 0..steps {
+                    alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
+                }
             }
-            *goal = slot.wiring.ticks.goal_tick(slot.state.theta);
+            slot.compensation.advance(self.h, self.ramp_time_s);
+            let State { theta, omega } = slot.state;
+            let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold);
+            // The lead may not carry the goal past a position limit (a state already outside a
+            // narrowed range stays where it is, as the integrator lets it).
+            let led = led.clamp(slot.limits.position_min.min(theta), slot.limits.position_max.max(theta));
+            *goal = slot.wiring.ticks.goal_tick(led);
         }
     }
 

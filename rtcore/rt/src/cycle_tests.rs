@@ -252,6 +252,66 @@ fn overruns_are_counted_and_skipped_on_the_grid() {
     assert_eq!(wakes, expected, "every wake is on the grid, none is doubled up");
 }
 
+#[test]
+fn an_overrun_is_integrated_so_the_model_keeps_the_deadlines_time() {
+    let mut r = rig(free_joint(), &[(1, 2048)]);
+    let cost = std::rc::Rc::new(std::cell::Cell::new(100_000));
+    let mut bus = SlowBus { inner: r.bus.clone(), clock: r.clock.clone(), cost_ns: cost.clone() };
+    let mut clock = r.clock.clone();
+    let mut n = 0;
+    let force = std::cell::RefCell::new(&mut r.force);
+    let now = r.clock.clone();
+    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), || {
+        n += 1;
+        cost.set(if n == 5 { 2_500_000 } else { 100_000 });
+        force.borrow_mut().push(ForceSample { t_ns: now.now_ns(), forces: [2.0, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
+        n <= 10
+    });
+    let records: Vec<Record> = std::iter::from_fn(|| r.telemetry.pop().ok()).collect();
+    // 10 cycles on 12 deadlines (6 and 7 lost): the model took 12 steps of h, θ_n = a·h²·n(n+1)/2.
+    let a = 2.0 * 0.1 / 0.02;
+    let steps = 12.0;
+    let expected = a * 1e-6 * steps * (steps + 1.0) / 2.0;
+    let last = records.last().unwrap();
+    assert!((last.theta - expected).abs() < 1e-12, "{} vs {expected}", last.theta);
+}
+
+fn lagging_servo() -> plant::servo::ServoModel {
+    plant::servo::ServoModel { time_constant: 0.025, inertial_time: 0.0, dead_time: 0.002, compliance: 0.01, deadband: 0.0 }
+}
+
+#[test]
+fn turning_the_compensation_on_and_off_never_steps_the_goal() {
+    // A damped joint under a constant push moves at a constant 1 rad/s: its lead is 27 mrad, 17 ticks.
+    let mut p = free_joint();
+    p.joints[0].gains.damping = 0.2;
+    p.joints[0].servo = Some(lagging_servo());
+    p.ramp_time_s = 0.0; // the compensation still blends, over MIN_BLEND_S
+    let mut r = started(p.clone(), &[(1, 2048)]);
+    for _ in 0..1000 {
+        r.cycle_with(Some(2.0));
+    }
+    let tick = 4096.0 / std::f64::consts::TAU;
+    let per_cycle = |w: f64| (w * 1e-3 * tick).ceil() as i64 + 1;
+    let mut goals = vec![r.cycle_with(Some(2.0)).goal_tick];
+    for weight in [1.0, 0.0] {
+        let mut next = p.clone();
+        next.joints[0].compensation = weight;
+        r.params.write(next);
+        for _ in 0..400 {
+            goals.push(r.cycle_with(Some(2.0)).goal_tick);
+        }
+        let rec = r.cycle_with(Some(2.0));
+        let lead = weight * plant::servo::lead(&lagging_servo(), rec.omega, 0.0, rec.torque);
+        assert_eq!(rec.goal_tick, 2048 + ((rec.theta + lead) * tick).round() as i64, "weight {weight}");
+        goals.push(rec.goal_tick);
+    }
+    // Per cycle: the joint's own motion (1 rad/s) plus the blend's share of the 17-tick lead.
+    let limit = per_cycle(1.0) + (0.027 * tick * 1e-3 / crate::compensation::MIN_BLEND_S).ceil() as i64;
+    let worst = goals.windows(2).map(|w| (w[1] - w[0]).abs()).max().unwrap();
+    assert!(worst <= limit, "a step of {worst} ticks (limit {limit})");
+}
+
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
 mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
@@ -309,6 +369,8 @@ fn a_cycle_allocates_nothing() {
     r.ctl.begin(r.clock.now_ns());
     let mut next = p.clone();
     next.joints[1].gains.damping = 0.2;
+    next.joints[2].servo = Some(lagging_servo());
+    next.joints[2].compensation = 1.0;
     next.bias = [0.5; 6];
     next.bias_generation = 1;
     r.params.write(next);

@@ -1,0 +1,122 @@
+//! Servo compensation: the goal that makes the horn, not only the goal, follow the model.
+//!
+//! A position servo follows its goal late and gives way under the hand (`plant::servo`: a lag,
+//! a second-order term, a dead time, a compliance and a friction band, identified from a
+//! recording by `admittance fidelity`). The compensation sends, instead of the model's angle θ,
+//! θ + w·lead, where `lead` is that model inverted a dead time ahead
+//! (`plant::servo::lead`): it needs the model's own ω and acceleration, which the loop knows
+//! exactly each cycle, and the hand's torque, which it measures. No numerical differentiation,
+//! no knowledge of how the servo is built beyond what the recording showed.
+//!
+//! w is a weight in [0, 1] (`servo_compensation`). It never jumps: a change blends linearly
+//! over the loop's ramp time, but over at least `MIN_BLEND_S`, so that even with
+//! `ramp_time_s = 0` turning the compensation on or off cannot step the goal by the whole lead.
+//! While the force is stale the loop holds, and the lead is frozen with it, so the goal stays.
+use plant::servo::{lead, ServoModel};
+
+/// The shortest blend of the weight, s.
+pub const MIN_BLEND_S: f64 = 0.2;
+/// A lead beyond this (rad) is clipped: a safety net against a wild model, far above any lag a
+/// servo that follows at all shows (a 25 ms lag at 6 rad/s is 0.15 rad).
+pub const MAX_LEAD: f64 = 0.3;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Compensation {
+    model: Option<ServoModel>,
+    weight: f64,
+    from: f64,
+    to: f64,
+    progress: f64,
+    lead: f64,
+}
+
+impl Compensation {
+    /// A joint's compensation at `weight` (already validated: 0 without a model).
+    pub fn new(model: Option<ServoModel>, weight: f64) -> Self {
+        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0 }
+    }
+
+    /// The weight it blends to now.
+    pub fn target(&self) -> f64 {
+        self.to
+    }
+
+    /// The weight in use this cycle.
+    pub fn weight(&self) -> f64 {
+        self.weight
+    }
+
+    /// A new parameter set: blend from the weight in use to `weight`.
+    pub fn retarget(&mut self, model: Option<ServoModel>, weight: f64) {
+        self.model = model;
+        if weight != self.to {
+            self.from = self.weight;
+            self.to = weight;
+            self.progress = 0.0;
+        }
+    }
+
+    /// Moves the blend on by one cycle of `h` seconds, over max(`ramp_time_s`, MIN_BLEND_S).
+    pub fn advance(&mut self, h: f64, ramp_time_s: f64) {
+        if self.progress >= 1.0 {
+            return;
+        }
+        self.progress = (self.progress + h / ramp_time_s.max(MIN_BLEND_S)).min(1.0);
+        self.weight = self.from + self.progress * (self.to - self.from);
+    }
+
+    /// The angle to send as the goal for a model at `theta` moving at `omega` with
+    /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
+    /// the last cycle is kept, so holding never moves the goal.
+    pub fn goal(&mut self, theta: f64, omega: f64, alpha: f64, tau: f64, hold: bool) -> f64 {
+        let Some(model) = self.model else { return theta };
+        if !hold {
+            self.lead = lead(&model, omega, alpha, tau).clamp(-MAX_LEAD, MAX_LEAD);
+        }
+        theta + self.weight * self.lead
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LAG: ServoModel =
+        ServoModel { time_constant: 0.025, inertial_time: 0.0, dead_time: 0.002, compliance: 0.01, deadband: 0.0 };
+
+    #[test]
+    fn without_a_model_the_goal_is_the_model_angle() {
+        let mut c = Compensation::new(None, 0.0);
+        assert_eq!(c.goal(0.3, 2.0, 5.0, 0.4, false), 0.3);
+    }
+
+    #[test]
+    fn the_lead_is_the_inverted_servo_model_weighted_and_clipped() {
+        let mut c = Compensation::new(Some(LAG), 1.0);
+        let g = c.goal(0.1, 1.0, 0.0, 0.5, false);
+        assert!((g - (0.1 + 0.025 + 0.002 - 0.005)).abs() < 1e-12, "{g}");
+        assert_eq!(c.goal(0.1, 100.0, 0.0, 0.0, false), 0.1 + MAX_LEAD);
+    }
+
+    #[test]
+    fn turning_it_on_blends_over_at_least_the_minimum_time() {
+        let mut c = Compensation::new(Some(LAG), 0.0);
+        c.retarget(Some(LAG), 1.0);
+        let h = 1e-3;
+        let mut last = c.goal(0.0, 1.0, 0.0, 0.0, false);
+        for _ in 0..(MIN_BLEND_S / h) as usize + 5 {
+            c.advance(h, 0.0);
+            let g = c.goal(0.0, 1.0, 0.0, 0.0, false);
+            assert!(g - last <= 0.027 * h / MIN_BLEND_S + 1e-12, "a step of {}", g - last);
+            last = g;
+        }
+        assert_eq!(c.weight(), 1.0);
+    }
+
+    #[test]
+    fn holding_freezes_the_lead() {
+        let mut c = Compensation::new(Some(LAG), 1.0);
+        let moving = c.goal(0.2, 1.0, 0.0, 0.3, false);
+        assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true), moving);
+    }
+}
