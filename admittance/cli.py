@@ -22,6 +22,7 @@ SUBCOMMAND_MODULES = (
     "admittance.mockbench.cli",  # mock-bench
     "admittance.ident.cli",  # identify, synth
     "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
+    "admittance.fidelity.cli",  # fidelity
 )
 
 

@@ -26,7 +26,7 @@ from admittance.daemon.messages import Codec, JointState, State, decode
 
 FIELDS = [("cycle", "<u8"), ("t_ns", "<u8"), ("id", "<i8"), ("force", "<f8"), ("torque", "<f8"),
           ("theta", "<f8"), ("omega", "<f8"), ("goal_tick", "<i8"), ("present_tick", "<i8"),
-          ("period_error_ns", "<i8"), ("latency_ns", "<i8")]
+          ("period_error_ns", "<i8"), ("latency_ns", "<i8"), ("flags", "<i8")]
 
 
 def records(joints: int, rows: int) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import tomli_w
 
-from admittance.daemon.recording import Recorder
+from admittance.daemon.recording import COLUMNS, Recorder
 from admittance.ident.dataset import load_dataset
 
 
@@ -20,7 +20,7 @@ def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
     present[np.arange(n) % read_every != 0] = np.nan
     return {"t": t, "t_wake": t + 1e-5, "tau": 0.1 * np.cos(t), "force": np.cos(t), "theta_model": np.sin(t),
             "omega_model": np.cos(t), "theta_goal": np.sin(t), "theta_present": present,
-            "cycle": np.round(t * 1e3)}
+            "cycle": np.round(t * 1e3), "held": np.zeros(n)}
 
 
 def test_a_recording_loads_as_a_geometry_dataset_with_measured_theta(tmp_path):
@@ -52,6 +52,21 @@ def test_a_row_carries_the_next_cycles_torque_across_batches(tmp_path):
     assert trial.n_samples == 40
     assert np.allclose(trial.tau[:-1], tau[1:]) and trial.tau[-1] == tau[-1]
     assert np.allclose(trial.t, np.arange(40) * 1e-3), "t is the cycle's deadline, not its wake-up"
+
+
+def test_a_hold_between_two_reads_marks_the_next_row(tmp_path):
+    """Reads every 5th cycle; cycles 7 and 23 held (stale force): rows 10 and 25 say so, even the
+    one whose hold fell into the previous batch."""
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
+    first, second = batch(0.0, 20, read_every=5), batch(0.02, 20, read_every=5)
+    first["held"][7] = 1.0
+    first["held"][18] = 1.0  # after the batch's last read: carried into the next batch
+    rec.append(1, first)
+    rec.append(1, second)
+    rec.close()
+    rows = np.loadtxt(tmp_path / "joint1_000.csv", delimiter=",", skiprows=1)
+    cycles, held = rows[:, COLUMNS.index("cycle")], rows[:, COLUMNS.index("held")]
+    assert list(cycles[held == 1]) == [10.0, 20.0]
 
 
 def test_targets_go_into_each_segments_manifest_entry(tmp_path):

@@ -24,7 +24,7 @@ REPO = Path(__file__).resolve().parents[1]
 RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns") else "<f8" if name in
                           ("force", "torque", "theta", "omega") else "<i8")
                          for name in ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                                      "present_tick", "period_error_ns", "latency_ns")])
+                                      "present_tick", "period_error_ns", "latency_ns", "flags")])
 PCT = {"p50": 1.0, "p99": 2.0, "p999": 3.0, "max": 4.0}
 
 

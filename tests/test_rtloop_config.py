@@ -82,7 +82,7 @@ def test_the_sink_takes_up_to_six_components():
 def test_telemetry_dtype_is_the_documented_record():
     names = _rtcore.AdmittanceLoop.telemetry_dtype().names
     assert names == ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                     "present_tick", "period_error_ns", "latency_ns")
+                     "present_tick", "period_error_ns", "latency_ns", "flags")
     assert len(_rtcore.AdmittanceLoop(config()).drain_telemetry()) == 0
 
 

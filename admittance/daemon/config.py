@@ -134,6 +134,14 @@ class BenchConfig:
     hand_delay_s: float = key("float", 0.5, unit="s", lo=0.0, hi=3600.0,
                               doc="the hand starts this long after the loop runs (it keeps off during the tare)")
     noise_std_n: float = key("float", 0.0, unit="N", lo=0.0, hi=10.0, doc="sensor noise of the simulated sensor")
+    servo_lag_s: float = key("float", 0.0, unit="s", lo=0.0, hi=10.0,
+                             doc="0: the BAM-style MX firmware and motor; > 0: a horn that lags its goal by this "
+                                 "time constant instead (embedded bench only)")
+    hand_inertia: float = key("float", 0.0, unit="kg·m²", lo=0.0, hi=1.0,
+                              doc="a hand gripping the horn (embedded bench): its inertia rides with the horn")
+    hand_damping: float = key("float", 0.0, unit="N·m·s/rad", lo=0.0, hi=100.0, doc="the gripping hand's damping")
+    hand_stiffness: float = key("float", 0.0, unit="N·m/rad", lo=0.0, hi=1000.0,
+                                doc="the gripping hand's stiffness about where it gripped")
 
 
 @dataclass(frozen=True, kw_only=True)

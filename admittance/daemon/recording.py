@@ -5,8 +5,8 @@ and `fidelity`.
 ``[record].segment_s`` seconds (``joint1_000.csv``, ``joint1_001.csv``...), one trial each. The
 contract's columns are ``t`` (s from the start), ``theta`` (rad) and ``tau`` (N·m, the hand
 torque the model saw); extra columns keep the rest of the cycle (force, the model's angle and
-velocity, the goal angle, the cycle's wake-up time, the cycle number) for `fidelity`, plots
-and replay checks.
+velocity, the goal angle, the cycle's wake-up time, the cycle number, and ``held`` = 1 on a
+cycle that held because the force was stale) for `fidelity`, plots and replay checks.
 
 Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
 (so `identify` with theta := theta_model returns the configured I, B, F):
@@ -45,7 +45,7 @@ import tomli_w
 
 from admittance.errors import ConfigError
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle")
+COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held")
 # The per-joint values written into each trial's manifest entry: what the loop ran.
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
@@ -73,6 +73,7 @@ class Recorder:
         self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
         self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
         self._pending: dict[int, dict[str, np.ndarray]] = {}
+        self._held_since_row: dict[int, bool] = {}
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
@@ -136,8 +137,8 @@ class Recorder:
         """Append the rows of one joint (every cycle of a drained batch); returns how many were written.
 
         ``columns`` holds ``t`` (s, the cycle's deadline), ``t_wake``, ``tau``, ``force``,
-        ``theta_model``, ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read)
-        and ``cycle``. The batch's last cycle waits for the next batch (see the module doc).
+        ``theta_model``, ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read),
+        ``cycle`` and ``held``. The batch's last cycle waits for the next batch (see the module doc).
         """
         columns = self._with_next_tau(joint_id, columns)
         return self._write(joint_id, columns) if columns is not None else 0
@@ -160,6 +161,7 @@ class Recorder:
 
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
         keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
+        held = self._held_since_previous_row(joint_id, columns["held"] > 0, keep)
         if not keep.any():
             return 0
         theta = columns["theta_present"] if self.measured_theta else columns["theta_model"]
@@ -170,13 +172,23 @@ class Recorder:
         table = np.column_stack([
             t, theta[keep], columns["tau"][keep], columns["force"][keep],
             columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["t_wake"][keep] - self.t0, columns["cycle"][keep],
+            columns["t_wake"][keep] - self.t0, columns["cycle"][keep], held[keep],
         ])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
         self._segment_rows[joint_id] += len(table)
         return len(table)
+
+    def _held_since_previous_row(self, joint_id: int, held: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Per cycle, 1 where any cycle since the previous written row held: a hold between two
+        reads leaves no row of its own, yet the model stood still across it."""
+        group = np.concatenate([[0], np.cumsum(keep)[:-1]])  # cycles up to and including each row
+        any_held = np.zeros(group[-1] + 1 if len(group) else 1, bool)
+        np.logical_or.at(any_held, group, held)
+        any_held[0] |= self._held_since_row.get(joint_id, False)
+        self._held_since_row[joint_id] = bool(any_held[-1]) if not keep[-1:].any() else False
+        return any_held[group].astype(float)
 
     def close(self) -> None:
         """Write the held-back cycles (with their own torque: nothing follows them), close the

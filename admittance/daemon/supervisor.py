@@ -188,7 +188,7 @@ class Supervisor:
         info = {}
         for j in self.cfg.joints:
             plant = j.plant or {}
-            entry = {"params_file": j.params, "rate_hz": self.cfg.loop.rate_hz,
+            entry = {"model": j.model, "params_file": j.params, "rate_hz": self.cfg.loop.rate_hz,
                      "sync_read_divisor": self.cfg.loop.sync_read_divisor,
                      "friction": str(plant.get("model", {}).get("friction", "stick")),
                      "plant": dict(plant.get("params", {}))}

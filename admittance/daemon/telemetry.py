@@ -21,6 +21,7 @@ from admittance.daemon.messages import JointState, State
 TICKS_PER_REV = 4096
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 NOT_READ = -1  # present_tick of a cycle that did not read the servo
+FLAG_HOLD = 1  # flags bit: the force was stale and the model held
 
 
 def tick_to_rad(tick: np.ndarray | int, joint) -> np.ndarray | float:
@@ -49,6 +50,7 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "theta_goal": tick_to_rad(rows["goal_tick"], joint),
             "theta_present": tick_to_rad(present, joint),
             "cycle": rows["cycle"].astype(float),
+            "held": (rows["flags"] & FLAG_HOLD).astype(float),
         }
     return out
 

@@ -11,6 +11,11 @@ The force sensor is a :mod:`admittance.mockbench.sensor` mock. One hand-torque p
 both: the hand pushes on the sensor mounted on the horn, so at each sensor sample the same τ(t)
 goes to the sensor (as F = τ / lever_arm) and to the horn (``bus.set_external_torque``). Doing
 both in the sensor's thread keeps them consistent without a second 1 kHz thread.
+
+Two options change the simulated truth for fidelity checks (docs/fidelity.md): ``hand`` =
+(inertia, damping, stiffness) makes the hand grip the horn, so the sensor reads the torque it
+transmits (the profile is then the muscle's torque), and a servo's ``first_order_lag`` (s)
+replaces its firmware and motor by a horn that lags its goal.
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
 SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
-MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name")
+MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
+                            "first_order_lag")
 
 
 @dataclass
@@ -67,6 +73,9 @@ class BenchConfig:
     can_channel: str = "admittance-mock"
     can_id: int = 0x100
     seed: int = 0
+    # A hand gripping the horn: (inertia kg·m², damping N·m·s/rad, stiffness N·m/rad); None = a pure torque.
+    hand: tuple[float, float, float] | None = None
+    first_order_lag: float | None = None  # s: every servo lags its goal instead of firmware + motor
 
 
 def params_path(model: str) -> Path:
@@ -108,6 +117,8 @@ def _servo_spec(servo: Mapping[str, Any], config: BenchConfig) -> dict[str, Any]
     model = servo.get("model", config.model)
     params, friction = load_plant(model, servo.get("params_file", config.params_file), config.effects)
     extra = {key: servo[key] for key in MOCKBUS_PASSTHROUGH_KEYS if key in servo}
+    if config.first_order_lag is not None:
+        extra.setdefault("first_order_lag", config.first_order_lag)
     return extra | {
         "id": int(servo["id"]),
         "model": model,
@@ -151,6 +162,11 @@ class MockBench:
             noise_std_n=cfg.noise_std_n,
         )
         self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay)
+        if cfg.hand is not None:
+            try:
+                self.bus.set_hand(self.hand_servo_id, *cfg.hand)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"MockBench: hand: {exc}") from None
         self.sensor = self._make_sensor()
         self._running = False
 
@@ -171,9 +187,12 @@ class MockBench:
         return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed)
 
     def _hand_torque(self, t: float) -> float:
+        """The torque the sensor reads: the profile's, or with a gripping hand what it transmits."""
         tau = self.profile(t)
         self.bus.set_external_torque(self.hand_servo_id, tau)
-        return tau
+        if self.config.hand is None:
+            return tau
+        return self.bus.servo_state(self.hand_servo_id)["hand_torque"]
 
     @property
     def bus_port(self) -> str:

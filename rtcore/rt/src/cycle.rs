@@ -25,7 +25,7 @@ use crate::joint::{integrate, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
 use crate::sensor::{ForceIntake, Intake};
 use crate::shared::Shared;
-use crate::telemetry::{LoopStats, Record};
+use crate::telemetry::{LoopStats, Record, FLAG_HOLD};
 use plant::State;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -186,10 +186,11 @@ impl Controller {
         let force = self.condition_force(&intake.newest.forces);
         let steps = self.steps_due(deadline_ns);
         self.step_joints(&force, intake.stale, steps);
+        let flags = if intake.stale { FLAG_HOLD } else { 0 };
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
         let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
-        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
+        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read, flags);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
     }
 
@@ -335,7 +336,7 @@ impl Controller {
         }
     }
 
-    fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool) {
+    fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool, flags: i64) {
         let stats = &self.shared.stats;
         for (slot, &goal) in self.joints.iter().zip(&self.goals) {
             let record = Record {
@@ -350,6 +351,7 @@ impl Controller {
                 present_tick: if read { slot.present } else { -1 },
                 period_error_ns: period_error_ns as i64,
                 latency_ns,
+                flags,
             };
             if self.telemetry.push(record).is_err() {
                 LoopStats::add(&stats.telemetry_drops, 1);

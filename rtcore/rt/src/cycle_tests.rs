@@ -133,6 +133,7 @@ fn stale_force_holds_position_and_counts_one_event() {
     }
     let first_hold = held.iter().position(|rec| rec.omega == 0.0).unwrap();
     assert!(first_hold >= 49, "held too early: {first_hold}");
+    assert!(held.iter().enumerate().all(|(k, rec)| (rec.flags == crate::telemetry::FLAG_HOLD) == (k >= first_hold)));
     let hold_theta = held[first_hold].theta;
     assert!(held[first_hold..].iter().all(|rec| rec.theta == hold_theta && rec.omega == 0.0));
     assert_eq!(r.shared.stats.sensor_stale_events.load(Ordering::Relaxed), 1);

@@ -31,10 +31,15 @@ pub struct Record {
     pub period_error_ns: i64,
     /// Arrival of the sample this SyncWrite used first → end of the write; −1 when no new sample.
     pub latency_ns: i64,
+    /// Bit set: `FLAG_HOLD` (the force was stale: the model held instead of integrating).
+    pub flags: i64,
 }
 
+/// `Record::flags` bit: the cycle held (stale force); its model angle did not follow the torque.
+pub const FLAG_HOLD: i64 = 1;
+
 /// The field names in layout order, each 8 bytes: (name, numpy type code).
-pub const RECORD_FIELDS: [(&str, &str); 11] = [
+pub const RECORD_FIELDS: [(&str, &str); 12] = [
     ("cycle", "<u8"),
     ("t_ns", "<u8"),
     ("id", "<i8"),
@@ -46,6 +51,7 @@ pub const RECORD_FIELDS: [(&str, &str); 11] = [
     ("present_tick", "<i8"),
     ("period_error_ns", "<i8"),
     ("latency_ns", "<i8"),
+    ("flags", "<i8"),
 ];
 
 impl Record {
@@ -57,7 +63,7 @@ impl Record {
         for v in [self.force, self.torque, self.theta, self.omega] {
             out.extend_from_slice(&v.to_le_bytes());
         }
-        for v in [self.goal_tick, self.present_tick, self.period_error_ns, self.latency_ns] {
+        for v in [self.goal_tick, self.present_tick, self.period_error_ns, self.latency_ns, self.flags] {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
@@ -127,7 +133,7 @@ mod tests {
 
     #[test]
     fn the_byte_layout_matches_the_field_table() {
-        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, ..Default::default() };
+        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, flags: FLAG_HOLD, ..Default::default() };
         let mut out = Vec::new();
         r.write_le(&mut out);
         assert_eq!(out.len(), 8 * RECORD_FIELDS.len());
@@ -139,5 +145,6 @@ mod tests {
         assert_eq!(i64::from_le_bytes(field("id")), -2);
         assert_eq!(f64::from_le_bytes(field("theta")), 0.5);
         assert_eq!(i64::from_le_bytes(field("latency_ns")), -1);
+        assert_eq!(i64::from_le_bytes(field("flags")), FLAG_HOLD);
     }
 }
