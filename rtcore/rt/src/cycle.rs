@@ -85,6 +85,9 @@ pub struct Controller {
     params: triple_buffer::Output<LoopParams>,
     bus: JointBus,
     sync_read_divisor: u64,
+    /// A due read failed last cycle: try once more now (a recording's row, and the rendering
+    /// error, would otherwise wait a whole divisor).
+    read_retry: bool,
     cycle: u64,
     /// The deadline the model has been integrated up to.
     model_ns: Option<u64>,
@@ -133,6 +136,7 @@ impl Controller {
             params: parts.params,
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
+            read_retry: false,
             cycle: 0,
             model_ns: None,
             latency_from_ns: None,
@@ -316,17 +320,22 @@ impl Controller {
         }
     }
 
-    /// Reads the present positions when due; true if this cycle read them.
+    /// Reads the present positions when due, or once more the cycle after a due read failed;
+    /// true if this cycle read them. A silent servo so costs at most two reads per divisor.
     fn read_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> bool {
-        if self.sync_read_divisor == 0 || !self.cycle.is_multiple_of(self.sync_read_divisor) {
+        let due = self.sync_read_divisor > 0 && self.cycle.is_multiple_of(self.sync_read_divisor);
+        let retry = std::mem::take(&mut self.read_retry);
+        if !due && !retry {
             return false;
         }
+        self.read_retry = due && self.sync_read_divisor > 1;
         match self.bus.read_present(t, deadline_ns) {
             Ok(ticks) => {
                 for (slot, &tick) in self.joints.iter_mut().zip(ticks) {
                     slot.present = tick;
                 }
                 LoopStats::add(&self.shared.stats.sync_reads, 1);
+                self.read_retry = false;
                 true
             }
             Err(_) => {

@@ -206,6 +206,17 @@ fn present_positions_are_read_every_divisor_cycles() {
     r.ctl.begin(r.clock.now_ns());
     let present: Vec<i64> = (0..8).map(|_| r.cycle_with(Some(0.0)).present_tick).collect();
     assert_eq!(present, vec![2100, -1, -1, -1, 2100, -1, -1, -1]);
+    // A due read that fails is tried once more on the next cycle (and no more after that).
+    let servos = r.bus.0.lock().unwrap().present.clone();
+    let mut run = |r: &mut Rig, answering: bool| {
+        r.bus.0.lock().unwrap().present = if answering { servos.clone() } else { Vec::new() };
+        r.cycle_with(Some(0.0)).present_tick
+    };
+    let silent_twice: Vec<i64> = [false, false, true, true, true].iter().map(|&a| run(&mut r, a)).collect();
+    assert_eq!(silent_twice, vec![-1, -1, -1, -1, 2100], "cycles 8 (due), 9 (retry), 10, 11, 12 (due)");
+    let _ = [true, true, true].map(|a| run(&mut r, a)); // cycles 13..15
+    let retried: Vec<i64> = [false, true, true].iter().map(|&a| run(&mut r, a)).collect();
+    assert_eq!(retried, vec![-1, 2100, -1], "cycle 16 fails, 17 retries, 18 is not due");
 }
 
 /// A bus whose writes take `cost_ns` of fake time: a slow cycle.
