@@ -223,6 +223,27 @@ def test_bad_input_is_one_line_and_a_non_zero_exit(tmp_path, capsys, lag_recordi
     assert "no present positions" in one_line_error(["fidelity", str(model_only), "--json", out], capsys)
 
 
+def test_holds_and_read_gaps_cut_the_segments(lag_recording):
+    """A hold (stale force) and a 0.1 s hole in the reads each cut a segment; a stretch under 1 s
+    between two cuts is dropped."""
+    import dataclasses
+
+    from admittance.fidelity.recording import MAX_GAP_S, _runs, load_recording
+
+    segment = load_recording(lag_recording[0]).of_joint(1)[0]
+    n = segment.n
+    held = np.zeros(n)
+    held[n // 4] = 1.0
+    t = 2.0 * segment["t"]  # a 6 s segment: room for three stretches of more than 1 s
+    keep = np.ones(n, bool)
+    keep[n // 2: n // 2 + int(0.1 / np.median(np.diff(t)))] = False
+    columns = {k: v[keep] for k, v in {**segment.columns, "held": held, "t": t}.items()}
+    runs = _runs(dataclasses.replace(segment, columns=columns))
+    assert len(runs) == 3 and all(r["held"].sum() == 0 for r in runs)
+    assert all(np.diff(r["t"]).max() <= MAX_GAP_S for r in runs)
+    assert sum(r.n for r in runs) == keep.sum() - 1
+
+
 def test_a_recording_without_present_columns_is_refused(tmp_path):
     from admittance.fidelity.recording import load_recording
 
