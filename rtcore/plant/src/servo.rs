@@ -34,7 +34,7 @@ use rayon::prelude::*;
 
 use crate::error::{require_finite, PlantError};
 use crate::model::State;
-use crate::trial::{substep_count, validate_max_step, TorqueCursor};
+use crate::trial::{validate_max_step, walk, TorqueCursor, Walk};
 
 /// Number of servo-model parameters.
 pub const N_SERVO_PARAMS: usize = 5;
@@ -208,18 +208,11 @@ impl ServoTrial {
 pub fn simulate_into<F: FnMut(usize, &State)>(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64, mut record: F) {
     let mut goal = TorqueCursor::new(&trial.t_in, &trial.goal);
     let mut tau = TorqueCursor::new(&trial.t_in, &trial.tau);
-    let t = &trial.t;
     let mut state = x0;
-    record(0, &state);
-    for i in 1..t.len() {
-        let n = substep_count(t[i] - t[i - 1], max_step);
-        let h = (t[i] - t[i - 1]) / n as f64;
-        for k in 0..n {
-            let tk = t[i - 1] + k as f64 * h;
-            step(&mut state, model, goal.at(tk - model.dead_time), tau.at(tk), h);
-        }
-        record(i, &state);
-    }
+    walk(&trial.t, max_step, |event| match event {
+        Walk::Substep { t, h } => step(&mut state, model, goal.at(t - model.dead_time), tau.at(t), h),
+        Walk::Sample(i) => record(i, &state),
+    });
 }
 
 /// The horn angle at every sample time of `trial`, after checking the inputs.

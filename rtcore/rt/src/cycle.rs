@@ -285,6 +285,9 @@ impl Controller {
             }
             slot.compensation.advance(self.h, self.ramp_time_s);
             let State { theta, omega } = slot.state;
+            // A model brought to rest within one step (a stick, a position limit) decelerated
+            // by ω/h: the reference stops, and the servo is to hold, not to brake that hard.
+            let alpha = if omega == 0.0 { 0.0 } else { alpha };
             let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold);
             // The lead may not carry the goal past a position limit (a state already outside a
             // narrowed range stays where it is, as the integrator lets it).

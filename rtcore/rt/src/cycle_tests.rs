@@ -324,6 +324,20 @@ fn turning_the_compensation_on_and_off_never_steps_the_goal() {
     assert!(worst <= limit, "a step of {worst} ticks (limit {limit})");
 }
 
+#[test]
+fn a_position_limit_stops_the_model_without_kicking_the_goal_back() {
+    let mut p = free_joint();
+    p.joints[0].servo = Some(plant::servo::ServoModel { inertial_time: 0.02, ..lagging_servo() });
+    p.joints[0].compensation = 1.0;
+    p.joints[0].limits.position_max = 0.05;
+    let mut r = started(p, &[(1, 2048)]);
+    let goals: Vec<i64> = (0..400).map(|_| r.cycle_with(Some(2.0)).goal_tick).collect();
+    let limit_tick = 2048 + (0.05 * 4096.0 / std::f64::consts::TAU).round() as i64;
+    assert!(goals.iter().all(|&g| g <= limit_tick), "never past the limit");
+    // At rest against the limit the lead is only the hand's deflection (s·τ = 2 mrad, 1.3 ticks).
+    assert!(goals.windows(2).all(|w| w[1] >= w[0] - 2), "no kick back from it: {goals:?}");
+}
+
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
 mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
