@@ -156,6 +156,11 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
             rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "virtual_inertia": -1.0})
             assert rejected["accepted"] is False and "inertia" in rejected["reason"]
             assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2  # all or nothing
+            # mx64.toml has no [servo] model: compensation cannot be turned on, and nothing else changes
+            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "servo_compensation": 1})
+            assert rejected["accepted"] is False and "servo model" in rejected["reason"]
+            assert client.query_params(PREFIX)["params"]["1.servo_compensation"] == 0.0
+            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2
             wait_for_cycles(client, PREFIX, int(RATE_HZ))  # the 0.5 s ramp, then several I/B
     assert daemon.returncode == 0, daemon.stderr
     rec = read_recording(tmp_path / "rec")

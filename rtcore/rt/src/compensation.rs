@@ -8,6 +8,14 @@
 //! exactly each cycle, and the hand's torque, which it measures. No numerical differentiation,
 //! no knowledge of how the servo is built beyond what the recording showed.
 //!
+//! The model's acceleration enters the lead through the servo's inertial term (T·m·α): it is
+//! what makes a second-order servo's horn keep up, and it is also the measured force divided by
+//! the virtual inertia, so through a hand gripping the horn it feeds the hand's own inertial
+//! torque back to the goal with a gain of T·m·I_hand/I_virtual at every frequency, cancelling
+//! the servo's inertial roll-off: a light virtual joint then oscillates with the hand
+//! (docs/fidelity.md, "smallest stable inertia"). So the acceleration is low-passed at twice the
+//! servo's natural frequency 1/√(m·T), where the servo stops following anyway.
+//!
 //! w is a weight in [0, 1] (`servo_compensation`). It never jumps: a change blends linearly
 //! over the loop's ramp time, but over at least `MIN_BLEND_S`, so that even with
 //! `ramp_time_s = 0` turning the compensation on or off cannot step the goal by the whole lead.
@@ -28,12 +36,14 @@ pub struct Compensation {
     to: f64,
     progress: f64,
     lead: f64,
+    /// The acceleration the lead uses (low-passed, see the module doc).
+    alpha: f64,
 }
 
 impl Compensation {
     /// A joint's compensation at `weight` (already validated: 0 without a model).
     pub fn new(model: Option<ServoModel>, weight: f64) -> Self {
-        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0 }
+        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0, alpha: 0.0 }
     }
 
     /// The weight it blends to now.
@@ -68,10 +78,14 @@ impl Compensation {
     /// The angle to send as the goal for a model at `theta` moving at `omega` with
     /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
     /// the last cycle is kept, so holding never moves the goal.
-    pub fn goal(&mut self, theta: f64, omega: f64, alpha: f64, tau: f64, hold: bool) -> f64 {
+    /// `h` is the cycle's step (for the acceleration's filter).
+    pub fn goal(&mut self, theta: f64, omega: f64, alpha: f64, tau: f64, hold: bool, h: f64) -> f64 {
         let Some(model) = self.model else { return theta };
         if !hold {
-            self.lead = lead(&model, omega, alpha, tau).clamp(-MAX_LEAD, MAX_LEAD);
+            let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
+            let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
+            self.alpha += (alpha - self.alpha) * share;
+            self.lead = lead(&model, omega, self.alpha, tau).clamp(-MAX_LEAD, MAX_LEAD);
         }
         theta + self.weight * self.lead
     }
@@ -87,15 +101,15 @@ mod tests {
     #[test]
     fn without_a_model_the_goal_is_the_model_angle() {
         let mut c = Compensation::new(None, 0.0);
-        assert_eq!(c.goal(0.3, 2.0, 5.0, 0.4, false), 0.3);
+        assert_eq!(c.goal(0.3, 2.0, 5.0, 0.4, false, 1e-3), 0.3);
     }
 
     #[test]
     fn the_lead_is_the_inverted_servo_model_weighted_and_clipped() {
         let mut c = Compensation::new(Some(LAG), 1.0);
-        let g = c.goal(0.1, 1.0, 0.0, 0.5, false);
+        let g = c.goal(0.1, 1.0, 0.0, 0.5, false, 1e-3);
         assert!((g - (0.1 + 0.025 + 0.002 - 0.005)).abs() < 1e-12, "{g}");
-        assert_eq!(c.goal(0.1, 100.0, 0.0, 0.0, false), 0.1 + MAX_LEAD);
+        assert_eq!(c.goal(0.1, 100.0, 0.0, 0.0, false, 1e-3), 0.1 + MAX_LEAD);
     }
 
     #[test]
@@ -103,10 +117,10 @@ mod tests {
         let mut c = Compensation::new(Some(LAG), 0.0);
         c.retarget(Some(LAG), 1.0);
         let h = 1e-3;
-        let mut last = c.goal(0.0, 1.0, 0.0, 0.0, false);
+        let mut last = c.goal(0.0, 1.0, 0.0, 0.0, false, h);
         for _ in 0..(MIN_BLEND_S / h) as usize + 5 {
             c.advance(h, 0.0);
-            let g = c.goal(0.0, 1.0, 0.0, 0.0, false);
+            let g = c.goal(0.0, 1.0, 0.0, 0.0, false, h);
             assert!(g - last <= 0.027 * h / MIN_BLEND_S + 1e-12, "a step of {}", g - last);
             last = g;
         }
@@ -116,7 +130,7 @@ mod tests {
     #[test]
     fn holding_freezes_the_lead() {
         let mut c = Compensation::new(Some(LAG), 1.0);
-        let moving = c.goal(0.2, 1.0, 0.0, 0.3, false);
-        assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true), moving);
+        let moving = c.goal(0.2, 1.0, 0.0, 0.3, false, 1e-3);
+        assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true, 1e-3), moving);
     }
 }

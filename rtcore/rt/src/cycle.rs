@@ -288,7 +288,7 @@ impl Controller {
             // A model brought to rest within one step (a stick, a position limit) decelerated
             // by ω/h: the reference stops, and the servo is to hold, not to brake that hard.
             let alpha = if omega == 0.0 { 0.0 } else { alpha };
-            let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold);
+            let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, self.h);
             // The lead may not carry the goal past a position limit (a state already outside a
             // narrowed range stays where it is, as the integrator lets it).
             let led = led.clamp(slot.limits.position_min.min(theta), slot.limits.position_max.max(theta));
