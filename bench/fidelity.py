@@ -15,9 +15,11 @@ per session):
    friction, so that one sine pins I and B;
 3. **smallest stable inertia** (Keemink et al., IJRR 2018): a hand that grips the horn (its
    inertia rides on it, its arm's damping and stiffness pull it back; the sensor reads what it
-   transmits) pushes and lets go; the virtual inertia is halved until the horn keeps
-   oscillating after the release, then bisected; the figure is the smallest stable virtual
-   inertia over the servo's own (the plant file's motor_inertia; the load is 0).
+   transmits; on the lag servo, a position source, without inertia) pushes and lets go every
+   3 s; the virtual inertia is halved until the horn's wobble a second after the push no longer
+   dies out (the RMS in 2.0–2.75 s is over half that in 1.0–1.75 s and over a tick), then
+   bisected; the figure is the smallest stable virtual inertia over the servo's own (the plant
+   file's motor_inertia; the load is 0).
 
 All data are synthetic: the simulated bench, on a shared 2-core machine (the load is printed;
 under load the mock bus's thread starves, reads fail and the fidelity tool cuts the recording
@@ -58,6 +60,9 @@ MOTION_RAD = 0.15  # the model's sine amplitude each hand profile aims at
 # With the MX-64's own inertia as the virtual one the coupled joint is damped at ζ ≈ 0.45: after
 # a push it settles within half a second, so what still moves a second later is the loop's doing.
 HAND = {"hand_inertia": 0.0055, "hand_damping": 0.15, "hand_stiffness": 2.0}
+# The lag servo's horn is a position source (it follows its goal whatever pushes it): a mass on it
+# would only feel an impulse at each goal tick, so there the hand has its damping and stiffness.
+HANDS = {"BAM MX-64": HAND, "lag 25 ms": {**HAND, "hand_inertia": 0.0}}
 PERIOD_S = 3.0  # the push-release profile's period
 WINDOWS_S = ((1.0, 1.75), (2.0, 2.75))  # after each push: the wobble in the second must not persist
 SUSTAINED = 0.5  # late/early wobble ratio above which the oscillation does not die out
@@ -230,13 +235,15 @@ def smallest_stable(work: Path, servo: str, lag: float, params: Path, comp: floa
             folder, stats = session(work, name, params=params, profile=profile, seconds=seconds,
                                     joint={"virtual_inertia": inertia, "virtual_damping": 0.0347,
                                            "virtual_coulomb": 0.0, "servo_compensation": comp},
-                                    bench={"servo_lag_s": lag, **HAND})
+                                    bench={"servo_lag_s": lag, **HANDS[servo]})
             early, late = wobble(folder)
+            rendered = rendered_inertia(folder) if not sustained(early, late) else None
             tried[inertia] = {"early": early, "late": late, "stable": not sustained(early, late),
+                              "rendered_inertia": rendered,
                               "overruns": stats["overruns"], "bus_errors": stats["bus_errors"]}
             print(f"  {servo}, compensation {comp:g}: I = {inertia:.5f} ({inertia / own:.3f} of the servo's) wobble "
-                  f"{1e3 * early:.2f} → {1e3 * late:.2f} mrad: {'stable' if tried[inertia]['stable'] else 'SUSTAINED'}",
-                  flush=True)
+                  f"{1e3 * early:.2f} → {1e3 * late:.2f} mrad: {'stable' if tried[inertia]['stable'] else 'SUSTAINED'}"
+                  + (f", rendered I {rendered:.5f} ({rendered / own:.3f})" if rendered else ""), flush=True)
         return tried[inertia]["stable"]
 
     hi = own
@@ -249,11 +256,31 @@ def smallest_stable(work: Path, servo: str, lag: float, params: Path, comp: floa
     while stable(lo):
         hi, lo = lo, lo / 2
         if lo < own / 64:
-            return {"smallest_stable": hi, "ratio": hi / own, "note": "search floor", "tried": tried}
+            return {"smallest_stable": hi, "ratio": hi / own, "note": "search floor", "tried": tried,
+                **smallest_rendered(tried, own)}
     for _ in range(steps):
         mid = math.sqrt(lo * hi)
         hi, lo = (mid, lo) if stable(mid) else (hi, mid)
-    return {"smallest_stable": hi, "ratio": hi / own, "unstable_below": lo, "tried": tried}
+    return {"smallest_stable": hi, "ratio": hi / own, "unstable_below": lo, "tried": tried,
+            **smallest_rendered(tried, own)}
+
+
+def rendered_inertia(folder: Path) -> float | None:
+    """The inertia the horn really rendered (`identify` on the measured angle, the sensor's torque
+    in), or None when the recording has no usable stretch."""
+    from admittance.errors import DataError
+
+    try:
+        return float(analyse(folder)["rendered"]["virtual_inertia"])
+    except DataError:
+        return None
+
+
+def smallest_rendered(tried: dict, own: float) -> dict:
+    """Among the stable runs, the smallest inertia the horn rendered: what the hand felt, which a
+    compliant servo without compensation adds its own horn to."""
+    rendered = [v["rendered_inertia"] for v in tried.values() if v["stable"] and v["rendered_inertia"]]
+    return {"smallest_rendered": min(rendered) / own if rendered else None}
 
 
 def plot(rows: list[dict], out: Path) -> None:
@@ -312,7 +339,7 @@ def main() -> int:
             results["sweep"] += sweep(work, servo, lag, params, args.seconds, frequencies)
         if not args.skip_inertia:
             for servo, lag in SERVOS.items():
-                params, model = identify_servo(work, servo, lag, 2 * args.seconds, HAND)
+                params, model = identify_servo(work, servo, lag, 2 * args.seconds, HANDS[servo])
                 results["servo_models"][f"{servo}, gripping hand"] = model
                 results["smallest_stable"][servo] = {
                     key: smallest_stable(work, servo, lag, params, comp, 3 * PERIOD_S + 1.5, 2 if args.quick else 3)
@@ -324,7 +351,9 @@ def main() -> int:
     for servo, pair in results["smallest_stable"].items():
         off, on = pair["off"]["ratio"], pair["on"]["ratio"]
         print(f"smallest stable virtual inertia, {servo}: off {off}, on {on} of the servo's own"
-              + (f" ({off / on:.2f}× lower with compensation)" if off and on else ""))
+              + (f" ({off / on:.2f}× lower with compensation)" if off and on else "")
+              + f"; smallest rendered inertia when stable: off {pair['off'].get('smallest_rendered')}, "
+              f"on {pair['on'].get('smallest_rendered')}")
     plot(results["sweep"], args.plots)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str) + "\n")
