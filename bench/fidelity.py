@@ -284,36 +284,46 @@ def smallest_rendered(tried: dict, own: float) -> dict:
 
 
 def plot(rows: list[dict], out: Path) -> None:
+    """Per servo: the rendered θ/τ against the target's (magnitude, phase), and their ratio."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
+    lagging = lambda z: np.degrees(np.angle(z)) - 360.0 * (np.angle(z) > 0)  # noqa: E731  (−360, 0]: no wrap
     for servo in SERVOS:
         pts = [r for r in rows if r["servo"] == servo and r["frequency"]]
         if not pts:
             continue
         f = np.array([r["frequency"] for r in pts])
-        fig, (mag, ph) = plt.subplots(2, 1, figsize=(6.5, 5.5), sharex=True)
+        t_pts = np.array([complex(*r["target_response"]) for r in pts])
+        fig, ((mag, ratio), (ph, dph)) = plt.subplots(2, 2, figsize=(10, 6), sharex=True)
         fine = np.geomspace(0.25, 3.5, 100)
         target = np.array([target_response(x, LINEAR) for x in fine])
         mag.loglog(fine, np.abs(target), "k-", label="target 1/(I·s² + B·s)")
-        ph.semilogx(fine, np.degrees(np.angle(target)), "k-")
+        ph.semilogx(fine, lagging(target), "k-")
+        ratio.semilogx(fine, np.ones_like(fine), "k-")
+        dph.semilogx(fine, np.zeros_like(fine), "k-")
         for key, style, label in (("off", "o--", "horn, compensation off"), ("on", "s-", "horn, compensation on")):
             h = np.array([complex(*r[key]["response"]["theta"]) for r in pts])
             mag.loglog(f, np.abs(h), style, label=label)
-            ph.semilogx(f, np.degrees(np.angle(h)), style)
-        for axis in (mag, ph):
+            ph.semilogx(f, lagging(h), style)
+            ratio.semilogx(f, np.abs(h / t_pts), style)
+            dph.semilogx(f, np.degrees(np.angle(h / t_pts)), style)
+        for axis in (mag, ph, ratio, dph):
             axis.set_xticks(list(FREQUENCIES), [f"{x:g}" for x in FREQUENCIES])
             axis.minorticks_off()
         mag.set_ylabel("|θ/τ| (rad/N·m)")
-        ph.set_ylabel("phase (°)")
-        ph.set_xlabel("hand frequency (Hz)")
+        ph.set_ylabel("phase of θ/τ (°)")
+        ratio.set_ylabel("|rendered / target|")
+        dph.set_ylabel("phase of rendered / target (°)")
+        for axis in (ph, dph):
+            axis.set_xlabel("hand frequency (Hz)")
         mag.legend(fontsize=8)
-        mag.set_title(f"rendered admittance, {servo} (simulated bench)")
+        fig.suptitle(f"rendered admittance, {servo} (simulated bench)")
         fig.tight_layout()
-        fig.savefig(out / f"response_{slug(servo)}.png", dpi=90)
+        fig.savefig(out / f"response_{slug(servo)}.png", dpi=80)
         plt.close(fig)
 
 

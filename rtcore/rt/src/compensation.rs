@@ -85,7 +85,10 @@ impl Compensation {
             let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
-            self.lead = lead(&model, omega, self.alpha, tau).clamp(-MAX_LEAD, MAX_LEAD);
+            let led = lead(&model, omega, self.alpha, tau);
+            // Finite inputs and a validated model give a finite lead; a NaN would still reach the
+            // goal tick as tick 0 (a jump across the range), so it is refused here too.
+            self.lead = if led.is_finite() { led.clamp(-MAX_LEAD, MAX_LEAD) } else { self.lead };
         }
         theta + self.weight * self.lead
     }

@@ -208,7 +208,7 @@ fn present_positions_are_read_every_divisor_cycles() {
     assert_eq!(present, vec![2100, -1, -1, -1, 2100, -1, -1, -1]);
     // A due read that fails is tried once more on the next cycle (and no more after that).
     let servos = r.bus.0.lock().unwrap().present.clone();
-    let mut run = |r: &mut Rig, answering: bool| {
+    let run = |r: &mut Rig, answering: bool| {
         r.bus.0.lock().unwrap().present = if answering { servos.clone() } else { Vec::new() };
         r.cycle_with(Some(0.0)).present_tick
     };
