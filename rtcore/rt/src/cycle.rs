@@ -52,9 +52,9 @@ struct JointSlot {
     compensation: Compensation,
 }
 
-/// At most this many steps catch up on skipped deadlines in one cycle (50 ms at 1 kHz); a
-/// longer stall loses the rest of its time rather than integrating it in one burst.
-const MAX_CATCH_UP_STEPS: u64 = 50;
+/// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
+/// longer stall loses the rest of its time rather than jumping the goal by that much motion.
+const MAX_CATCH_UP_STEPS: u64 = 10;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
