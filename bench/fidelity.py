@@ -27,7 +27,7 @@ at the gaps, see docs/fidelity.md). Usage::
 
     .venv/bin/python bench/fidelity.py [--seconds 12] [--quick] [--plots docs/fidelity]
 
-takes about 15 minutes (``--quick``: 3 frequencies, a coarser search, about 6).
+takes about 15 minutes (``--quick``: 3 frequencies, a coarser search, about 8).
 """
 
 from __future__ import annotations
