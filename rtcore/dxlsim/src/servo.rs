@@ -96,6 +96,9 @@ pub struct Servo {
     current: f64,
     temperature: f64,
     hardware_error: u8,
+    /// Bits raised by `set_hardware_error`: their cause is the injection, so P1 keeps them
+    /// until they are cleared the same way (P2 until a REBOOT).
+    injected: u8,
     time: f64,
     /// A REG_WRITE waiting for ACTION: (address, data).
     pub registered: Option<(u16, Vec<u8>)>,
@@ -132,6 +135,7 @@ impl Servo {
             current: 0.0,
             temperature,
             hardware_error: 0,
+            injected: 0,
             time: 0.0,
             registered: None,
             torque_history: VecDeque::new(),
@@ -258,6 +262,7 @@ impl Servo {
     /// Raises hardware error bits (P2 layout); a bit in the Shutdown mask turns torque off.
     pub fn set_hardware_error(&mut self, bits: u8) {
         self.hardware_error = bits;
+        self.injected = bits;
         self.enforce_shutdown();
         self.publish();
     }
@@ -292,6 +297,7 @@ impl Servo {
     fn reset_ram(&mut self) {
         self.table.reload_ram();
         self.hardware_error = 0;
+        self.injected = 0;
         self.registered = None;
         self.stalled_s = 0.0;
         self.torque_was_on = false;
@@ -343,7 +349,7 @@ impl Servo {
         if self.stalled_s >= limit_s {
             self.hardware_error |= HW_OVERLOAD;
         } else if self.spec.protocol == Protocol::V1 && self.stalled_s == 0.0 {
-            self.hardware_error &= !HW_OVERLOAD; // P1 clears a bit once its cause is gone
+            self.hardware_error &= !(HW_OVERLOAD & !self.injected); // P1 clears a bit once its cause is gone
         }
     }
 
@@ -471,7 +477,7 @@ impl Servo {
             if active {
                 self.hardware_error |= bit;
             } else if self.spec.protocol == Protocol::V1 {
-                self.hardware_error &= !bit;
+                self.hardware_error &= !(bit & !self.injected);
             }
         }
     }
