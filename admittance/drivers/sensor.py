@@ -59,16 +59,18 @@ class EventLog:
     back, to a hook ``(kind, message)``: a stream that fails 1000 times a second must not
     flood the journal, and the first of a kind is never delayed."""
 
-    def __init__(self, hook: Callable[[str, str], None] | None = None, repeat_s: float = EVENT_REPEAT_S):
+    def __init__(self, hook: Callable[[str, str], None] | None = None, repeat_s: float = EVENT_REPEAT_S,
+                 clock: Callable[[], float] = time.monotonic):
         self.hook = hook or _log_event
         self.repeat_s = repeat_s
+        self.clock = clock
         self.counts: dict[str, int] = {}
         self._last: dict[str, float] = {}
         self._held: dict[str, int] = {}
 
     def __call__(self, kind: str, message: str) -> None:
         self.counts[kind] = self.counts.get(kind, 0) + 1
-        now = time.monotonic()
+        now = self.clock()
         last = self._last.get(kind)
         if last is not None and now - last < self.repeat_s:
             self._held[kind] = self._held.get(kind, 0) + 1
