@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import signal
 import socket
 import subprocess
 import sys
@@ -96,3 +97,21 @@ def first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
         proc.kill()
         pytest.fail(f"mock-bench printed nothing; stderr: {proc.stderr.read()}")
     return proc.stdout.readline()
+
+
+@contextlib.contextmanager
+def mock_bench_process(*args: str, stop: int = signal.SIGTERM) -> Iterator[tuple[subprocess.Popen, dict]]:
+    """``admittance mock-bench --print-ports ARGS`` running for the block: yields the process and
+    its ports; on leaving, sends ``stop`` and waits (``proc.returncode`` then holds the exit
+    status; ``proc.stderr_text`` its stderr). Killed if it does not exit."""
+    import json
+
+    proc = start_mock_bench(*args)
+    try:
+        yield proc, json.loads(first_line(proc))
+        proc.send_signal(stop)
+        _, proc.stderr_text = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()

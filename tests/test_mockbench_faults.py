@@ -3,7 +3,6 @@ timed `--faults` script. Each command's effect is checked on the device a client
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 
@@ -17,7 +16,7 @@ from admittance.mockbench.bench import BenchConfig, MockBench
 from admittance.mockbench.control import send
 from admittance.mockbench.faults import FaultScript, check_command
 
-from helpers import first_line, start_mock_bench, wait_until
+from helpers import mock_bench_process, start_mock_bench, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -88,9 +87,7 @@ def test_a_script_is_checked_whole_before_it_runs(tmp_path):
 
 def test_the_control_socket_drives_a_bench_in_another_process(tmp_path):
     sock = str(tmp_path / "bench.sock")
-    proc = start_mock_bench("--profile", "still:torque=0.105", "--control", sock)
-    try:
-        ports = json.loads(first_line(proc))
+    with mock_bench_process("--profile", "still:torque=0.105", "--control", sock) as (proc, ports):
         assert ports["control"] == sock and set(ports["links"]) == {"bus", "sensor"}
         bus_link, sensor_link = ports["links"]["bus"], ports["links"]["sensor"]
         with ServoBus(bus_link, reply_slack_ms=200.0) as servos:
@@ -105,28 +102,16 @@ def test_the_control_socket_drives_a_bench_in_another_process(tmp_path):
         buffer = SampleBuffer()
         with OptoForceSerialReader(sensor_link, 451.89, buffer):
             assert buffer.wait_for(10, timeout=30)
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
+    assert proc.returncode == 0, proc.stderr_text
     assert not os.path.exists(sock), "the socket is removed at exit"
 
 
 def test_a_timed_script_plays_in_another_process_and_a_bad_one_stops_the_bench_at_once(tmp_path):
     script = tmp_path / "faults.txt"
     script.write_text("0.0 bus unplug\n")
-    proc = start_mock_bench("--profile", "still", "--faults", str(script))
-    try:
-        ports = json.loads(first_line(proc))
+    with mock_bench_process("--profile", "still", "--faults", str(script), stop=signal.SIGINT) as (proc, ports):
         assert wait_until(lambda: not os.path.exists(ports["links"]["bus"]), timeout=30)
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0
+    assert proc.returncode == 0, proc.stderr_text
     script.write_text("0.0 bus unplug\n1.0 bus wiggle\n")
     bad = start_mock_bench("--faults", str(script))
     out, err = bad.communicate(timeout=60)
