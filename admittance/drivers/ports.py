@@ -181,10 +181,10 @@ def claim(devices: Iterable[str]) -> Iterator[Claim]:
     """
     held = Claim()
     try:
-        directory = lock_dir()
-        for device in devices:
-            if device:
-                held.take(device, directory)
+        wanted = [device for device in devices if device]
+        directory = lock_dir() if wanted else None  # nothing to claim needs no lock directory
+        for device in wanted:
+            held.take(device, directory)
         yield held
     finally:
         held.release()

@@ -36,9 +36,8 @@ class ControlServer:
         self._stop = threading.Event()
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            with contextlib.suppress(FileNotFoundError):
-                if not os.path.exists(path) or _is_socket(path):
-                    os.unlink(path)  # a socket left by an earlier bench; never any other file
+            if os.path.lexists(path) and _is_socket(path):
+                os.unlink(path)  # a socket left by an earlier bench; never any other file
             self._sock.bind(path)
             self._sock.listen(1)
         except OSError as exc:
