@@ -112,3 +112,14 @@ def test_the_lock_directory_falls_back_when_the_first_choice_is_not_writable(tmp
     monkeypatch.setattr(ports, "SYSTEM_LOCK_DIR", str(tmp_path / "also-missing"))
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     assert ports.lock_dir() == tmp_path
+
+
+def test_nothing_to_claim_needs_no_lock_directory(monkeypatch, tmp_path):
+    monkeypatch.setenv(ports.LOCK_DIR_ENV, str(tmp_path / "missing"))
+    monkeypatch.setattr(ports, "SYSTEM_LOCK_DIR", str(tmp_path / "missing"))
+    monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
+    monkeypatch.setattr(ports.tempfile, "gettempdir", lambda: str(tmp_path / "missing"))
+    with ports.claim(["", ""]) as held:
+        assert held.paths == []
+    with pytest.raises(DeviceError, match="no writable directory"), ports.claim(["/dev/ttyUSB0"]):
+        pass

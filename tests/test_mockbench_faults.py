@@ -117,3 +117,20 @@ def test_a_timed_script_plays_in_another_process_and_a_bad_one_stops_the_bench_a
     out, err = bad.communicate(timeout=60)
     assert bad.returncode != 0 and out == ""
     assert err.strip().count("\n") == 0 and "faults.txt:2" in err
+
+
+def test_the_control_socket_never_replaces_a_file_that_is_not_a_socket(bench, tmp_path):
+    from admittance.errors import DeviceError
+    from admittance.mockbench.control import ControlServer
+
+    precious = tmp_path / "notes.txt"
+    precious.write_text("keep me")
+    with pytest.raises(DeviceError, match="cannot listen on"):
+        ControlServer(bench, str(precious))
+    assert precious.read_text() == "keep me"
+    server = ControlServer(bench, str(tmp_path / "ok.sock"))
+    server.start()
+    try:
+        assert send(str(tmp_path / "ok.sock"), "stats")[0]["stats"]["bus"]["packets"] >= 0
+    finally:
+        server.close()
