@@ -45,10 +45,24 @@ def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:
 MX64_PLANT = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
 
 
+# The SDK waits 34 ms for a status packet (it assumes a 16 ms FTDI latency timer). A machine
+# shared with other jobs may not schedule the simulated bus's thread that soon (seen at load
+# 8-10 on 2 cores), so the tests' ports wait this long: a servo that answers is never missed,
+# and one that should not answer costs this per packet.
+SDK_REPLY_TIMEOUT_MS = 250.0
+
+
+def patient(port):
+    """A dynamixel-sdk PortHandler that waits SDK_REPLY_TIMEOUT_MS for every reply."""
+    port.setPacketTimeout = lambda _length: port.setPacketTimeoutMillis(SDK_REPLY_TIMEOUT_MS)
+    return port
+
+
 @contextlib.contextmanager
 def sdk_on_mock_bus() -> Iterator[Callable]:
     """Yields ``open(servos, protocol=2, **bus_options) -> (bus, port, packet_handler)``: a started
-    MockBus with a dynamixel-sdk PortHandler open on it. Everything opened is closed on exit."""
+    MockBus with a (patient) dynamixel-sdk PortHandler open on it. Everything opened is closed
+    on exit."""
     import dynamixel_sdk as sdk
 
     from admittance import _rtcore
@@ -58,7 +72,7 @@ def sdk_on_mock_bus() -> Iterator[Callable]:
     def _open(servos, protocol=2, **bus_options):
         bus = _rtcore.MockBus(servos=servos, baudrate=1_000_000, **bus_options)
         bus.start()
-        port = sdk.PortHandler(bus.port_path)
+        port = patient(sdk.PortHandler(bus.port_path))
         assert port.openPort() and port.setBaudRate(1_000_000)
         opened.append((bus, port))
         return bus, port, sdk.PacketHandler(float(protocol))

@@ -20,7 +20,7 @@ sdk = pytest.importorskip("dynamixel_sdk")
 from admittance import _rtcore  # noqa: E402
 from admittance.errors import DeviceError  # noqa: E402
 
-from helpers import MX64_PLANT, sdk_on_mock_bus, wait_until  # noqa: E402
+from helpers import MX64_PLANT, patient, sdk_on_mock_bus, wait_until  # noqa: E402
 
 P2_TORQUE, P2_LED, P2_RDT, P2_HW_ERROR, P2_GOAL = 64, 65, 9, 70, 116
 P1_TORQUE = 24
@@ -32,22 +32,11 @@ def servo(servo_id: int = 1, protocol: int = 2, **extra) -> dict:
     return {"id": servo_id, "model": "MX-64", "protocol": protocol, "params": dict(MX64_PLANT), **extra}
 
 
-# The SDK waits 34 ms for a reply; a loaded machine may not schedule the bus thread that soon.
-REPLY_TIMEOUT_MS = 250.0
-
-
 @pytest.fixture
 def open_bus():
-    """``open(servos, protocol=2)``: a started MockBus (replies at once) and an SDK port on it
-    that waits REPLY_TIMEOUT_MS for a reply."""
+    """``open(servos, protocol=2)``: a started MockBus (replies at once) and an SDK port on it."""
     with sdk_on_mock_bus() as open_:
-
-        def open_patient(servos, protocol=2):
-            bus, port, ph = open_(servos, protocol, wire_delay=False)
-            port.setPacketTimeout = lambda _length: port.setPacketTimeoutMillis(REPLY_TIMEOUT_MS)
-            return bus, port, ph
-
-        yield open_patient
+        yield lambda servos, protocol=2: open_(servos, protocol, wire_delay=False)
 
 
 def ok(result: int, error: int = 0) -> None:
@@ -120,7 +109,7 @@ def test_unplug_and_replug_at_the_same_link_for_the_sdk(tmp_path):
     with bus:
         assert os.path.realpath(link) == bus.port_path
         first_pty = bus.port_path
-        port = sdk.PortHandler(link)
+        port = patient(sdk.PortHandler(link))
         assert port.openPort()
         ph = sdk.PacketHandler(2.0)
         ok(*ph.write1ByteTxRx(port, 1, P2_TORQUE, 1))
@@ -132,7 +121,7 @@ def test_unplug_and_replug_at_the_same_link_for_the_sdk(tmp_path):
         port.closePort()
         assert bus.replug() and bus.plugged
         assert os.path.realpath(link) == bus.port_path
-        port = sdk.PortHandler(link)
+        port = patient(sdk.PortHandler(link))
         assert port.openPort()
         assert ph.read1ByteTxRx(port, 1, P2_TORQUE)[:2] == (1, sdk.COMM_SUCCESS), "the servo kept its power"
         port.closePort()
