@@ -51,7 +51,7 @@ def sim(tmp_path):
 def reader_on(sim, **options) -> tuple[of.OptoForceSerialReader, SampleBuffer, Events]:
     buffer, events = SampleBuffer(), Events()
     reader = of.OptoForceSerialReader(sim.link_path, CPN, buffer, **options)
-    reader.set_event_hook(events)
+    reader.set_event_hook(events, repeat_s=600.0)  # a slow run still tells each kind once
     return reader, buffer, events
 
 
@@ -141,17 +141,19 @@ def test_a_failing_hook_does_not_stop_the_events():
     assert events.counts == {"stale": 1}
 
 
-def test_silence_is_counted_and_told_once_then_the_stream_is_fresh_again(sim):
+def test_silence_is_counted_and_told_then_the_stream_is_fresh_again(sim):
     reader, buffer, events = reader_on(sim)
-    reader.stale_after_s = 0.05
+    reader.stale_after_s = 0.1
     with reader:
         assert buffer.wait_for(10, timeout=20)
+        assert wait_until(lambda: not reader.stats()["stale"])
+        before = reader.stats()["stale_events"]  # a starved machine may have paused the stream already
         sim.silence(True)
         assert wait_until(lambda: reader.stats()["stale"])
-        assert reader.stats()["stale_events"] == 1 and reader.stats()["disconnects"] == 0
+        assert reader.stats()["stale_events"] == before + 1 and reader.stats()["disconnects"] == 0
         sim.silence(False)
         assert wait_until(lambda: not reader.stats()["stale"])
-    assert events.kinds().count("stale") == 1 and events.kinds().count("fresh") == 1
+    assert events.kinds().count("stale") == 1 and events.kinds().count("fresh") == 1, "each told once"
 
 
 @pytest.mark.parametrize("policy", ["hold", "pass"])
