@@ -49,7 +49,7 @@ MX64_PLANT = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
 # shared with other jobs may not schedule the simulated bus's thread that soon (seen at load
 # 8-10 on 2 cores), so the tests' ports wait this long: a servo that answers is never missed,
 # and one that should not answer costs this per packet.
-SDK_REPLY_TIMEOUT_MS = 250.0
+SDK_REPLY_TIMEOUT_MS = 500.0
 
 
 def patient(port):
