@@ -217,3 +217,27 @@ def test_the_slcan_can_reader_recreates_its_bus_after_the_adapter_was_unplugged(
             sim.replug()
             assert wait_until(lambda: buffer.total > pushed + 10), "frames flow again through a new python-can bus"
             assert reader.stats()["reconnects"] == 1 and reader.stats()["state"] == "streaming"
+
+
+class _OpensThenFails(_FlakyDevice):
+    """Every reopen succeeds, and the device fails again before a single sample."""
+
+    def _poll(self) -> None:
+        raise OSError(5, "Input/output error")
+
+
+def test_a_device_that_fails_right_after_each_reopen_still_backs_off():
+    sensor = _OpensThenFails(refusals=0)
+    event = sensor._stop_event
+
+    def record(delay=None):
+        sensor.delays.append(delay)
+        if len(sensor.delays) == 7:
+            event.set()  # seen enough: the reader stops
+        return event.is_set()
+
+    event.wait = record
+    with sensor:
+        assert wait_until(lambda: not sensor.running)
+    assert sensor.delays == [0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 2.0], "never back to 0.05 s without a sample"
+    assert sensor.reconnects == 6 and sensor.disconnects == 7

@@ -210,6 +210,9 @@ class ForceSensor(abc.ABC):
         self.events = EventLog()
         self._stale = False
         self._last_arrival = 0.0
+        # The next reopen's wait: it grows while reopens fail, or succeed without a sample
+        # (a device that opens, then fails at once, must not be reopened 20 times a second).
+        self._backoff = self.reconnect_first_s
 
     # -- backend contract --------------------------------------------------------------------
 
@@ -298,15 +301,14 @@ class ForceSensor(abc.ABC):
 
     def _reopen(self) -> None:
         """Reopen with backoff until it works or the reader is stopped."""
-        delay = self.reconnect_first_s
-        while not self._stop_event.wait(delay):
+        while not self._stop_event.wait(self._backoff):
+            self._backoff = min(2 * self._backoff, self.reconnect_max_s)
             try:
                 self._open()
             except Exception as exc:
                 self.reopen_failures += 1
                 self.last_error = str(exc)
                 self.events("reopen_failed", f"{self.describe()} is still gone: {exc}")
-                delay = min(2 * delay, self.reconnect_max_s)
                 continue
             self.reconnects += 1
             self.error = None
@@ -358,6 +360,7 @@ class ForceSensor(abc.ABC):
 
     def _arrived(self) -> None:
         self._last_arrival = time.monotonic()
+        self._backoff = self.reconnect_first_s
         if self._stale:
             self._stale = False
             self.events("fresh", f"{self.describe()}: samples flow again")
