@@ -99,11 +99,13 @@ def test_the_reader_survives_garbage_on_the_line():
     assert stats["resyncs"] >= 1 and stats["checksum_errors"] >= 1
 
 
-def test_a_vanished_device_is_reported_and_reopened_with_backoff():
-    sim = SimulatedOptoForce(make_profile("still"), ForceModel(), rate_hz=333)
+def test_a_vanished_device_is_reported_and_reopened_with_backoff(tmp_path):
+    # Read through the link: a freed /dev/pts number is soon another program's pty, which a
+    # reopening reader must not open instead.
+    sim = SimulatedOptoForce(make_profile("still"), ForceModel(), rate_hz=333, link=str(tmp_path / "ttyACM"))
     sim.start()
     buffer = SampleBuffer()
-    reader = of.OptoForceSerialReader(sim.port_path, 100.0, buffer)
+    reader = of.OptoForceSerialReader(sim.link_path, 100.0, buffer)
     reader.start()
     try:
         assert buffer.wait_for(3, timeout=10)

@@ -141,9 +141,9 @@ class CanForceReader(ForceSensor):
         except Exception as exc:
             if not is_undecodable_frame(exc):
                 raise  # the device failed: ForceSensor._run reports it
-            self.undecodable_frames += 1
             if isinstance(exc.__cause__, UnicodeDecodeError):
                 self._drop_stuck_line()
+            self.undecodable_frames += 1  # counted once handled: what comes after is not flushed
             return None
 
     def _drop_stuck_line(self) -> None:
