@@ -276,3 +276,33 @@ def test_protocol_1_servos_and_the_can_sensor_run_end_to_end(tmp_path, bus, sens
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["sync_reads"] > 100 and stats["sensor_samples"] > 200  # of ~1500 each: room for a loaded machine
+
+
+def test_a_second_daemon_on_the_same_devices_stops_before_touching_them(tmp_path, monkeypatch):
+    """Two daemons configured on one bus and one sensor: the second stops with one line at the
+    claim, and, should it not share the first's lock directory, at its first exclusive open;
+    the first runs on undisturbed."""
+    from admittance.daemon.zenoh_iface import Client
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    monkeypatch.setenv("ADMITTANCE_LOCK_DIR", str(tmp_path))
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir(), (tmp_path / "other").mkdir()
+    with MockBench(BenchConfig(profile="still")) as bench:
+        first, endpoint = daemon_config(tmp_path / "a", bus=bench.bus_port, sensor=bench.sensor_port)
+        second, _ = daemon_config(tmp_path / "b", bus=bench.bus_port, sensor=bench.sensor_port)
+        stats_path = tmp_path / "first.json"
+        with running_daemon(first, "--stats-json", str(stats_path)) as daemon:
+            wait_alive(endpoint, PREFIX)
+            claimed = run_daemon(second, "--duration", "1")
+            monkeypatch.setenv("ADMITTANCE_LOCK_DIR", str(tmp_path / "other"))
+            opened = run_daemon(second, "--duration", "1")
+            with Client([endpoint]) as client:
+                wait_for_cycles(client, PREFIX, 200)
+    holder = f"pid {daemon.proc.pid}"
+    line = one_error_line(claimed)
+    assert claimed.returncode == 3 and line.startswith(f"admittance run: error: cannot claim {bench.bus_port}:") and holder in line
+    line = one_error_line(opened)
+    assert opened.returncode == 3 and "the device is busy" in line and holder in line
+    assert daemon.returncode == 0, daemon.stderr
+    sensor = json.loads(stats_path.read_text())["daemon"]["sensor"]
+    assert sensor["disconnects"] == 0 and sensor["state"] == "stopped"

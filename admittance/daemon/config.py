@@ -84,6 +84,8 @@ class SensorConfig:
     deadband: float = key("float", 0.0, unit="N", lo=0.0, live=True, doc="half-width of the smooth dead zone on the force")
     lowpass_hz: float = key("float", 0.0, unit="Hz", lo=0.0, live=True, doc="first-order low-pass on the torque; 0 = off")
     tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
+    saturation: str = key("str", "hold", choices=("hold", "pass"),
+                          doc="a saturated sample (overload flag, clipped count): hold drops it (the joint holds), pass uses it")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -63,6 +63,7 @@ class Backends:
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
     make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
+    claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()  # -> context manager held for the run
 
 
 class GatedSink:
@@ -120,6 +121,7 @@ class Supervisor:
         self.stop_event.set()
 
     def _start(self, stack: contextlib.ExitStack) -> None:
+        stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
         self.notifier.status("starting: bus")
         ports = stack.enter_context(self.backends.start_bench(self.cfg))
         bus_port, sensor_port, start_hand = ports

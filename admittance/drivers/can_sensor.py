@@ -13,6 +13,9 @@ so that no environment variable or ~/.canrc silently changes it, with an accepta
 frame before parsing, so one parse serves a burst: at 2 kHz of frames the thread wakes at
 most once per frame and usually less.
 
+When the bus fails (an adapter pulled out, an interface taken down), the reader shuts it down
+and creates a new one with backoff until the adapter is back (``ForceSensor``'s reopen).
+
 With ``interface="slcan"`` (a USB-CAN adapter speaking the Lawicel ASCII protocol on a serial
 port) two things differ. python-can waits ``sleep_after_open`` (2 s) after opening the port,
 for adapters that reset when the port opens; a pseudo-terminal has nothing to reset, so the
@@ -57,6 +60,7 @@ class CanForceReader(ForceSensor):
         sensor_index: int = 0,
         recv_timeout: float = 0.05,
         open_delay: float | None = None,
+        saturation: str = "hold",
     ):
         """``open_delay`` (slcan only): seconds to wait after opening the serial port; by
         default 0 on a pseudo-terminal and python-can's own wait on a real device."""
@@ -68,7 +72,7 @@ class CanForceReader(ForceSensor):
         self.recv_timeout = recv_timeout
         self.open_delay = open_delay
         self.extended_id = self.can_id > STANDARD_ID_MAX
-        self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index)
+        self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index, saturation=saturation)
         self._bus = None
         self.can_frames = 0
         self.foreign_frames = 0
@@ -85,6 +89,7 @@ class CanForceReader(ForceSensor):
             bitrate=section.get("bitrate", 1_000_000),
             axes=int(section.get("axes", 3)),
             sensor_index=int(section.get("sensor_index", 0)),
+            saturation=str(section.get("saturation", "hold")),
         )
 
     def _open(self) -> None:
@@ -128,7 +133,7 @@ class CanForceReader(ForceSensor):
             self._append_payload(msg, chunk)
             timeout = 0.0
         if chunk:
-            self._emit_all(self._converter.forces(chunk))
+            self._emit_converted(self._converter, chunk)
 
     def _recv(self, timeout: float) -> Any:
         try:
@@ -136,9 +141,9 @@ class CanForceReader(ForceSensor):
         except Exception as exc:
             if not is_undecodable_frame(exc):
                 raise  # the device failed: ForceSensor._run reports it
-            self.undecodable_frames += 1
             if isinstance(exc.__cause__, UnicodeDecodeError):
                 self._drop_stuck_line()
+            self.undecodable_frames += 1  # counted once handled: what comes after is not flushed
             return None
 
     def _drop_stuck_line(self) -> None:

@@ -4,12 +4,19 @@ With ``--print-ports`` the first line on stdout is one JSON object,
 ``{"bus": "/dev/pts/N", "sensor": "/dev/pts/M"}`` (flushed at once; with a CAN sensor it adds
 ``"can": {"interface", "channel", "can_id"}``), so a test or a script
 can start the bench as a subprocess and read where to connect; nothing else goes to stdout.
+With ``--control`` or ``--faults`` the object also has ``"links"``, the bus's and the
+sensor's stable paths, which survive an unplug and replug (and ``"control"``, the socket).
 The bench then runs until SIGINT or SIGTERM (or ``--duration``) and exits 0.
+
+Faults (:mod:`admittance.mockbench.faults`): ``--control PATH`` takes commands from another
+process on a Unix socket, one line each with a JSON reply; ``--faults FILE`` plays a timed
+script of the same commands (``SECONDS COMMAND`` per line, seconds after the bench started).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import sys
@@ -49,6 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones (repeatable)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
+    parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply)")
+    parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line")
     parser.set_defaults(func=run)
 
 
@@ -75,6 +84,10 @@ def parse_can_id(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from admittance.mockbench.bench import BenchConfig, MockBench
+    from admittance.mockbench.control import ControlServer
+    from admittance.mockbench.faults import FaultScript
+
+    script = FaultScript.load(args.faults) if args.faults else None
 
     config = BenchConfig(
         servos=args.servos,
@@ -97,15 +110,25 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with MockBench(config) as bench:
+    with MockBench(config) as bench, contextlib.ExitStack() as stack:
+        ports = bench.ports(links=bool(args.control or args.faults))
+        if args.control:
+            server = ControlServer(bench, args.control)
+            stack.callback(server.close)
+            server.start()
+            ports["control"] = args.control
         if args.print_ports:
-            print(json.dumps(bench.ports()), flush=True)
+            print(json.dumps(ports), flush=True)
         else:
             _describe(bench)
+        if script is not None:
+            player = threading.Thread(target=script.play, args=(bench, stop), name="fault-script", daemon=True)
+            player.start()
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while not stop.wait(0.2):
             if deadline is not None and time.monotonic() >= deadline:
                 break
+        stop.set()  # ends the script's thread too
     return 0
 
 
