@@ -30,6 +30,8 @@ def register(subparsers) -> None:
     run.add_argument("--stats-json", type=Path, metavar="FILE", help="write the loop's statistics on exit")
     run.add_argument("--record", metavar="DIR", help="record the session as a dataset for `admittance identify`")
     run.add_argument("--check", action="store_true", help="validate the configuration, print it and exit")
+    run.add_argument("--print-example-config", action="store_true",
+                     help="print the example configuration of a real bench and exit (start one with > my.toml)")
     run.set_defaults(func=cmd_run)
 
     monitor = subparsers.add_parser("monitor", help="live view of a running daemon's state and timing")
@@ -82,6 +84,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     from admittance.daemon import config
+
+    if args.print_example_config:
+        from admittance import data
+
+        print(data.example_config().read_text(), end="")
+        return 0
 
     cfg = config.load_config(args.config) if args.config else config.load_default()
     cfg = config.with_overrides(cfg, record=args.record)

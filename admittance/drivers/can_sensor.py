@@ -88,7 +88,9 @@ class CanForceReader(ForceSensor):
         )
 
     def _open(self) -> None:
-        import can  # python-can; imported here so that the registry stays cheap
+        from admittance.extras import require
+
+        can = require("can", 'the CAN force sensor (kind = "can")')  # here, so the registry stays cheap
 
         mask = EXTENDED_ID_MAX if self.extended_id else STANDARD_ID_MAX
         options: dict[str, Any] = {

@@ -70,6 +70,10 @@ def run_identify(args: argparse.Namespace) -> int:
     params_path = _writable(args.params_out, "--params-out") if args.params_out else None
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise DataError(f"--report {args.report}: exists and is not a folder")
+    if args.report:
+        from admittance.extras import require
+
+        require("matplotlib", "identify --report")  # before the fit, not after it
     dataset = load_dataset(args.dataset)
     settings = IdentifySettings(friction=args.friction, max_effects=args.max_effects, min_gain=args.min_gain,
                                 quiet=args.quiet)

@@ -143,6 +143,10 @@ def _run_predict(args) -> int:
         from admittance.errors import ConfigError
 
         raise ConfigError(f"--thesis-k must be a finite number > 0, got {args.thesis_k}")
+    if args.out:
+        from admittance.extras import require
+
+        require("matplotlib", "predict --out")
     dataset = load_dataset(args.dataset)
     predictions = predict.predict_dataset(dataset, args.params, args.thesis_k, args.x0)
     print(predict.metrics_table(predictions), end="")

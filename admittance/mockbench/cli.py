@@ -76,6 +76,10 @@ def parse_can_id(text: str) -> int:
 def run(args: argparse.Namespace) -> int:
     from admittance.mockbench.bench import BenchConfig, MockBench
 
+    if args.sensor == "can":
+        from admittance.extras import require
+
+        require("can", "mock-bench --sensor can")
     config = BenchConfig(
         servos=args.servos,
         model=args.model,
