@@ -73,6 +73,10 @@ def cmd_setup(args: argparse.Namespace) -> int:
         from admittance.errors import ConfigError
 
         raise ConfigError("give the bus with --port DEVICE (e.g. /dev/ttyUSB0), or rehearse with --mock")
+    if args.mock and args.new_id not in (None, 1):
+        from admittance.errors import ConfigError
+
+        raise ConfigError("--mock keeps ID 1: the simulated hand pushes the servo it was built with")
     with _bench(args) as (port, sensor_port, prompter, extra):
         if args.scan:
             for found in scan.scan_bus(port, baudrates=_bauds(args), protocols=_protocols(args),
