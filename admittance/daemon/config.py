@@ -73,8 +73,11 @@ class JointConfig:
 @dataclass(frozen=True, kw_only=True)
 class SensorConfig:
     kind: str = key("str", choices=SENSOR_KINDS, doc="force sensor kind")
-    port: str = key("str", "", doc='serial path (optoforce), python-can channel (can); "mock" = the bench\'s')
-    interface: str = key("str", "socketcan", doc="python-can interface (can only)")
+    port: str = key("str", "", doc='serial path (optoforce); for can an alias of channel; "mock" = the bench\'s')
+    channel: str = key("str", "", doc="python-can channel, e.g. can0, /dev/ttyACM0, PCAN_USBBUS1 (can only)")
+    interface: str = key("str", "", doc="python-can interface (can only); socketcan when a channel is given, "
+                                        "python-can's own configuration when neither is")
+    can_options: dict = key("table", {}, doc="the interface's own keyword arguments, passed to can.Bus (can only)")
     can_id: int = key("int", 0x100, lo=0, hi=0x1FFFFFFF, doc="CAN identifier of the data frames (can only)")
     bitrate: int = key("int", 1_000_000, unit="bit/s", lo=10_000, hi=8_000_000, doc="CAN bit rate (can only)")
     counts_per_newton: list = key("float_list", [451.89, 451.89, 451.89], unit="count/N", lo=0.0, lo_open=True,
@@ -250,8 +253,10 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     bus, sensor, loop, zen = tables["bus"], tables["sensor"], tables["loop"], tables["zenoh"]
     if sensor.lever_arm == 0.0:
         raise ConfigError(f"{where}: [sensor].lever_arm: must not be 0 m")
-    if sensor.kind in ("optoforce", "can") and not sensor.port:
+    if sensor.kind == "optoforce" and not sensor.port:
         raise ConfigError(f"{where}: [sensor].port: required for kind {sensor.kind!r}")
+    if sensor.kind == "can":
+        _check_can(sensor, where)
     if sensor.port == MOCK_PORT and bus.port != MOCK_PORT:
         raise ConfigError(f"{where}: [sensor].port: \"mock\" needs the simulated bench ([bus].port = \"mock\")")
     if len(sensor.counts_per_newton) != 3:
@@ -270,6 +275,21 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     if not all(_KEY_CHUNK.match(c) for c in chunks):
         raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
+
+
+def _check_can(sensor: SensorConfig, where: str) -> None:
+    from admittance.drivers.can_sensor import check_can_options
+
+    if sensor.channel and sensor.port and sensor.channel != sensor.port:
+        raise ConfigError(f"{where}: [sensor].port is an alias of channel: give one ({sensor.port!r} or "
+                          f"{sensor.channel!r})")
+    if sensor.interface and not (sensor.channel or sensor.port):
+        raise ConfigError(f"{where}: [sensor].channel: required with interface = {sensor.interface!r} (leave both "
+                          "out to use python-can's own configuration)")
+    try:
+        check_can_options(sensor.can_options)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def _check_stable(joints: tuple[JointConfig, ...], rate_hz: float, where: str) -> None:
