@@ -17,13 +17,13 @@ def register(subparsers) -> None:
         "configuration (validated by the daemon's loader). Interactive on a terminal; scripted with --yes "
         "and the per-step flags. --mock rehearses it on the simulated bench. See docs/bring-up.md.")
     where = p.add_argument_group("where")
-    where.add_argument("--port", metavar="DEVICE", help="the Dynamixel bus (e.g. /dev/ttyUSB0); required unless --mock")
+    where.add_argument("--port", metavar="DEVICE", help="the Dynamixel bus (e.g. /dev/ttyUSB0); required unless --mock (default: none)")
     where.add_argument("--mock", action="store_true", help="rehearse on the simulated bench with a simulated person "
                        "(writes port = \"mock\")")
     where.add_argument("--baud", type=int, action="append", metavar="BIT/S",
                        help="baud rate to scan (repeatable; default: 57600, 1000000, 115200, 2000000, 3000000, "
                        "4000000, 9600)")
-    where.add_argument("--protocol", type=int, action="append", choices=(1, 2),
+    where.add_argument("--protocol", type=int, action="append", choices=(1, 2), metavar="{1,2}",
                        help="protocol to scan (repeatable; default: 2 then 1)")
     where.add_argument("--scan", action="store_true", help="only scan the bus, print what answers, and exit")
     where.add_argument("--id", type=int, metavar="ID", help="the servo to bring up (default: the only one found)")
@@ -33,12 +33,12 @@ def register(subparsers) -> None:
     servo.add_argument("--mode", metavar="MODE", help="operating mode: position, extended-position, ... "
                        "(P1: position, wheel, multi-turn; default: keep it; the daemon sets position)")
     arm = p.add_argument_group("arm")
-    arm.add_argument("--zero-tick", type=int, metavar="TICK", help="give zero_tick instead of measuring it (0..4095)")
-    arm.add_argument("--direction", type=int, choices=(1, -1), help="give direction instead of measuring it")
+    arm.add_argument("--zero-tick", type=int, metavar="TICK", help="give zero_tick in ticks (0..4095) instead of measuring it (default: measured)")
+    arm.add_argument("--direction", type=int, choices=(1, -1), help="give direction instead of measuring it (default: measured)")
     sensor = p.add_argument_group("force sensor")
     sensor.add_argument("--sensor-kind", choices=("optoforce", "can"), default="optoforce",
                         help="force sensor kind (default optoforce)")
-    sensor.add_argument("--sensor-port", metavar="DEVICE", help="serial path (optoforce) or python-can channel (can)")
+    sensor.add_argument("--sensor-port", metavar="DEVICE", help="serial path (optoforce) or python-can channel (can) (default: none; needed by the sensor step)")
     sensor.add_argument("--can-interface", metavar="NAME", help="python-can interface, e.g. socketcan, slcan, pcan "
                         "(can only; default socketcan)")
     sensor.add_argument("--can-id", type=lambda t: int(t, 0), metavar="ID", help="CAN identifier of the data frames "
@@ -55,7 +55,7 @@ def register(subparsers) -> None:
     run.add_argument("--output-limit", type=float, default=0.2, metavar="FRACTION",
                      help="servo output cap during the dry run, fraction of full PWM/torque (default 0.2)")
     run.add_argument("--skip", action="append", default=[], choices=("servo", "arm", "sensor", "dry-run"),
-                     help="skip a step (repeatable); skipping arm or sensor needs their values given")
+                     help="skip a step (repeatable; default: none); skipping arm or sensor needs their values given")
     run.add_argument("--yes", action="store_true", help="answer yes and give each physical step --settle seconds "
                      "instead of waiting for Enter (default: ask on the terminal)")
     run.add_argument("--settle", type=positive_float, default=5.0, metavar="S",
