@@ -129,3 +129,10 @@ def test_the_wizard_refuses_to_replace_a_file_and_writes_nothing_invalid(tmp_pat
     with pytest.raises(ConfigError, match="zero_tick"):
         wizard.write(doc, tmp_path / "new.toml", {})
     assert not (tmp_path / "new.toml").exists()
+
+
+def test_a_baud_change_onto_a_rate_where_the_id_already_answers_is_refused():
+    """Whoever answers at the new rate with that rate's own code is another servo."""
+    with simulated_bench(servos=[{"id": 1, "registers": {"Baud Rate": 3}}]) as bench:
+        with pytest.raises(ConfigError, match="already answers at 1000000"):
+            servo.change_baudrate(bench.bus_port, 2, 1, 57_600, 1_000_000, **SLACK)
