@@ -15,8 +15,6 @@ from typing import Protocol, TextIO
 
 from admittance.errors import ConfigError
 
-# The physical actions the wizard asks for.
-ACTIONS = ("hang", "push", "release", "press", "dry-run", "done")
 
 
 class Prompter(Protocol):
