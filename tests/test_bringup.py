@@ -136,3 +136,29 @@ def test_a_baud_change_onto_a_rate_where_the_id_already_answers_is_refused():
     with simulated_bench(servos=[{"id": 1, "registers": {"Baud Rate": 3}}]) as bench:
         with pytest.raises(ConfigError, match="already answers at 1000000"):
             servo.change_baudrate(bench.bus_port, 2, 1, 57_600, 1_000_000, **SLACK)
+
+
+def test_the_terminal_prompter_waits_for_enter_and_stops_on_a_closed_stdin():
+    from admittance.bringup.prompt import ScriptedPrompter, TerminalPrompter
+
+    answers = iter(["", "y"])
+    terminal = TerminalPrompter(out=io.StringIO(), read=lambda prompt: next(answers))
+    terminal.act("hang", "let it hang")
+    assert terminal.confirm("go?") is True
+
+    def closed(prompt):
+        raise EOFError
+
+    with pytest.raises(ConfigError, match="--yes"):
+        TerminalPrompter(out=io.StringIO(), read=closed).act("push", "push")
+    waited = []
+    scripted = ScriptedPrompter(2.5, out=io.StringIO(), sleep=waited.append)
+    scripted.act("push", "push")
+    assert waited == [2.5] and scripted.confirm("go?")
+
+
+def test_setup_needs_a_port_or_mock(capsys):
+    from admittance.cli import main
+
+    assert main(["setup"]) == 2
+    assert "--port" in capsys.readouterr().err
