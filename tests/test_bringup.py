@@ -14,7 +14,7 @@ from admittance.daemon import config
 from admittance.drivers.dynamixel import ServoBus
 from admittance.errors import ConfigError, DataError, DeviceError
 
-SLACK = {"reply_slack_ms": 200.0}  # a loaded CI machine
+SLACK = {"reply_slack_ms": 500.0}  # a loaded CI machine starves the simulated bus's thread
 
 
 @pytest.fixture
@@ -114,7 +114,9 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
     joint, s = doc["joints"][0], doc["sensor"]
     assert doc["bus"]["baudrate"] == 1_000_000
     assert joint["direction"] == -1 and abs(joint["zero_tick"] - 2148) <= 60  # within the friction band
-    assert s["axis"] == "x" and s["lever_arm"] == pytest.approx(-0.105, rel=0.1)
+    # 3-5 % low on an idle machine (docs/bring-up.md); on a loaded one the simulated bus's physics
+    # lags the hand and the press reads up to ~11 % low. The bound still catches a sign, axis or unit error.
+    assert s["axis"] == "x" and s["lever_arm"] == pytest.approx(-0.105, rel=0.15)
     assert config.load_config(out).joints[0].zero_tick == joint["zero_tick"]
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from admittance.drivers.dynamixel import ServoBus
-from admittance.errors import ConfigError
+from admittance.errors import ConfigError, DeviceError
 
 CAP_ITEMS = {2: "PWM Limit", 1: "Torque Limit"}
 CAP_FULL = {2: 885, 1: 1023}
@@ -46,13 +46,22 @@ def output_capped(port: str, baudrate: int, protocol: int, ids: list[int], fract
         raise ConfigError(f"--output-limit must be in (0, 1], got {fraction:g}")
     item, full = CAP_ITEMS[protocol], CAP_FULL[protocol]
     with ServoBus(port, baudrate=baudrate, protocol=protocol, **(bus_options or {})) as bus:
-        old = {i: bus.read_raw(i, item) for i in ids}
+        old = {i: _read_cap(bus, i, item, full) for i in ids}
         _write_caps(bus, {i: max(1, round(min(old[i], full) * fraction)) for i in ids}, item)
     try:
         yield
     finally:
         with ServoBus(port, baudrate=baudrate, protocol=protocol, **(bus_options or {})) as bus:
             _write_caps(bus, old, item)
+
+
+def _read_cap(bus: ServoBus, servo_id: int, item: str, full: int) -> int:
+    """The cap to restore afterwards, read twice: a value restored wrong would outlive the session."""
+    first, second = bus.read_raw(servo_id, item), bus.read_raw(servo_id, item)
+    if first != second or not 0 <= first <= full:
+        raise DeviceError(f"servo {servo_id}: {item} read back {first} then {second} (0..{full} expected): "
+                          "the bus is unreliable, check the wiring and the host's load")
+    return first
 
 
 def _write_caps(bus: ServoBus, caps: dict[int, int], item: str) -> None:

@@ -31,7 +31,8 @@ from admittance.errors import DataError
 AXES = ("x", "y", "z")
 MIN_R2 = 0.8
 MIN_SPAN_N = 1.0  # a press that moves the force less than this says nothing about the axis
-SAMPLE_WINDOW_NS = 20_000_000  # force samples averaged before each torque reading
+SAMPLE_WINDOW_NS = 20_000_000  # force samples averaged around each torque reading
+MAX_ROUND_TRIP_NS = 30_000_000  # a reading slower than this cannot be placed in time
 PRESS_S = 6.0
 
 
@@ -123,19 +124,26 @@ def _record(torque: Callable[[], float], seconds: float) -> list[tuple[int, floa
 
     out, lost, deadline = [], 0, time.monotonic() + seconds
     while time.monotonic() < deadline:
+        t0 = time.monotonic_ns()
         try:
-            out.append((time.monotonic_ns(), torque()))
+            tau = torque()
         except ServoTimeout:
+            tau = None
+        t1 = time.monotonic_ns()
+        if tau is not None and t1 - t0 <= MAX_ROUND_TRIP_NS:
+            out.append(((t0 + t1) // 2, tau))  # the servo sampled somewhere in between
+        else:  # no reply, or one too late to say when the servo read its current
             lost += 1
             if lost > 10 + len(out):
-                raise
+                raise DataError(f"{lost} of {lost + len(out)} torque readings were lost or late: is the host "
+                                "overloaded, or the bus too slow?")
         time.sleep(0.01)
     return out
 
 
 def _paired(readings: list[tuple[int, float]], samples: list[tuple[int, list[float]]],
             direction: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each torque reading with the mean force of the samples just before it; the hand's torque
+    """Each torque reading with the mean force of the samples around it; the hand's torque
     in the joint's frame is the opposite of the motor's change from its first reading."""
     if not samples:
         raise DataError("the force sensor sent no samples during the press")
@@ -144,7 +152,7 @@ def _paired(readings: list[tuple[int, float]], samples: list[tuple[int, list[flo
     forces, torques = [], []
     base = readings[0][1]
     for t_ns, tau in readings:
-        lo, hi = np.searchsorted(t, t_ns - SAMPLE_WINDOW_NS), np.searchsorted(t, t_ns)
+        lo, hi = np.searchsorted(t, t_ns - SAMPLE_WINDOW_NS // 2), np.searchsorted(t, t_ns + SAMPLE_WINDOW_NS // 2)
         if hi > lo:
             forces.append(f[lo:hi].mean(axis=0))
             torques.append(-direction * (tau - base))
