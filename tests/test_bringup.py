@@ -114,9 +114,10 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
     joint, s = doc["joints"][0], doc["sensor"]
     assert doc["bus"]["baudrate"] == 1_000_000
     assert joint["direction"] == -1 and abs(joint["zero_tick"] - 2148) <= 60  # within the friction band
-    # 3-5 % low on an idle machine (docs/bring-up.md); on a loaded one the simulated bus's physics
-    # lags the hand and the press reads up to ~11 % low. The bound still catches a sign, axis or unit error.
-    assert s["axis"] == "x" and s["lever_arm"] == pytest.approx(-0.105, rel=0.15)
+    # 3-5 % low on an idle machine (docs/bring-up.md); on a loaded one the simulated bus's thread is
+    # starved, its physics lags the hand, and the press read 11-18 % low at load 8-11. The bound
+    # is about the method's gates (sign, axis, units), not its accuracy, which docs/bring-up.md measures.
+    assert s["axis"] == "x" and s["lever_arm"] == pytest.approx(-0.105, rel=0.3)
     assert config.load_config(out).joints[0].zero_tick == joint["zero_tick"]
 
 
