@@ -111,7 +111,9 @@ def _sensor_section(args: argparse.Namespace, port: str | None) -> dict:
     section = {"kind": args.sensor_kind, "port": port, "interface": args.can_interface, "can_id": args.can_id,
                "bitrate": args.can_bitrate,
                "counts_per_newton": list(args.counts_per_newton) if args.counts_per_newton else [451.89] * 3}
-    if args.sensor_kind != "can":
+    if args.sensor_kind == "can":  # python-can's name for it (port is only its alias)
+        section["channel"] = section.pop("port")
+    else:
         section = {k: section[k] for k in ("kind", "port", "counts_per_newton")}
     return {k: v for k, v in section.items() if v is not None}
 

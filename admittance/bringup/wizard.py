@@ -158,7 +158,7 @@ def _sensor(opts: SetupOptions, bus: ServoBus, servo_id: int, model: str, direct
 def _sensor_samples(section: dict[str, Any]) -> Iterator[Any]:
     from admittance.drivers.sensor import SampleBuffer, create_sensor
 
-    if not section.get("port") and section.get("kind") != "can":
+    if section.get("kind") != "can" and not section.get("port"):
         raise ConfigError("the sensor step needs the force sensor's port: give --sensor-port")
     buffer = SampleBuffer()
     with create_sensor(section, buffer):
@@ -197,8 +197,9 @@ def _dry_run(opts: SetupOptions, doc: dict, prompter: Prompter, start_hand: Call
 
 
 def write(doc: dict, out: Path, ports: dict[str, str]) -> None:
-    final = {**doc, "bus": {**doc["bus"], "port": ports.get("bus", doc["bus"]["port"])},
-             "sensor": {**doc["sensor"], "port": ports.get("sensor", doc["sensor"].get("port", ""))}}
+    final = {**doc, "bus": {**doc["bus"], "port": ports.get("bus", doc["bus"]["port"])}, "sensor": dict(doc["sensor"])}
+    if "sensor" in ports:
+        final["sensor"]["port"] = ports["sensor"]
     validate(final, out)
     header = ("# Written by `admittance setup`. Every key is described in docs/daemon.md; "
               "check it with `admittance run --check --config FILE`.\n")
