@@ -61,6 +61,10 @@ def _identified(path: str) -> Callable[[str], None]:
     return check
 
 
+def _joint_line(out: str) -> None:
+    assert "joint 1: MX-64" in out, out
+
+
 def _example_config(out: str) -> None:
     assert "[bus]" in out and "[[joints]]" in out and "[sensor]" in out, out[:200]
 
@@ -94,6 +98,8 @@ def smoke_steps() -> list[Step]:
         Step("mock-bench", ["mock-bench", "--print-ports"], _ports, until_signal=True),
         Step("synth", ["synth", "ds", "--trials", "4", "--duration", "4"]),
         Step("identify", ["identify", "ds", "--json", "ident.json", "--quiet"], _identified("ident.json")),
+        Step("setup rehearsal", ["setup", "--mock", "--dry-run", "1", "--out", "bench.toml"]),
+        Step("the wizard's file", ["run", "--check", "--config", "bench.toml"], _joint_line),
     ]
 
 

@@ -15,7 +15,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from admittance.bringup.prompt import Prompter
-from admittance.drivers.dynamixel import ServoBus
+from admittance.drivers.dynamixel import ServoBus, ServoTimeout
 from admittance.errors import DataError, DeviceError
 
 TICKS_PER_REV = 4096
@@ -55,12 +55,15 @@ def read_still(bus: ServoBus, servo_id: int, *, timeout: float = REST_TIMEOUT_S)
     window: deque[int] = deque(maxlen=STILL_SAMPLES)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        window.append(bus.read_raw(servo_id, "Present Position"))
+        try:
+            window.append(bus.read_raw(servo_id, "Present Position"))
+        except ServoTimeout:  # a lost reply is one read fewer, not a failed step
+            continue
         if len(window) == window.maxlen and max(window) - min(window) <= STILL_SPREAD_TICKS:
             return sum(window) / len(window)
         time.sleep(READ_PERIOD_S)
-    raise DeviceError(f"servo {servo_id}: the arm did not come to rest within {timeout:g} s "
-                      f"(positions {min(window)}..{max(window)})")
+    seen = f"positions {min(window)}..{max(window)}" if window else "no position read"
+    raise DeviceError(f"servo {servo_id}: the arm did not come to rest within {timeout:g} s ({seen})")
 
 
 def measure_arm(bus: ServoBus, servo_id: int, prompter: Prompter) -> ArmReading:

@@ -130,5 +130,5 @@ def _bench(args: argparse.Namespace):
     from admittance.bringup.simulated import SimulatedPerson, simulated_bench
 
     with simulated_bench() as bench:
-        extra = {"bus_options": {"reply_slack_ms": 100.0}, "written_ports": {"bus": "mock", "sensor": "mock"}}
+        extra = {"bus_options": {"reply_slack_ms": 500.0}, "written_ports": {"bus": "mock", "sensor": "mock"}}
         yield bench.bus_port, bench.sensor_port, SimulatedPerson(bench), extra
