@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import tomli_w
 
+from admittance import data
 from admittance.daemon.messages import STATS_KEYS
 
 from daemon_process import (ADMITTANCE, START_TIMEOUT_S, run_daemon, running_daemon, wait_alive, wait_for_cycles,
@@ -34,9 +35,8 @@ from helpers import free_endpoint
 
 pytestmark = pytest.mark.hil
 
-REPO = Path(__file__).resolve().parents[1]
 PREFIX = "hil/arm"
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 RATE_HZ = 1000.0
 TICK_RAD = 2 * math.pi / 4096
 

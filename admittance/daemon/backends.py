@@ -191,7 +191,8 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
 
     s = cfg.sensor
     section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),
-               "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate, "saturation": s.saturation}
+               "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate, "channel": s.channel,
+               "can_options": dict(s.can_options), "saturation": s.saturation}
     if s.kind == "mock":  # a scripted sensor in this process: it plays the [bench] hand itself
         section.update(lever_arm=cfg.joints[0].lever_arm, axis=s.axis, profile=cfg.bench.profile,
                        noise_std_n=cfg.bench.noise_std_n)

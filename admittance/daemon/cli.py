@@ -25,25 +25,40 @@ def register(subparsers) -> None:
         description="Run the admittance loop. Without --config: the embedded simulated bench "
                     "(a mock MX-64 and a scripted hand on pseudo-terminals). Stops on SIGINT/SIGTERM "
                     "or after --duration, holding position, then applying [stop].torque_policy.")
-    run.add_argument("--config", type=Path, help="daemon configuration (TOML, see docs/daemon.md)")
-    run.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
-    run.add_argument("--stats-json", type=Path, metavar="FILE", help="write the loop's statistics on exit")
-    run.add_argument("--record", metavar="DIR", help="record the session as a dataset for `admittance identify`")
+    run.add_argument("--config", type=Path, metavar="FILE",
+                     help="daemon configuration (TOML, see docs/daemon.md; default: the simulated bench)")
+    run.add_argument("--duration", type=_positive, metavar="S",
+                     help="stop after S seconds (default: run until SIGINT/SIGTERM)")
+    run.add_argument("--stats-json", type=Path, metavar="FILE.json",
+                     help="write the loop's statistics on exit (default: not written)")
+    run.add_argument("--record", metavar="DIR",
+                     help="record the session as a dataset for `admittance identify` (default: [record].path); "
+                     "DIR must be new or empty unless --force")
+    run.add_argument("--force", action="store_true",
+                     help="record into a non-empty DIR, removing the trials and manifest already there")
     run.add_argument("--check", action="store_true", help="validate the configuration, print it and exit")
+    run.add_argument("--print-example-config", action="store_true",
+                     help="print the example configuration of a real bench and exit (start one with > my.toml)")
     run.set_defaults(func=cmd_run)
 
-    monitor = subparsers.add_parser("monitor", help="live view of a running daemon's state and timing")
+    monitor = subparsers.add_parser(
+        "monitor", help="live view of a running daemon's state and timing",
+        description="Subscribe to <prefix>/state and <prefix>/stats of a running daemon and show each joint's "
+                    "state and the loop's timing; redraws in place on a terminal, plain lines otherwise.")
     _remote_args(monitor)
-    monitor.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
+    monitor.add_argument("--duration", type=_positive, metavar="S",
+                         help="stop after S seconds (default: run until Ctrl-C)")
     monitor.set_defaults(func=cmd_monitor)
 
     setp = subparsers.add_parser(
         "set", help="change parameters of a running daemon (all or nothing)",
         description="Set live parameters, e.g. `admittance set virtual_damping=0.08 1.virtual_inertia=0.03`. "
                     "A bare name applies to every joint, <id>.name to one joint.")
-    setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
+    setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE",
+                      help="a live key (docs/daemon.md) and its value in the key's unit; <id>.NAME for one joint")
     _remote_args(setp)
-    setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
+    setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S",
+                      help="wait this long for a reply, in s (default 3)")
     setp.set_defaults(func=cmd_set)
 
     tare = subparsers.add_parser(
@@ -52,12 +67,14 @@ def register(subparsers) -> None:
                     "handle during those samples becomes part of the zero.")
     tare.add_argument("--samples", type=int, default=100, metavar="N", help="samples to average (default 100)")
     _remote_args(tare)
-    tare.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
+    tare.add_argument("--timeout", type=_positive, default=3.0, metavar="S",
+                      help="wait this long for a reply, in s (default 3)")
     tare.set_defaults(func=cmd_tare)
 
 
 def _remote_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"the daemon's key prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, metavar="PREFIX",
+                        help=f"the daemon's key prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help=f"zenoh endpoint of the daemon (default {DEFAULT_ENDPOINT}; repeatable)")
 
@@ -83,11 +100,22 @@ def cmd_run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     from admittance.daemon import config
 
+    if args.print_example_config:
+        from admittance import data
+
+        print(data.example_config().read_text(), end="")
+        return 0
+
     cfg = config.load_config(args.config) if args.config else config.load_default()
     cfg = config.with_overrides(cfg, record=args.record)
     if args.check:
         print(config.summary(cfg))
         return 0
+    if args.record:  # a CLI folder, checked here; [record].path of a service may grow across restarts
+        from admittance import outfolder
+
+        outfolder.check(args.record, args.force, "--record")
+        outfolder.clear(args.record, "--record")
     from admittance.daemon.backends import real_backends
     from admittance.daemon.supervisor import RunOptions, Supervisor
 

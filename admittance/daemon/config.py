@@ -6,8 +6,9 @@ file fails here, before any device is opened, with one line that names the key.
 
 Two defaults are not constants and are filled after validation:
 
-- ``params`` of a joint defaults to ``config/params/<model>.toml`` (e.g. ``mx64.toml``); a
-  relative path is looked up beside the configuration file, then at the repository root;
+- ``params`` of a joint defaults to ``params/<model>.toml`` (e.g. ``mx64.toml``); a relative
+  path is looked up beside the configuration file, then in the working directory, and last
+  among the fits shipped in the package (:mod:`admittance.data`);
 - ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
   ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively.
 """
@@ -21,12 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from admittance import data
 from admittance.daemon.schema import build, did_you_mean, key
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-BENCH_CONFIG = REPO_ROOT / "config" / "bench.toml"
 MOCK_PORT = "mock"
 AXES = ("x", "y", "z")
 SENSOR_KINDS = ("optoforce", "can", "mock")
@@ -57,7 +57,7 @@ class JointConfig:
     model: str = key("str", doc="servo model, e.g. MX-64 (the model table's names)")
     zero_tick: int = key("int", 2048, unit="tick", lo=0, hi=4095, doc="encoder tick of joint angle 0")
     direction: int = key("int", 1, choices=(1, -1), doc="+1: the angle grows with the tick; -1: reversed")
-    params: str = key("str", "", doc="fitted parameter file (Contract 2); default config/params/<model>.toml")
+    params: str = key("str", "", doc="fitted parameter file (Contract 2); default params/<model>.toml")
     # None = the fitted plant's value (filled by _resolve_joint).
     virtual_inertia: float | None = key("float", None, unit="kg·m²", lo=0.0, lo_open=True, live=True,
                                         doc="felt inertia")
@@ -73,8 +73,11 @@ class JointConfig:
 @dataclass(frozen=True, kw_only=True)
 class SensorConfig:
     kind: str = key("str", choices=SENSOR_KINDS, doc="force sensor kind")
-    port: str = key("str", "", doc='serial path (optoforce), python-can channel (can); "mock" = the bench\'s')
-    interface: str = key("str", "socketcan", doc="python-can interface (can only)")
+    port: str = key("str", "", doc='serial path (optoforce); for can an alias of channel; "mock" = the bench\'s')
+    channel: str = key("str", "", doc="python-can channel, e.g. can0, /dev/ttyACM0, PCAN_USBBUS1 (can only)")
+    interface: str = key("str", "", doc="python-can interface (can only); socketcan when a channel is given, "
+                                        "python-can's own configuration when neither is")
+    can_options: dict = key("table", {}, doc="the interface's own keyword arguments, passed to can.Bus (can only)")
     can_id: int = key("int", 0x100, lo=0, hi=0x1FFFFFFF, doc="CAN identifier of the data frames (can only)")
     bitrate: int = key("int", 1_000_000, unit="bit/s", lo=10_000, hi=8_000_000, doc="CAN bit rate (can only)")
     counts_per_newton: list = key("float_list", [451.89, 451.89, 451.89], unit="count/N", lo=0.0, lo_open=True,
@@ -231,18 +234,20 @@ def _or(value: float | None, fallback: float) -> float:
 
 
 def resolve_params_path(joint: JointConfig, config_path: Path, where: str) -> Path:
-    """The joint's parameter file: beside the config file first, then from the repository root
-    (where the fitted files ship), and last from the working directory."""
-    name = joint.params or f"params/{joint.model.lower().replace('-', '')}.toml"
-    candidates = [Path(name)] if Path(name).is_absolute() else [
-        config_path.resolve().parent / name, REPO_ROOT / name, REPO_ROOT / "config" / name, Path.cwd() / name]
+    """The joint's parameter file: beside the config file first, then in the working directory
+    (a user's own fit wins over a shipped one), and last among the fits shipped in the package."""
+    name = joint.params or f"{data.PARAMS}/{data.params_name(joint.model)}"
+    if Path(name).is_absolute():
+        candidates = [Path(name)]
+    else:
+        candidates = [config_path.resolve().parent / name, Path.cwd() / name, data.packaged(name)]
     for candidate in candidates:
-        if candidate.is_file():
+        if candidate is not None and candidate.is_file():
             return candidate
     if not joint.params:
-        raise ConfigError(f"{where}.params: required (no default parameter file for model {joint.model!r})")
-    raise ConfigError(f"{where}.params: file {name!r} not found beside {config_path}, in {REPO_ROOT} "
-                      "nor in the working directory")
+        raise ConfigError(f"{where}.params: required (no shipped parameter file for model {joint.model!r})")
+    raise ConfigError(f"{where}.params: file {name!r} not found beside {config_path}, in the working "
+                      "directory nor among the shipped fits")
 
 
 def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> None:
@@ -250,8 +255,10 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     bus, sensor, loop, zen = tables["bus"], tables["sensor"], tables["loop"], tables["zenoh"]
     if sensor.lever_arm == 0.0:
         raise ConfigError(f"{where}: [sensor].lever_arm: must not be 0 m")
-    if sensor.kind in ("optoforce", "can") and not sensor.port:
+    if sensor.kind == "optoforce" and not sensor.port:
         raise ConfigError(f"{where}: [sensor].port: required for kind {sensor.kind!r}")
+    if sensor.kind == "can":
+        _check_can(sensor, where)
     if sensor.port == MOCK_PORT and bus.port != MOCK_PORT:
         raise ConfigError(f"{where}: [sensor].port: \"mock\" needs the simulated bench ([bus].port = \"mock\")")
     if len(sensor.counts_per_newton) != 3:
@@ -270,6 +277,21 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     if not all(_KEY_CHUNK.match(c) for c in chunks):
         raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
+
+
+def _check_can(sensor: SensorConfig, where: str) -> None:
+    from admittance.drivers.can_sensor import check_can_options
+
+    if sensor.channel and sensor.port and sensor.channel != sensor.port:
+        raise ConfigError(f"{where}: [sensor].port is an alias of channel: give one ({sensor.port!r} or "
+                          f"{sensor.channel!r})")
+    if sensor.interface and not (sensor.channel or sensor.port):
+        raise ConfigError(f"{where}: [sensor].channel: required with interface = {sensor.interface!r} (leave both "
+                          "out to use python-can's own configuration)")
+    try:
+        check_can_options(sensor.can_options)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def _check_stable(joints: tuple[JointConfig, ...], rate_hz: float, where: str) -> None:
@@ -292,10 +314,11 @@ def known_models(protocol: int) -> list[str]:
 
 
 def load_default() -> DaemonConfig:
-    """The embedded default: the simulated bench of config/bench.toml."""
-    if not BENCH_CONFIG.is_file():
-        raise ConfigError(f"the default bench configuration {BENCH_CONFIG} is missing; pass --config FILE")
-    return load_config(BENCH_CONFIG)
+    """The embedded default: the simulated bench of the packaged bench.toml."""
+    bench = data.bench_config()
+    if not bench.is_file():
+        raise ConfigError(f"the default bench configuration {bench} is missing; pass --config FILE")
+    return load_config(bench)
 
 
 def summary(cfg: DaemonConfig) -> str:

@@ -2,7 +2,7 @@
 
 The servos are the simulated Dynamixel bus of the Rust core (``_rtcore.MockBus``, Contract 4):
 each one is a plant (Contract 1) with the fitted parameters of its model, read from
-``config/params/<model>.toml`` (Contract 2), so the mock moves as the identified servo does.
+the packaged ``params/<model>.toml`` (Contract 2), so the mock moves as the identified servo does.
 An *effect* (``cogging_amplitude=0.02``...) changes the simulated truth without changing the
 configuration the daemon reads: that is how a test checks what an unmodelled effect does to
 the loop, or whether identification finds it.
@@ -21,7 +21,6 @@ sensor's methods or with :meth:`MockBench.command` (:mod:`admittance.mockbench.f
 
 from __future__ import annotations
 
-import re
 import shutil
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -39,7 +38,6 @@ from admittance.mockbench.sensor import (
     SimulatedSlcanOptoForce,
 )
 
-PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
 SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
@@ -79,8 +77,10 @@ class BenchConfig:
 
 
 def params_path(model: str) -> Path:
-    """config/params/<model>.toml, the model name lower-cased without punctuation (MX-64 → mx64)."""
-    return PARAMS_DIR / (re.sub(r"[^a-z0-9]", "", model.lower()) + ".toml")
+    """The shipped fit of ``model``: params/<model>.toml in the package (MX-64 → mx64.toml)."""
+    from admittance import data
+
+    return data.params_file(model)
 
 
 def load_plant(model: str, params_file: str | None, effects: Mapping[str, float]) -> tuple[dict[str, float], str]:

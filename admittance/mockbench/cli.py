@@ -35,26 +35,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--print-ports", action="store_true", help='first print {"bus": ..., "sensor": ...} as one JSON line')
     parser.add_argument("--servos", type=int, default=1, metavar="N", help="number of servos, IDs 1..N (default 1)")
-    parser.add_argument("--model", default="MX-64", help="servo model (default MX-64)")
+    parser.add_argument("--model", default="MX-64", metavar="MODEL", help="servo model (default MX-64)")
     parser.add_argument("--protocol", type=int, choices=(1, 2), default=2, help="firmware protocol (default 2)")
-    parser.add_argument("--params", metavar="FILE", help="fitted parameter file (default config/params/<model>.toml)")
-    parser.add_argument("--baudrate", type=int, default=1_000_000)
-    parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau")
+    parser.add_argument("--params", metavar="FILE.toml", help="fitted parameter file (default: the shipped params/<model>.toml)")
+    parser.add_argument("--baudrate", type=int, default=1_000_000, metavar="BIT/S",
+                        help="bus rate in bit/s: the simulated wire's timing (default 1000000)")
+    parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau (default push-release)")
     parser.add_argument(
         "--sensor",
         choices=("optoforce", "can", "slcan"),
         default="optoforce",
-        help="optoforce: serial frames on a pty; can: python-can (--can-interface); slcan: a USB-CAN adapter in slcan mode on a pty",
+        help="optoforce: serial frames on a pty; can: python-can (--can-interface); slcan: a USB-CAN adapter in slcan mode on a pty (default optoforce)",
     )
-    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate (default 1000)")
-    parser.add_argument("--noise", type=float, default=0.0, metavar="N", help="sensor noise std in N (default 0)")
-    parser.add_argument("--bias", type=float, default=0.0, metavar="N", help="sensor bias in N (default 0)")
+    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate in Hz (default 1000)")
+    parser.add_argument("--noise", type=float, default=0.0, metavar="NEWTON", help="sensor noise std in N (default 0)")
+    parser.add_argument("--bias", type=float, default=0.0, metavar="NEWTON", help="sensor bias in N (default 0)")
     parser.add_argument("--lever-arm", type=float, default=0.105, metavar="M", help="hand-to-axis distance in m (default 0.105)")
-    parser.add_argument("--can-interface", default="virtual", help="python-can interface of the CAN sensor (virtual is in-process only)")
-    parser.add_argument("--can-channel", default="admittance-mock")
+    parser.add_argument("--can-interface", default="virtual", metavar="NAME",
+                        help="python-can interface of the CAN sensor (default virtual: in-process only)")
+    parser.add_argument("--can-channel", default="admittance-mock", metavar="CHANNEL",
+                        help="python-can channel of the CAN sensor (default admittance-mock)")
     parser.add_argument("--can-id", type=parse_can_id, default=0x100, metavar="ID", help="CAN identifier of the data frames (default 0x100; configuration on ID+1)")
-    parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones (repeatable)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones, in its unit (repeatable; default: none)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
     parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply)")
     parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line")
@@ -89,6 +92,10 @@ def run(args: argparse.Namespace) -> int:
 
     script = FaultScript.load(args.faults) if args.faults else None
 
+    if args.sensor == "can":
+        from admittance.extras import require
+
+        require("can", "mock-bench --sensor can")
     config = BenchConfig(
         servos=args.servos,
         model=args.model,

@@ -312,6 +312,32 @@ impl PyMockBus {
     }
 }
 
+/// The motor constants the simulated servos of `model` use: `kt` (N·m/A at the output shaft),
+/// `resistance` (Ω) and `max_pwm` (the duty cap); None for a model without them. The bring-up
+/// wizard turns Present Current / Load into torque with them.
+#[pyfunction]
+fn motor_constants<'py>(py: Python<'py>, model: &str) -> PyResult<Option<Bound<'py, PyDict>>> {
+    let Some(motor) = dxlsim::motor::Motor::for_model(model, 12.0) else { return Ok(None) };
+    let d = PyDict::new(py);
+    d.set_item("kt", motor.kt)?;
+    d.set_item("resistance", motor.resistance)?;
+    d.set_item("max_pwm", dxlsim::motor::MAX_PWM)?;
+    Ok(Some(d))
+}
+
+/// The Baud Rate register value of `baudrate` on a firmware protocol (1 or 2), None if it has none.
+#[pyfunction]
+fn baud_code(py: Python<'_>, protocol: u8, baudrate: u32) -> PyResult<Option<i64>> {
+    let protocol = match protocol {
+        1 => Protocol::V1,
+        2 => Protocol::V2,
+        p => return Err(config_error(py, format!("Dynamixel protocol is 1 or 2, not {p}"))),
+    };
+    Ok(dxlsim::setup::baud_code(protocol, baudrate))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(motor_constants, m)?)?;
+    m.add_function(wrap_pyfunction!(baud_code, m)?)?;
     m.add_class::<PyMockBus>()
 }
