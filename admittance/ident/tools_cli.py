@@ -80,8 +80,9 @@ def _register_ladder(subparsers) -> None:
 
 
 def _register_convert(subparsers) -> None:
-    conv = subparsers.add_parser("convert", help="turn Motive / Dynamixel / DFKI recordings into a dataset folder")
-    conv.add_argument("format", choices=("motive", "dynamixel", "dfki"))
+    conv = subparsers.add_parser("convert",
+                                 help="turn Motive / Dynamixel / DFKI recordings or a session.mcap into a dataset folder")
+    conv.add_argument("format", choices=("motive", "dynamixel", "dfki", "mcap"))
     conv.add_argument("files", type=Path, nargs="+", metavar="FILE")
     conv.add_argument("--out", type=Path, required=True, help="the dataset folder to write")
     conv.add_argument("--motor", default="", help="motor label for the manifest")
@@ -174,6 +175,10 @@ def _run_ladder(args) -> int:
 def _run_convert(args) -> int:
     from admittance.ident import loaders
 
+    if args.format == "mcap":  # a recording holds its own geometry and trials
+        out = loaders.convert_recording(args.files, args.out)
+        print(f"wrote {out}")
+        return 0
     options = dict(_parse_option(item) for item in args.option)
     header: dict = {"motor": args.motor} if args.motor else {}
     extra = {}
