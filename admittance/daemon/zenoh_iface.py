@@ -193,20 +193,31 @@ class Client:
         """A subscriber whose ``try_recv()`` never blocks (for a redraw loop with its own clock)."""
         return _Polled(self._session.declare_subscriber(f"{prefix}/*", zenoh.handlers.RingChannel(16)))
 
+    def try_stream_benches(self, prefix: str) -> Any:
+        """Like try_stream, for every bench under ``prefix``: drain() gives (leaf, message, bench)."""
+        return _Polled(self._session.declare_subscriber(f"{prefix}/**", zenoh.handlers.RingChannel(256)),
+                       with_bench=True)
+
     def alive(self, prefix: str, timeout: float = 2.0) -> bool:
         return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))
 
 
 class _Polled:
-    def __init__(self, subscriber: Any) -> None:
+    def __init__(self, subscriber: Any, with_bench: bool = False) -> None:
         self._subscriber = subscriber
+        self._with_bench = with_bench
 
-    def drain(self) -> list[tuple[str, dict[str, Any]]]:
+    def drain(self) -> list[tuple]:
         out = []
         while (sample := self._subscriber.try_recv()) is not None:
-            leaf = str(sample.key_expr).rsplit("/", 1)[-1]
-            if leaf in ("state", "stats"):
-                out.append((leaf, decode(sample.payload.to_bytes())))
+            bench, _, leaf = str(sample.key_expr).rpartition("/")
+            if leaf not in ("state", "stats"):
+                continue
+            try:
+                message = decode(sample.payload.to_bytes())
+            except DataError:
+                continue  # someone else's payload on a matching key: not ours to show
+            out.append((leaf, message, bench) if self._with_bench else (leaf, message))
         return out
 
     def close(self) -> None:
