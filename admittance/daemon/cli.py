@@ -37,31 +37,22 @@ def register(subparsers) -> None:
     monitor.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
     monitor.set_defaults(func=cmd_monitor)
 
-    setp = subparsers.add_parser(
-        "set", help="change parameters of a running daemon (all or nothing)",
+    setp = _request_command(
+        subparsers, "set", cmd_set, help="change parameters of a running daemon (all or nothing)",
         description="Set live parameters, e.g. `admittance set virtual_damping=0.08 1.virtual_inertia=0.03`. "
                     "A bare name applies to every joint, <id>.name to one joint.")
     setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
-    _remote_args(setp)
-    setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
-    setp.set_defaults(func=cmd_set)
 
-    tare = subparsers.add_parser(
-        "tare", help="re-zero a running daemon's force sensor (let go of the handle first)",
+    tare = _request_command(
+        subparsers, "tare", cmd_tare, help="re-zero a running daemon's force sensor (let go of the handle first)",
         description="The loop averages the next N force samples into its bias; a hand on the "
                     "handle during those samples becomes part of the zero.")
     tare.add_argument("--samples", type=int, default=100, metavar="N", help="samples to average (default 100)")
-    _remote_args(tare)
-    tare.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
-    tare.set_defaults(func=cmd_tare)
 
-    get = subparsers.add_parser(
-        "get", help="read a running daemon's live parameters",
+    get = _request_command(
+        subparsers, "get", cmd_get, help="read a running daemon's live parameters",
         description="Print the live parameters of the daemon at --prefix as JSON (all, or the NAMEs given).")
     get.add_argument("names", nargs="*", metavar="NAME", help="parameters to print, e.g. 1.virtual_damping")
-    _remote_args(get)
-    get.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
-    get.set_defaults(func=cmd_get)
 
     router = subparsers.add_parser(
         "router", help="a Zenoh router for several benches (daemons in client mode connect to it)",
@@ -72,6 +63,15 @@ def register(subparsers) -> None:
     router.add_argument("--zenoh-config", type=Path, metavar="FILE", help="a TOML file with a [zenoh] table")
     router.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
     router.set_defaults(func=cmd_router)
+
+
+def _request_command(subparsers, name: str, func, **texts) -> argparse.ArgumentParser:
+    """A remote tool that sends one request and waits for its reply."""
+    parser = subparsers.add_parser(name, **texts)
+    _remote_args(parser)
+    parser.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
+    parser.set_defaults(func=func)
+    return parser
 
 
 def _remote_args(parser: argparse.ArgumentParser) -> None:

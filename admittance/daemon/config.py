@@ -189,15 +189,18 @@ REQUIRED_TABLES = ("bus", "joints", "sensor")
 def load_config(path: str | Path) -> DaemonConfig:
     """Read, validate and resolve a configuration file."""
     path = Path(path)
+    return parse_config(read_toml(path), path)
+
+
+def read_toml(path: Path) -> dict[str, Any]:
     try:
-        doc = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: configuration file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read ({exc})") from None
-    return parse_config(doc, path)
 
 
 def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
@@ -324,14 +327,8 @@ def absolute_zenoh_paths(zen: ZenohConfig, base: Path) -> ZenohConfig:
 def load_zenoh_table(path: str | Path) -> ZenohConfig:
     """Only the [zenoh] table of a file (the remote tools' and the router's ``--zenoh-config``)."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found") from None
-    except (tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read ({exc})") from None
-    where = f"{path}: [zenoh]"
-    zen = absolute_zenoh_paths(build(ZenohConfig, doc.get("zenoh", {}), where), path.resolve().parent)
+    zen = build(ZenohConfig, read_toml(path).get("zenoh", {}), f"{path}: [zenoh]")
+    zen = absolute_zenoh_paths(zen, path.resolve().parent)
     check_prefix(zen.prefix, str(path))
     check_zenoh_security(zen, str(path))
     return zen
