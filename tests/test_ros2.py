@@ -163,3 +163,29 @@ def test_names_map_to_keys_without_empty_chunks():
     token = parse_token(rmw_zenoh.publisher_token(0, "abc", 1, "", "admittance", "wrench", messages.WRENCH_STAMPED))
     assert (token["namespace"], token["topic"], token["enclave"]) == ("/", "/wrench", "/")
     assert rmw_zenoh.gid_of("a") != rmw_zenoh.gid_of("b") and len(rmw_zenoh.gid_of("a")) == 16
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"ros2": {"node": "9lives"}}, r"\[ros2\].node: '9lives' is not a ROS node name"),
+    ({"ros2": {"namespace": "bench1"}}, r"\[ros2\].namespace: 'bench1' is not a ROS namespace"),
+    ({"ros2": {"namespace": "/a//b"}}, r"\[ros2\].namespace"),
+    ({"ros2": {"domain_id": 233}}, r"\[ros2\].domain_id: must be <= 232"),
+    ({"joints": [{"id": 1, "model": "MX-64", "name": "j"}, {"id": 2, "model": "MX-64", "name": "j"}]},
+     "two joints are called the same"),
+])
+def test_ros2_names_are_checked_at_load(tmp_path, table, message):
+    import tomli_w
+
+    from admittance.daemon import config
+    from admittance.errors import ConfigError
+
+    doc = {"bus": {"port": "/dev/ttyUSB0"}, "joints": [{"id": 1, "model": "MX-64"}],
+           "sensor": {"kind": "optoforce", "port": "/dev/ttyACM0", "lever_arm": 0.1}, **table}
+    path = tmp_path / "d.toml"
+    path.write_text(tomli_w.dumps(doc))
+    with pytest.raises(ConfigError, match=message):
+        config.load_config(path)
+    ok = {**doc, "ros2": {"enabled": True, "namespace": "/lab/bench_1", "node": "arm"}, "joints": doc["joints"][:1]}
+    path.write_text(tomli_w.dumps(ok))
+    cfg = config.load_config(path)
+    assert cfg.ros2.namespace == "/lab/bench_1" and cfg.joints[0].name in ("joint1", "j")

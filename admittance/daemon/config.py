@@ -411,6 +411,15 @@ def summary(cfg: DaemonConfig) -> str:
                  f"stop: {cfg.stop.torque_policy}")
     z = cfg.zenoh
     lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
+    security = [name for name, on in (("user/password", z.auth_dictionary or z.auth_user),
+                                      ("TLS", z.tls_ca or z.tls_certificate), ("mutual TLS", z.tls_client_auth),
+                                      (f"ACL (operators {', '.join(z.operators)})", z.operators)) if on]
+    lines.append(f"zenoh security: {', '.join(security) or 'none (loopback only by default)'}")
+    if cfg.ros2.enabled:
+        r = cfg.ros2
+        lines.append(f"ros2: node {r.namespace or ''}/{r.node}, domain {r.domain_id} (rmw_zenoh)")
+    if cfg.foxglove.enabled:
+        lines.append(f"foxglove: ws://{cfg.foxglove.host}:{cfg.foxglove.port}")
     return "\n".join(lines)
 
 
