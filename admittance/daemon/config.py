@@ -58,6 +58,7 @@ class JointConfig:
     zero_tick: int = key("int", 2048, unit="tick", lo=0, hi=4095, doc="encoder tick of joint angle 0")
     direction: int = key("int", 1, choices=(1, -1), doc="+1: the angle grows with the tick; -1: reversed")
     params: str = key("str", "", doc="fitted parameter file (Contract 2); default params/<model>.toml")
+    name: str = key("str", "", doc="the joint's name in ROS 2 joint_states and MCAP; default joint<ID>")
     # None = the fitted plant's value (filled by _resolve_joint).
     virtual_inertia: float | None = key("float", None, unit="kg·m²", lo=0.0, lo_open=True, live=True,
                                         doc="felt inertia")
@@ -89,6 +90,7 @@ class SensorConfig:
     tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
     saturation: str = key("str", "hold", choices=("hold", "pass"),
                           doc="a saturated sample (overload flag, clipped count): hold drops it (the joint holds), pass uses it")
+    frame_id: str = key("str", "force_sensor", doc="the sensor's frame name (ROS 2 wrench header.frame_id)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,6 +119,39 @@ class ZenohConfig:
     mode: str = key("str", "peer", choices=("peer", "client", "router"), doc="zenoh session mode")
     state_rate_hz: float = key("float", 100.0, unit="Hz", lo=50.0, hi=1000.0, doc="rate of <prefix>/state")
     encoding: str = key("str", "json", choices=("json", "msgpack"), doc="payload encoding")
+    # Security (docs/zenoh.md, docs/lab-network.md); paths are relative to the configuration file.
+    auth_dictionary: str = key("str", "", doc="user:password file; sessions that connect must log in as one of them")
+    auth_user: str = key("str", "", doc="user name this session logs in with (to an authenticating router or peer)")
+    auth_password_file: str = key("str", "", doc="file holding auth_user's password (one line)")
+    tls_ca: str = key("str", "", doc="CA certificate (PEM) that peers' TLS certificates must chain to")
+    tls_certificate: str = key("str", "", doc="this session's TLS certificate (PEM); needed to listen on tls/")
+    tls_private_key: str = key("str", "", doc="the private key (PEM) of tls_certificate")
+    tls_client_auth: bool = key("bool", False, doc="mutual TLS: peers must present a certificate signed by tls_ca")
+    operators: list = key("str_list", [], doc="user names or certificate common names allowed to send commands "
+                          "(params, tare); non-empty turns access control on")
+
+
+ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Ros2Config:
+    """Visibility to ROS 2 nodes on rmw_zenoh (docs/ros2.md, ../shared/contracts/ros2.md)."""
+
+    enabled: bool = key("bool", False, doc="publish joint_states and wrench for ROS 2 nodes on rmw_zenoh")
+    domain_id: int = key("int", 0, lo=0, hi=232, doc="ROS_DOMAIN_ID")
+    namespace: str = key("str", "", doc='ROS namespace of the node and its topics, e.g. "/bench1"; "" = none')
+    node: str = key("str", "admittance", doc="the node name ROS 2 tools show")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FoxgloveConfig:
+    """The live view: a Foxglove WebSocket server fed by the supervisor (docs/foxglove.md)."""
+
+    enabled: bool = key("bool", False, doc="serve a live view to Foxglove over WebSocket")
+    host: str = key("str", "127.0.0.1", doc="address the WebSocket server binds")
+    port: int = key("int", 8765, lo=0, hi=65535, doc="its TCP port (0 = any free port)")
+    rate_hz: float = key("float", 50.0, unit="Hz", lo=1.0, hi=1000.0, doc="most messages per second per channel")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -146,25 +181,31 @@ class DaemonConfig:
     record: RecordConfig
     bench: BenchConfig
     source: Path  # the file it came from (relative paths are resolved beside it)
+    ros2: Ros2Config = dataclasses.field(default_factory=Ros2Config)
+    foxglove: FoxgloveConfig = dataclasses.field(default_factory=FoxgloveConfig)
 
 
 TABLES = {"bus": BusConfig, "sensor": SensorConfig, "loop": LoopConfig, "stop": StopConfig,
-          "zenoh": ZenohConfig, "record": RecordConfig, "bench": BenchConfig}
+          "zenoh": ZenohConfig, "record": RecordConfig, "bench": BenchConfig, "ros2": Ros2Config,
+          "foxglove": FoxgloveConfig}
 REQUIRED_TABLES = ("bus", "joints", "sensor")
 
 
 def load_config(path: str | Path) -> DaemonConfig:
     """Read, validate and resolve a configuration file."""
     path = Path(path)
+    return parse_config(read_toml(path), path)
+
+
+def read_toml(path: Path) -> dict[str, Any]:
     try:
-        doc = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: configuration file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read ({exc})") from None
-    return parse_config(doc, path)
 
 
 def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
@@ -176,6 +217,7 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
         if name not in doc:
             raise ConfigError(f"{where}: [{name}] is required")
     tables = {name: build(cls, doc.get(name, {}), f"{where}: [{name}]") for name, cls in TABLES.items()}
+    tables["zenoh"] = absolute_zenoh_paths(tables["zenoh"], path.resolve().parent)
     joints = _parse_joints(doc["joints"], path, tables["bus"].protocol)
     lever_arm = tables["sensor"].lever_arm
     joints = tuple(j if j.lever_arm is not None else dataclasses.replace(j, lever_arm=lever_arm) for j in joints)
@@ -201,6 +243,9 @@ def _parse_joints(raw: Any, path: Path, protocol: int) -> tuple[JointConfig, ...
             raise ConfigError(f"{where}.model: {joint.model!r} is not a Protocol {protocol}.0 model"
                               f"{did_you_mean(joint.model, models)}")
         joints.append(_resolve_joint(joint, path, f"{path}: [joints.{joint.id}]"))
+    names = [j.name for j in joints]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"{path}: [[joints]] name: two joints are called the same ({', '.join(names)})")
     return tuple(joints)
 
 
@@ -221,6 +266,7 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
     return dataclasses.replace(
         joint,
         params=str(params_path),
+        name=joint.name or f"joint{joint.id}",
         virtual_inertia=_or(joint.virtual_inertia, fitted["motor_inertia"]),
         virtual_damping=_or(joint.virtual_damping, fitted.get("damping", 0.0)),
         virtual_coulomb=_or(joint.virtual_coulomb, fitted.get("coulomb", 0.0)),
@@ -273,9 +319,33 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
         raise ConfigError(f"{where}: [zenoh].connect: required with mode = \"client\" (a client only "
                           "reaches others through the router or peer it connects to)")
     _check_stable(joints, loop.rate_hz, where)
-    chunks = zen.prefix.split("/")
-    if not all(_KEY_CHUNK.match(c) for c in chunks):
-        raise ConfigError(f"{where}: [zenoh].prefix: {zen.prefix!r} is not a valid key expression "
+    check_prefix(zen.prefix, where)
+    check_zenoh_security(zen, where)
+    _check_ros2(tables["ros2"], where)
+
+
+ZENOH_PATH_KEYS = ("auth_dictionary", "auth_password_file", "tls_ca", "tls_certificate", "tls_private_key")
+
+
+def absolute_zenoh_paths(zen: ZenohConfig, base: Path) -> ZenohConfig:
+    """The [zenoh] table with its file keys made absolute (relative ones are beside the configuration)."""
+    return dataclasses.replace(zen, **{name: str(base / value) for name in ZENOH_PATH_KEYS
+                                       if (value := getattr(zen, name)) and not Path(value).is_absolute()})
+
+
+def load_zenoh_table(path: str | Path) -> ZenohConfig:
+    """Only the [zenoh] table of a file (the remote tools' and the router's ``--zenoh-config``)."""
+    path = Path(path)
+    zen = build(ZenohConfig, read_toml(path).get("zenoh", {}), f"{path}: [zenoh]")
+    zen = absolute_zenoh_paths(zen, path.resolve().parent)
+    check_prefix(zen.prefix, str(path))
+    check_zenoh_security(zen, str(path))
+    return zen
+
+
+def check_prefix(prefix: str, where: str) -> None:
+    if not all(_KEY_CHUNK.match(c) for c in prefix.split("/")):
+        raise ConfigError(f"{where}: [zenoh].prefix: {prefix!r} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
 
 
@@ -292,6 +362,37 @@ def _check_can(sensor: SensorConfig, where: str) -> None:
         check_can_options(sensor.can_options)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def check_zenoh_security(zen: ZenohConfig, where: str) -> None:
+    """Security keys that only make sense together (files are checked when the session opens)."""
+    if bool(zen.auth_user) != bool(zen.auth_password_file):
+        raise ConfigError(f"{where}: [zenoh].auth_user and auth_password_file: give both or neither")
+    if bool(zen.tls_certificate) != bool(zen.tls_private_key):
+        raise ConfigError(f"{where}: [zenoh].tls_certificate and tls_private_key: give both or neither")
+    endpoints = [*zen.listen, *zen.connect]
+    if any(e.startswith("tls/") for e in zen.listen) and not zen.tls_certificate:
+        raise ConfigError(f"{where}: [zenoh].tls_certificate: required to listen on a tls/ endpoint")
+    if any(e.startswith("tls/") for e in endpoints) and not zen.tls_ca:
+        raise ConfigError(f"{where}: [zenoh].tls_ca: required with a tls/ endpoint (it verifies the peer)")
+    if zen.tls_client_auth and not (zen.tls_ca and zen.tls_certificate):
+        raise ConfigError(f"{where}: [zenoh].tls_client_auth: needs tls_ca, tls_certificate and tls_private_key")
+    if zen.operators and not (zen.auth_dictionary or zen.tls_client_auth):
+        raise ConfigError(f"{where}: [zenoh].operators: needs a way to tell who connects: auth_dictionary "
+                          "(user/password) or tls_client_auth (certificates)")
+    for name in zen.operators:
+        if not name.strip():
+            raise ConfigError(f"{where}: [zenoh].operators: empty name")
+
+
+def _check_ros2(ros2: Ros2Config, where: str) -> None:
+    if not ROS_NAME.match(ros2.node):
+        raise ConfigError(f"{where}: [ros2].node: {ros2.node!r} is not a ROS node name "
+                          "(a letter, then letters, digits or _)")
+    chunks = ros2.namespace.split("/")
+    if ros2.namespace and (chunks[0] != "" or not all(ROS_NAME.match(c) for c in chunks[1:])):
+        raise ConfigError(f"{where}: [ros2].namespace: {ros2.namespace!r} is not a ROS namespace "
+                          '(e.g. "/bench1": "/"-separated names, each a letter then letters, digits or _)')
 
 
 def _check_stable(joints: tuple[JointConfig, ...], rate_hz: float, where: str) -> None:
@@ -335,6 +436,15 @@ def summary(cfg: DaemonConfig) -> str:
                  f"stop: {cfg.stop.torque_policy}")
     z = cfg.zenoh
     lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
+    security = [name for name, on in (("user/password", z.auth_dictionary or z.auth_user),
+                                      ("TLS", z.tls_ca or z.tls_certificate), ("mutual TLS", z.tls_client_auth),
+                                      (f"ACL (operators {', '.join(z.operators)})", z.operators)) if on]
+    lines.append(f"zenoh security: {', '.join(security) or 'none (loopback only by default)'}")
+    if cfg.ros2.enabled:
+        r = cfg.ros2
+        lines.append(f"ros2: node {r.namespace or ''}/{r.node}, domain {r.domain_id} (rmw_zenoh)")
+    if cfg.foxglove.enabled:
+        lines.append(f"foxglove: ws://{cfg.foxglove.host}:{cfg.foxglove.port}")
     return "\n".join(lines)
 
 

@@ -29,6 +29,10 @@ class JointState(msgspec.Struct, omit_defaults=True):
     omega: float  # rad/s, model velocity
     goal_tick: int
     present_tick: int | None = None  # the servo's position when it was read this cycle
+    # For ROS users (extensions; absent from older daemons):
+    name: str | None = None  # the joint's configured name, else "joint<ID>"
+    wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
+    position: float | None = None  # rad, the measured angle of present_tick
 
 
 class State(msgspec.Struct):

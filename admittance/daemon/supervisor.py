@@ -34,6 +34,7 @@ from typing import Any
 
 from admittance.daemon import telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
+from admittance.daemon.ecosystem import Ecosystem
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.recording import Recorder
@@ -101,6 +102,7 @@ class Supervisor:
         self.sensor: Any = None
         self.interface: Any = None
         self.recorder: Recorder | None = None
+        self.ecosystem = Ecosystem()  # session.mcap, ROS 2 bridge, Foxglove view: all optional
         self.final_stats: dict[str, Any] | None = None
         self._codec = Codec(cfg.zenoh.encoding)
         self._t0 = 0.0
@@ -181,12 +183,14 @@ class Supervisor:
         self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
                                  t0=self._t0, segment_s=self.cfg.record.segment_s)
         stack.callback(self.recorder.close)
+        self.ecosystem.start_mcap(stack, folder, self.cfg, self._t0, self.get_params())
 
     def _start_interface(self, stack: contextlib.ExitStack) -> None:
         if self.backends.make_interface is None:
             return
         self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self)
         stack.callback(self.interface.close)
+        self.ecosystem.start_views(stack, self.cfg, self.interface)
 
     def _release_unless_loop_ran(self, bus_port: str) -> None:
         """A start that failed after torque-on: the loop cannot apply the policy, so do it here."""
@@ -243,6 +247,8 @@ class Supervisor:
             if latest is not None:
                 self.interface.publish_state(latest)
             self.interface.poll()
+        for warning in self.ecosystem.publish(latest):
+            self._warn(warning)
         if self.sensor.error:
             self._warn(f"force sensor stopped: {self.sensor.error} (the joints hold)")
 
@@ -252,8 +258,10 @@ class Supervisor:
         if len(records) == 0:
             return None
         if self.recorder is not None:
-            for joint_id, columns in telemetry.columns_by_joint(records, self.cfg).items():
+            by_joint = telemetry.columns_by_joint(records, self.cfg)
+            for joint_id, columns in by_joint.items():
                 self.recorder.append(joint_id, columns)
+            self.ecosystem.record_cycles(by_joint)
         return telemetry.latest_state(records, self.cfg)
 
     def _publish_stats(self) -> None:
@@ -266,11 +274,13 @@ class Supervisor:
                              f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
             self.interface.publish_stats(stats_message(stats))
+        self.ecosystem.record("stats", stats)
 
     def _warn(self, text: str) -> None:
         if text not in self._warned:
             self._warned.add(text)
             self.options.log(f"warning: {text}")
+            self.ecosystem.record("event", f"warning: {text}")
 
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
@@ -281,12 +291,14 @@ class Supervisor:
         accepted, reason = self.loop.set_params(request)
         if accepted:
             self.options.log(f"params set: {json.dumps(request, sort_keys=True)}")
+            self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
         self.loop.tare(samples)
         self.options.log(f"tare requested over the next {samples} samples")
+        self.ecosystem.record("event", f"tare over the next {samples} samples")
         return True, ""
 
     # -- exit ----------------------------------------------------------------------------------

@@ -2,7 +2,8 @@
 
 - ``bench.toml``    what ``admittance run`` runs without ``--config`` (the simulated bench);
 - ``example.toml``  a real bench, every key shown (``admittance run --print-example-config``);
-- ``params/*.toml`` the thesis's fitted plant parameters per motor (Contract 2).
+- ``params/*.toml`` the thesis's fitted plant parameters per motor (Contract 2);
+- ``foxglove/*.json`` Foxglove layouts for a ``session.mcap`` and the live view (docs/foxglove.md).
 
 Everything is read through :mod:`importlib.resources`, so a wheel installed anywhere finds it
 and no code path depends on where a checkout of the repository lies.

@@ -107,10 +107,10 @@ def _register_ladder(subparsers) -> None:
 
 def _register_convert(subparsers) -> None:
     conv = subparsers.add_parser(
-        "convert", help="turn Motive / Dynamixel / DFKI recordings into a dataset folder",
-        description="Read recordings in a foreign format (Motive CSV, Dynamixel/BAM logs, DFKI CSV) and write "
+        "convert", help="turn Motive / Dynamixel / DFKI recordings or a session.mcap into a dataset folder",
+        description="Read recordings in a foreign format (Motive CSV, Dynamixel/BAM logs, DFKI CSV, a daemon's session.mcap) and write "
                     "a dataset folder (shared/contracts/datasets.md) that identify, thesis and predict read.")
-    conv.add_argument("format", choices=("motive", "dynamixel", "dfki"), help="the recordings' format")
+    conv.add_argument("format", choices=("motive", "dynamixel", "dfki", "mcap"), help="the recordings' format")
     conv.add_argument("files", type=Path, nargs="+", metavar="FILE", help="the recordings, one trial each")
     conv.add_argument("--out", type=Path, required=True, metavar="DIR",
                       help="the dataset folder to write (new or empty unless --force)")
@@ -211,6 +211,10 @@ def _run_ladder(args) -> int:
 def _run_convert(args) -> int:
     from admittance.ident import loaders
 
+    if args.format == "mcap":  # a recording holds its own geometry and trials
+        out = loaders.convert_recording(args.files, args.out)
+        print(f"wrote {out}")
+        return 0
     options = dict(_parse_option(item) for item in args.option)
     header: dict = {"motor": args.motor} if args.motor else {}
     extra = {}
