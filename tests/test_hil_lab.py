@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+from admittance import data
 from admittance.daemon import config
 from admittance.daemon.zenoh_iface import Client, security_of
 
@@ -21,8 +22,7 @@ from helpers import free_endpoint
 
 pytestmark = pytest.mark.hil
 
-REPO = Path(__file__).resolve().parents[1]
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 BENCHES = ("lab/arm1", "lab/arm2", "lab/arm3")
 
 

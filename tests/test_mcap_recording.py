@@ -126,5 +126,7 @@ def test_a_sigkilled_daemon_leaves_a_readable_mcap(tmp_path):
     assert np.all(np.diff(cycles) == 1)  # every cycle, none missing, up to the last chunk
     assert [p["source"] for p in rec.params][:2] == ["start", "set"]
     read = np.isfinite(rec.joints[1]["theta_present"])
-    assert 0.15 < read.mean() < 0.25  # every 5th cycle read the servo
+    # Every 5th cycle reads the servo; a loaded machine may time a read out, never add one.
+    assert np.all(cycles[read] % 5 == 0)
+    assert read.sum() > 0.5 * np.sum(cycles % 5 == 0)
     assert load_recording(tmp_path / "rec").trials[0].n_samples > 50

@@ -59,8 +59,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones, in its unit (repeatable; default: none)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
-    parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply)")
-    parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line")
+    parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply; default: none)")
+    parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line (default: none)")
     parser.set_defaults(func=run)
 
 
