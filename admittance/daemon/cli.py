@@ -13,7 +13,7 @@ import sys
 import threading
 from pathlib import Path
 
-from admittance.errors import ConfigError
+from admittance.errors import AdmittanceError, ConfigError
 
 DEFAULT_PREFIX = "bench/arm1"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -73,18 +73,27 @@ def _positive(text: str) -> float:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    import signal
+
     from admittance.daemon.stopsignals import stop_signals_call
 
     stop = threading.Event()
-    with stop_signals_call(lambda *_: stop.set()):
+    # After a run the process only exits; a late stop signal (a second SIGTERM during teardown)
+    # must not cut that exit short and turn a clean stop into -15. `--check` leaves them be.
+    after = None if args.check else signal.SIG_IGN
+    with stop_signals_call(lambda *_: stop.set(), then=after):
         return _run(args, stop)
 
 
 def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     from admittance.daemon import config
 
-    cfg = config.load_config(args.config) if args.config else config.load_default()
-    cfg = config.with_overrides(cfg, record=args.record)
+    try:
+        cfg = config.load_config(args.config) if args.config else config.load_default()
+        cfg = config.with_overrides(cfg, record=args.record)
+    except ConfigError as exc:
+        _stats_of_a_failed_start(args, exc)
+        raise
     if args.check:
         print(config.summary(cfg))
         return 0
@@ -93,6 +102,18 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
 
     options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop)
     return Supervisor(cfg, real_backends(), options).run()
+
+
+def _stats_of_a_failed_start(args: argparse.Namespace, error: ConfigError) -> None:
+    """--stats-json on every exit path: a configuration that did not load leaves its error."""
+    if args.stats_json is None or args.check:
+        return
+    from admittance.daemon.supervisor import error_fields, write_stats_file
+
+    try:
+        write_stats_file(args.stats_json, error_fields(error))
+    except AdmittanceError as exc:
+        print(f"admittance run: warning: {exc}", file=sys.stderr)
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:

@@ -19,8 +19,14 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextlib.contextmanager
-def stop_signals_call(handler: Callable[..., Any]) -> Iterator[None]:
-    """Inside the block SIGINT/SIGTERM call ``handler``; the previous handlers come back after.
+def stop_signals_call(handler: Callable[..., Any], *, then: Any = None) -> Iterator[None]:
+    """Inside the block SIGINT/SIGTERM call ``handler``; after it, the previous handlers come
+    back, or ``then`` (e.g. ``signal.SIG_IGN``) is installed instead.
+
+    A second signal during the stop calls ``handler`` again (a no-op once the stop is under
+    way), so it never interrupts the teardown. ``then=SIG_IGN`` is for a process whose work
+    ends with the block: after it only the interpreter's exit remains (closing sessions,
+    flushing files), and the default action of a late SIGTERM would cut that short (exit -15).
 
     Python delivers signals to the main thread only, so elsewhere this does nothing.
     """
@@ -32,4 +38,4 @@ def stop_signals_call(handler: Callable[..., Any]) -> Iterator[None]:
         yield
     finally:
         for sig, old in previous.items():
-            signal.signal(sig, old)
+            signal.signal(sig, old if then is None else then)
