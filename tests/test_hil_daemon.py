@@ -13,7 +13,6 @@ daemon slowly or starves its loop makes a test slower, not red.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import signal
@@ -28,8 +27,8 @@ import tomli_w
 
 from admittance.daemon.messages import STATS_KEYS
 
-from daemon_process import (ADMITTANCE, START_TIMEOUT_S, run_daemon, running_daemon, wait_alive, wait_for_cycles,
-                            wait_for_state)
+from daemon_process import (ADMITTANCE, START_TIMEOUT_S, read_recording, run_daemon, running_daemon, wait_alive,
+                            wait_for_cycles, wait_for_state)
 from helpers import free_endpoint, wait_until
 
 pytestmark = pytest.mark.hil
@@ -57,15 +56,6 @@ def daemon_config(tmp_path: Path, *, bus: str = "mock", sensor: str = "mock", jo
     path = tmp_path / "daemon.toml"
     path.write_text(tomli_w.dumps(doc))
     return path, endpoint
-
-
-def read_recording(folder: Path, joint_id: int = 1) -> dict[str, np.ndarray]:
-    """Every segment of one joint, concatenated."""
-    rows = []
-    for path in sorted(folder.glob(f"joint{joint_id}_*.csv")):
-        with path.open() as fh:
-            rows += list(csv.DictReader(fh))
-    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}
 
 
 def virtual_step(theta: float, omega: float, tau: float, inertia: float, damping: float, coulomb: float,
