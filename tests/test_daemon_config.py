@@ -111,6 +111,12 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d.update(zenoh={"prefix": "a//b"}), r"prefix: 'a//b' is not a valid key expression"),
     (lambda d: d.update(stop={"torque_policy": "float"}), r"torque_policy: expected one of 'hold', 'torque_off'"),
     (lambda d: d.update(joints=[]), r"\[\[joints\]\] must be a non-empty array"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/127.0.0.1:99999"]}),
+     r"\[zenoh\]\.listen\[0\]: 'tcp/127\.0\.0\.1:99999': the port must be a number 0\.\.65535"),
+    (lambda d: d.update(zenoh={"listen": [""]}), r"\[zenoh\]\.listen\[0\]: '' is not an endpoint"),
+    (lambda d: d.update(zenoh={"connect": ["foo/bar"]}), r"\[zenoh\]\.connect\[0\]: 'foo/bar': unknown protocol 'foo'"),
+    (lambda d: d.update(zenoh={"connect": ["tcp/256.1.1.1:7447"]}), r"'256\.1\.1\.1' is not an IPv4 address"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/[::g]:1"]}), r"in brackets is not an IPv6 address"),
 ])
 def test_errors_name_the_key_and_the_problem_in_one_line(tmp_path, mutate, expected):
     doc = minimal()
@@ -173,3 +179,21 @@ def test_run_check_prints_the_resolved_configuration(capsys):
     assert main(["run", "--check", "--config", str(REPO / "config" / "example.toml")]) == 0
     out = capsys.readouterr().out
     assert "joint 1: MX-64" in out and "I=0.02 kg·m²" in out and "zenoh: bench/arm1" in out
+
+
+@pytest.mark.parametrize("listen, mode, warned", [
+    (["tcp/127.0.0.1:7447"], "peer", []),
+    (["tcp/[::1]:7447", "tcp/localhost:7448", "unixsock-stream//tmp/z.sock"], "peer", []),
+    ([], "peer", ["listen is empty"]),
+    (["tcp/0.0.0.0:7447"], "peer", ["tcp/0.0.0.0:7447 is reachable from every interface"]),
+    (["tcp/[::]:7447", "tcp/192.168.1.5:7447"], "router", ["every interface", "the network"]),
+    ([], "client", []),  # a client listens nowhere
+])
+def test_listening_beyond_loopback_is_warned_about(listen, mode, warned):
+    from admittance.daemon.endpoints import exposure_warnings
+
+    zcfg = config.ZenohConfig(listen=listen, mode=mode, connect=["tcp/10.0.0.1:7447"])
+    warnings = exposure_warnings(zcfg)
+    assert len(warnings) == len(warned)
+    for line, expected in zip(warnings, warned):
+        assert expected in line and "can set parameters and tare" in line and "\n" not in line

@@ -130,11 +130,12 @@ class FakeNotifier:
 
 
 class Harness:
-    def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None):
+    def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None,
+                 zenoh=None):
         doc = {"bus": {"port": "/dev/fake"},
                "joints": [{"id": 1, "model": "MX-64"}, {"id": 2, "model": "MX-28"}],
                "sensor": {"kind": "optoforce", "port": "/dev/fakesensor", "lever_arm": 0.1},
-               "stop": {"torque_policy": policy}}
+               "stop": {"torque_policy": policy}, "zenoh": zenoh or {}}
         if record:
             doc["record"] = {"path": record}
         path = tmp_path / "daemon.toml"
@@ -256,6 +257,16 @@ def test_every_resource_is_claimed_before_the_first_write_to_a_servo(tmp_path):
     servos = h.events.index("servos")
     assert {"claim", "bench", "zenoh", "sensor.start"} <= set(h.events[:servos]) and folder_existed == [True]
     assert "zenoh.serve" not in h.events[:servos], "queries are only served once the loop runs"
+
+
+def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path):
+    h = Harness(tmp_path, stop_after=0.05, zenoh={"listen": ["tcp/0.0.0.0:7447"]})
+    h.supervisor.run()
+    assert any(line.startswith("warning: [zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface")
+               for line in h.logs)
+    h = Harness(tmp_path, stop_after=0.05)
+    h.supervisor.run()
+    assert not any("[zenoh].listen" in line for line in h.logs), "loopback: no warning"
 
 
 def test_an_unexpected_exception_still_writes_stats_with_the_error(tmp_path):

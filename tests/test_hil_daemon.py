@@ -313,3 +313,25 @@ def test_a_second_signal_during_teardown_finishes_the_teardown(tmp_path, when):
     assert proc.returncode == 0
     stats = json.loads(stats_path.read_text())
     assert stats["cycles"] > 0 and "error" not in stats
+
+
+def test_a_busy_zenoh_endpoint_fails_before_anything_is_written_to_a_servo(tmp_path):
+    """A second daemon on the first one's Zenoh endpoint: one line, exit 3, and its servos never
+    saw a packet (the endpoint is claimed before the servo checks; it used to fail only after
+    torque was on and a goal written)."""
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    config, endpoint = daemon_config(tmp_path, bench={"profile": "still"})
+    with running_daemon(config) as first, MockBench(BenchConfig(profile="still")) as bench:
+        wait_alive(endpoint, PREFIX)
+        second = tmp_path / "second"
+        second.mkdir()
+        config2, _ = daemon_config(second, bus=bench.bus_port, sensor=bench.sensor_port)
+        doc = tomllib.loads(config2.read_text())
+        doc["zenoh"]["listen"] = [endpoint]
+        config2.write_text(tomli_w.dumps(doc))
+        result = run_daemon(config2, "--duration", "1")
+        assert "address already in use" in one_error_line(result) and result.returncode == 3
+        assert bench.bus.stats()["packets"] == 0
+        assert bench.bus.register(1, "Torque Enable") == 0
+    assert first.returncode == 0, first.stderr

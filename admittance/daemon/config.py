@@ -413,6 +413,7 @@ def summary(cfg: DaemonConfig) -> str:
                  f"stop: {cfg.stop.torque_policy}")
     z = cfg.zenoh
     lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
+    lines += [f"warning: {w}" for w in endpoints.exposure_warnings(z)]
     return "\n".join(lines)
 
 
