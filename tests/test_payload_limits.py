@@ -82,3 +82,11 @@ def test_bad_tare_requests_are_data_errors_with_short_reasons(payload):
     with pytest.raises(DataError) as refused:
         decode_tare_request(payload)
     assert len(str(refused.value)) < 200
+
+
+def test_a_request_over_the_size_cap_is_refused_for_its_size_whatever_it_holds():
+    request = {f"{k}.virtual_damping": 0.05 for k in range(1000)}  # well-formed, shallow, 26 KB
+    for payload in (msgspec.json.encode(request), msgspec.msgpack.encode(request)):
+        assert len(payload) > MAX_REQUEST_BYTES
+        with pytest.raises(DataError, match=f"larger than the {MAX_REQUEST_BYTES} bytes"):
+            decode_set_request(payload)
