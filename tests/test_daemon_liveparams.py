@@ -46,8 +46,8 @@ OUT_OF_RANGE = [
     ({"2.lever_arm": -0.0005}, "lever_arm"),
     ({"lever_arm": 2.02}, "lever_arm"),
     ({"lever_arm": -2.02}, "lever_arm"),
-    ({"position_max": 3.2}, "position_max"),
-    ({"position_min": -3.2}, "position_min"),
+    ({"1.position_max": 3.2}, "position_max"),  # within joint 1's reach, beyond ±π
+    ({"2.position_min": -3.2}, "position_min"),  # within joint 2's reach, beyond ±π
     ({"1.position_min": -2.0}, "position_min"),  # within ±π, beyond joint 1's reach
     ({"2.limits.position_max": 2.0}, "position_max"),  # within ±π, beyond joint 2's reach
     ({"1.position_min": 1.0, "1.position_max": 0.5}, "position_min"),  # each valid, in the wrong order
