@@ -144,6 +144,8 @@ encoded = st.one_of(
                      b'{"samples": 5}', b"{}", b"", b'{"samples": ' + BIG + b"}"]),
     st.binary(max_size=64),  # invalid UTF-8, truncated MessagePack, anything
     st.integers(1, 200_000).map(lambda n: b"[" * n),
+    st.integers(1, 5000).map(lambda n: b'{"deadband": ' + b"[" * n + b"]" * n + b"}"),
+    st.integers(1, 5000).map(lambda n: b"\x81\xa8deadband" + b"\x91" * n + b"\x90"),
     st.integers(1, 20_000).map(lambda n: b'{"a":' * n),
     st.integers(1, 1 << 20).map(lambda n: b'{"deadband": "' + b"x" * n + b'"}'),
 )

@@ -53,6 +53,8 @@ def test_arbitrary_bytes_are_measured_or_refused_as_data_errors(payload):
 @pytest.mark.parametrize("payload", [
     b"[" * 100_000,  # the RecursionError
     b"[" * 2000,  # under the size cap, still far too deep for a request
+    b'{"a": ' + b"[" * 3000 + b"]" * 3000 + b"}",  # well-formed, under the cap: RecursionError in msgspec
+    b"\x81\xa1a" + b"\x91" * 3000 + b"\x90",  # the same in MessagePack
     b'{"a": [[[[[1]]]]]}',
     b"\x91" * 2000,  # MessagePack: nested one-element arrays
     b"\xdd\xff\xff\xff\xff" * 10,  # MessagePack arrays that claim 4 billion items
