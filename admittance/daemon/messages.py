@@ -115,17 +115,17 @@ def is_json(payload: bytes) -> bool:
     return payload.lstrip()[:1] in (b"{", b"[")
 
 
-# What the daemon accepts from the network; its own publications are bounded by what it sends.
+# What the daemon accepts from the network, checked on the raw bytes before decoding.
 MAX_REQUEST_BYTES = 16 * 1024
 MAX_REQUEST_DEPTH = 4  # an object of lists of numbers is 2
+# What the tools accept from a daemon (its publications are bounded by what it sends).
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
-MAX_MESSAGE_DEPTH = 32
 
 
 def decode(payload: bytes, typ: type[T] = Any, *, max_bytes: int = MAX_MESSAGE_BYTES,  # type: ignore[assignment]
-           max_depth: int = MAX_MESSAGE_DEPTH) -> T:
-    """Decode a JSON or MessagePack payload into ``typ``; DataError on anything malformed, too
-    large or nested too deep (checked before the decoder runs)."""
+           max_depth: int | None = None) -> T:
+    """Decode a JSON or MessagePack payload into ``typ``; DataError on anything malformed or too
+    large, and, with ``max_depth``, nested too deep (checked on the raw bytes, before decoding)."""
     json = is_json(payload)
     payload_limits.check(payload, max_bytes=max_bytes, max_depth=max_depth, is_json=json)
     try:
@@ -136,6 +136,8 @@ def decode(payload: bytes, typ: type[T] = Any, *, max_bytes: int = MAX_MESSAGE_B
         # msgspec's MessagePack decoder lets a string with invalid UTF-8 escape as a
         # UnicodeDecodeError rather than its own DecodeError.
         raise DataError(f"malformed payload: {clip(str(exc), 120)}") from None
+    except RecursionError:  # a publication nested past the interpreter's limit (requests never get here)
+        raise DataError("malformed payload: nested too deep") from None
 
 
 def decode_request(payload: bytes, typ: type[T] = Any) -> T:  # type: ignore[assignment]

@@ -24,10 +24,13 @@ _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
 _NOT_BRACKET = bytes(b for b in range(256) if b not in b"[]{}")
 
 
-def check(payload: bytes, *, max_bytes: int, max_depth: int, is_json: bool) -> None:
-    """DataError when ``payload`` is larger than ``max_bytes`` or nests deeper than ``max_depth``."""
+def check(payload: bytes, *, max_bytes: int, max_depth: int | None, is_json: bool) -> None:
+    """DataError when ``payload`` is larger than ``max_bytes`` or nests deeper than ``max_depth``
+    (None: the depth is not checked)."""
     if len(payload) > max_bytes:
         raise DataError(f"payload of {len(payload)} bytes is larger than the {max_bytes} bytes a request may have")
+    if max_depth is None or (is_json and payload.count(b"[") + payload.count(b"{") <= max_depth):
+        return  # (fewer brackets than the limit cannot nest deeper than it)
     depth = json_depth(payload, max_depth) if is_json else msgpack_depth(payload, max_depth)
     if depth > max_depth:
         raise DataError(f"payload nests deeper than {max_depth} levels")

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from admittance import _rtcore
 from admittance.daemon.config import TICKS_PER_REV
 from admittance.daemon.messages import JointState, State
 
@@ -71,16 +72,12 @@ def latest_state(records: np.ndarray, cfg) -> State:
 
 def mode_name(code: int) -> str:
     """The loop's mode code in a telemetry row, by name ("running", "holding", "faulted")."""
-    from admittance import _rtcore
-
     modes = _rtcore.LOOP_MODES
     return modes[code] if 0 <= code < len(modes) else f"unknown ({code})"
 
 
 def fault_names(bits: int) -> list[str]:
     """The fault kinds set in a row's ``fault`` bitmask."""
-    from admittance import _rtcore
-
     return [name for k, name in enumerate(_rtcore.FAULT_KINDS) if bits >> k & 1]
 
 
