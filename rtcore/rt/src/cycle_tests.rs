@@ -343,13 +343,19 @@ fn model_faults(r: &Rig) -> u64 {
     r.shared.stats.faults.events(FaultKind::ModelStateInvalid)
 }
 
-#[test]
-fn an_injected_nan_state_holds_the_last_good_goal_and_raises_a_fault() {
+/// A free joint pushed for `cycles` cycles; the rig and the last (good) record.
+fn pushed(cycles: usize) -> (Rig, Record) {
     let mut r = started(free_joint(), &[(1, 2048)]);
-    for _ in 0..100 {
+    for _ in 0..cycles {
         r.cycle_with(Some(3.0));
     }
     let good = r.cycle_with(Some(3.0));
+    (r, good)
+}
+
+#[test]
+fn an_injected_nan_state_holds_the_last_good_goal_and_raises_a_fault() {
+    let (mut r, good) = pushed(100);
     assert!(good.goal_tick > 2048 && good.mode == LoopMode::Running as i64 && good.fault == 0);
     r.ctl.joints[0].state.theta = f64::NAN;
     let held = r.cycle_with(Some(3.0));
@@ -376,11 +382,7 @@ fn a_state_out_of_the_envelope_is_a_fault_too() {
 
 #[test]
 fn gains_that_bypassed_the_gate_hold_the_joint_until_a_good_set_arrives() {
-    let mut r = started(free_joint(), &[(1, 2048)]);
-    for _ in 0..50 {
-        r.cycle_with(Some(3.0));
-    }
-    let good = r.cycle_with(Some(3.0));
+    let (mut r, good) = pushed(50);
     let mut bad = free_joint();
     bad.joints[0].gains.inertia = 0.0; // the gate refuses this; written straight to the buffer here
     r.params.write(bad);
