@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from admittance.daemon import endpoints
-from admittance.daemon.schema import build, check_value, did_you_mean, key, shown
+from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
@@ -195,7 +195,7 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
     where = str(path)
     for name in doc:
         if name not in (*TABLES, "joints"):
-            raise ConfigError(f"{where}: unknown table [{name}]{did_you_mean(name, [*TABLES, 'joints'])}")
+            raise ConfigError(f"{where}: unknown table [{clip(name)}]{did_you_mean(name, [*TABLES, 'joints'])}")
     for name in REQUIRED_TABLES:
         if name not in doc:
             raise ConfigError(f"{where}: [{name}] is required")

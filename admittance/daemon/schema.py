@@ -61,7 +61,7 @@ def build(cls: type, table: Any, where: str) -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
     for name in table:
         if name not in fields:
-            raise ConfigError(f"{where}: unknown key {name!r}{did_you_mean(name, fields)}")
+            raise ConfigError(f"{where}: unknown key {clip(repr(name))}{did_you_mean(name, fields)}")
     values = {}
     for name, field in fields.items():
         if name in table:
