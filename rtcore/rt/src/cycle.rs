@@ -368,7 +368,9 @@ fn guard_state(slot: &mut JointSlot) {
     }
     slot.faults.insert(FaultKind::ModelStateInvalid);
     slot.state = State { theta: slot.good.theta, omega: 0.0 };
-    slot.torque = 0.0;
+    if !slot.torque.is_finite() {
+        slot.torque = 0.0; // the record shows the hand's torque, unless the gains made it NaN
+    }
 }
 
 #[cfg(test)]
