@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import threading
 from pathlib import Path
+from typing import Any
 
 from admittance.errors import AdmittanceError, ConfigError
 
@@ -75,9 +75,9 @@ def _positive(text: str) -> float:
 def cmd_run(args: argparse.Namespace) -> int:
     import signal
 
-    from admittance.daemon.stopsignals import stop_signals_call
+    from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 
-    stop = threading.Event()
+    stop = StopRequest()
     # After a run the process only exits; a late stop signal (a second SIGTERM during teardown)
     # must not cut that exit short and turn a clean stop into -15. `--check` leaves them be.
     after = None if args.check else signal.SIG_IGN
@@ -85,7 +85,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _run(args, stop)
 
 
-def _run(args: argparse.Namespace, stop: threading.Event) -> int:
+def _run(args: argparse.Namespace, stop: Any) -> int:
     from admittance.daemon import config
 
     try:

@@ -37,7 +37,6 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -51,7 +50,7 @@ from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.recording import Recorder
 from admittance.daemon.schema import clip
-from admittance.daemon.stopsignals import stop_signals_call
+from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 from admittance.errors import AdmittanceError, DeviceError
 
 STATS_PERIOD_S = 1.0
@@ -63,8 +62,9 @@ class RunOptions:
     duration: float | None = None
     stats_json: Path | None = None
     log: Callable[[str], None] = field(default=lambda line: print(f"admittance run: {line}", file=sys.stderr))
-    # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals).
-    stop: threading.Event = field(default_factory=threading.Event)
+    # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals). Anything
+    # with set/is_set/wait; a StopRequest because signal handlers set it (a threading.Event can deadlock).
+    stop: StopRequest = field(default_factory=StopRequest)
 
 
 def claim_nothing(cfg: DaemonConfig) -> contextlib.AbstractContextManager:
