@@ -12,6 +12,7 @@ import tomli_w
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from admittance import data
 from admittance.daemon import config
 from admittance.daemon.schema import describe
 from admittance.errors import ConfigError
@@ -19,7 +20,7 @@ from admittance.errors import ConfigError
 from helpers import examples
 
 REPO = Path(__file__).resolve().parents[1]
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 
 
 def minimal() -> dict:
@@ -45,8 +46,8 @@ def error_of(tmp_path: Path, doc: dict) -> str:
 
 
 def test_shipped_configurations_load():
-    for name in ("bench.toml", "example.toml"):
-        cfg = config.load_config(REPO / "config" / name)
+    for path in (data.bench_config(), data.example_config()):
+        cfg = config.load_config(path)
         assert cfg.joints and cfg.zenoh.prefix
 
 
@@ -69,13 +70,23 @@ def test_explicit_virtual_values_win(tmp_path):
     assert (joint.virtual_inertia, joint.virtual_damping, joint.virtual_coulomb) == (0.03, 0.0, 0.01)
 
 
-def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
+def test_params_path_is_resolved_beside_the_config_then_cwd_then_the_package(tmp_path, monkeypatch):
     doc = minimal()
     doc["joints"][0]["params"] = "mine.toml"
     (tmp_path / "mine.toml").write_text(MX64.read_text().replace("0.01467", "0.02"))
     assert config.load_config(write(tmp_path, doc)).joints[0].virtual_inertia == 0.02
-    doc["joints"][0]["params"] = "params/mx28.toml"  # not beside: found under config/ of the repo
-    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(REPO / "config/params/mx28.toml")
+    monkeypatch.chdir(tmp_path / "..")
+    doc["joints"][0]["params"] = "params/mx28.toml"  # not beside, not in cwd: the shipped fit
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(data.params_file("MX-28"))
+    doc["joints"][0]["params"] = "config/params/mx28.toml"  # a checkout's former layout still resolves
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(data.params_file("MX-28"))
+    (tmp_path / "cwd" / "params").mkdir(parents=True)  # a user's own file in the working directory wins
+    (tmp_path / "cwd" / "params" / "mx28.toml").write_text(MX64.read_text())
+    monkeypatch.chdir(tmp_path / "cwd")
+    doc["joints"][0]["params"] = "params/mx28.toml"
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(tmp_path / "cwd/params/mx28.toml")
+    doc["joints"][0]["params"] = "../secret.toml"
+    assert "not found" in error_of(tmp_path, doc)
     del doc["joints"][0]["params"]  # the model's own file by default
     assert config.load_config(write(tmp_path, doc)).joints[0].params.endswith("mx64.toml")
 
@@ -176,7 +187,7 @@ def test_every_key_is_documented():
 def test_run_check_prints_the_resolved_configuration(capsys):
     from admittance.cli import main
 
-    assert main(["run", "--check", "--config", str(REPO / "config" / "example.toml")]) == 0
+    assert main(["run", "--check", "--config", str(data.example_config())]) == 0
     out = capsys.readouterr().out
     assert "joint 1: MX-64" in out and "I=0.02 kg·m²" in out and "zenoh: bench/arm1" in out
 

@@ -18,14 +18,13 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from admittance import _rtcore
+from admittance import _rtcore, data
 from admittance.daemon import config
 from admittance.daemon.loopconfig import loop_config
 from admittance.daemon.supervisor import Supervisor
 from admittance.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 NAN, INF = float("nan"), float("inf")
 
 # Joint 1's zero tick 1000 reaches [-1.534, 4.749] rad, joint 2's 3000 reaches [-4.602, 1.678]:
@@ -147,7 +146,7 @@ def test_values_at_the_bounds_are_accepted_on_both_paths(supervisor, tmp_path, r
 
 
 @pytest.mark.parametrize("name, says", [
-    ("rate_hz", "[loop].rate_hz is not live"),
+    ("rate_hz", "[loop].rate_hz and [foxglove].rate_hz are not live"),
     ("1.zero_tick", "[joints].zero_tick is not live"),
     ("listen", "[zenoh].listen is not live"),
     ("tare_samples", "[sensor].tare_samples is not live"),

@@ -190,7 +190,7 @@ class Harness:
         self.backends = Backends(start_bench=bench, check_servos=check,
                                  release_servos=lambda cfg, port: self.events.append("release"),
                                  make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
-                                 claim_ports=claim)
+                                 claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
         options = RunOptions(duration=stop_after, stats_json=self.stats_path, log=self.logs.append)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
@@ -384,3 +384,29 @@ def test_a_loop_that_dies_stops_the_daemon_with_a_device_error(tmp_path):
     with pytest.raises(DeviceError, match="RT loop thread ended"):
         h.supervisor.run()
     assert "loop.stop:hold" in h.events  # the undo path still holds the joints
+
+
+def test_the_claim_comes_before_any_device_and_a_refused_claim_touches_none(tmp_path):
+    h = Harness(tmp_path, stop_after=0.2)
+
+    @contextlib.contextmanager
+    def claim(cfg):
+        h.events.append("claim")
+        try:
+            yield
+        finally:
+            h.events.append("claim.release")
+
+    h.backends.claim_devices = claim
+    assert h.supervisor.run() == 0
+    assert h.events[:2] == ["claim", "bench"] and h.events[-1] == "claim.release"
+
+    refused = Harness(tmp_path, stop_after=0.2)
+
+    def busy(cfg):
+        raise DeviceError("cannot claim /dev/fake: another admittance daemon has it (pid 1)")
+
+    refused.backends.claim_devices = busy
+    with pytest.raises(DeviceError, match="cannot claim"):
+        refused.supervisor.run()
+    assert refused.events == [], "no bench, no servo check, no sensor: nothing was opened"

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 import tomli_w
 
+from admittance import data
 from admittance.daemon.messages import STATS_KEYS
 
 from daemon_process import (ADMITTANCE, START_TIMEOUT_S, read_recording, run_daemon, running_daemon, wait_alive,
@@ -33,9 +34,8 @@ from helpers import free_endpoint, wait_until
 
 pytestmark = pytest.mark.hil
 
-REPO = Path(__file__).resolve().parents[1]
 PREFIX = "hil/arm"
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 RATE_HZ = 1000.0
 TICK_RAD = 2 * math.pi / 4096
 
@@ -335,3 +335,33 @@ def test_a_busy_zenoh_endpoint_fails_before_anything_is_written_to_a_servo(tmp_p
         assert bench.bus.stats()["packets"] == 0
         assert bench.bus.register(1, "Torque Enable") == 0
     assert first.returncode == 0, first.stderr
+
+
+def test_a_second_daemon_on_the_same_devices_stops_before_touching_them(tmp_path, monkeypatch):
+    """Two daemons configured on one bus and one sensor: the second stops with one line at the
+    claim, and, should it not share the first's lock directory, at its first exclusive open;
+    the first runs on undisturbed."""
+    from admittance.daemon.zenoh_iface import Client
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    monkeypatch.setenv("ADMITTANCE_LOCK_DIR", str(tmp_path))
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir(), (tmp_path / "other").mkdir()
+    with MockBench(BenchConfig(profile="still")) as bench:
+        first, endpoint = daemon_config(tmp_path / "a", bus=bench.bus_port, sensor=bench.sensor_port)
+        second, _ = daemon_config(tmp_path / "b", bus=bench.bus_port, sensor=bench.sensor_port)
+        stats_path = tmp_path / "first.json"
+        with running_daemon(first, "--stats-json", str(stats_path)) as daemon:
+            wait_alive(endpoint, PREFIX)
+            claimed = run_daemon(second, "--duration", "1")
+            monkeypatch.setenv("ADMITTANCE_LOCK_DIR", str(tmp_path / "other"))
+            opened = run_daemon(second, "--duration", "1")
+            with Client([endpoint]) as client:
+                wait_for_cycles(client, PREFIX, 200)
+    holder = f"pid {daemon.proc.pid}"
+    line = one_error_line(claimed)
+    assert claimed.returncode == 3 and line.startswith(f"admittance run: error: cannot claim {bench.bus_port}:") and holder in line
+    line = one_error_line(opened)
+    assert opened.returncode == 3 and "the device is busy" in line and holder in line
+    assert daemon.returncode == 0, daemon.stderr
+    sensor = json.loads(stats_path.read_text())["daemon"]["sensor"]
+    assert sensor["disconnects"] == 0 and sensor["state"] == "stopped"

@@ -81,6 +81,8 @@ class LiveParams:
                 raise ConfigError(f"{clip(name)}: {key} is loop-wide and takes no joint id")
             return [], key
         if key in ALL_KEYS:
-            raise ConfigError(f"{clip(name)}: [{ALL_KEYS[key]}].{key} is not live: it is read once at start "
-                              "(change the configuration and restart the daemon)")
+            tables = ALL_KEYS[key]
+            where = " and ".join(f"[{table}].{key}" for table in tables)
+            raise ConfigError(f"{clip(name)}: {where} {'is' if len(tables) == 1 else 'are'} not live: read once "
+                              "at start (change the configuration and restart the daemon)")
         raise ConfigError(f"unknown parameter {clip(name)!r}{did_you_mean(key, [*JOINT_LIVE, *LOOP_LIVE])}")

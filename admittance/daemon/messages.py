@@ -36,6 +36,10 @@ class JointState(msgspec.Struct, omit_defaults=True):
     goal_tick: int
     present_tick: int | None = None  # the servo's position when it was read this cycle
     fault: int = 0  # the fault kinds active for this joint (bits: _rtcore.FAULT_KINDS)
+    # For ROS users (extensions; absent from older daemons):
+    name: str | None = None  # the joint's configured name, else "joint<ID>"
+    wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
+    position: float | None = None  # rad, the measured angle of present_tick
 
 
 class State(msgspec.Struct):

@@ -5,19 +5,19 @@ line and a non-zero exit in the CLI; everything already started is undone in rev
 resource is claimed before the first write to a servo, so a daemon that cannot have them all
 fails without touching the joint:
 
-0. ``Backends.claim_ports``: the hook for the exclusive claim of the ttys (claims nothing
-   until a backend provides it);
+0. ``Backends.claim_devices``: the exclusive claim of the ttys (backends.claim_devices);
 1. the bench (only for ``[bus].port = "mock"``: the simulated bus and sensor on ptys);
-2. the Zenoh session (its endpoint), then the recording folder, then the RT loop object
-   (its configuration checked; no I/O yet), then the force sensor's device (it streams into
-   a closed gate);
+2. the Zenoh session (its endpoint) and the views on it (ROS 2, Foxglove's port), then the
+   recording folder, then the RT loop object (its configuration checked; no I/O yet), then
+   the force sensor's device (it streams into a closed gate);
 3. bus and servo checks with the Python SDK (ping, model, RDT 0, position mode, latency timer,
    torque on): the first write to a servo; then the SDK port is closed so the RT loop owns
    the tty alone;
 4. the tare, while the joint holds still;
 5. the RT loop starts, and only then is the sensor's stream let through to it (the gate), so
    the loop never acts on a sample taken before the tare;
-6. the Zenoh queryables and liveliness token, then ``READY=1`` to systemd.
+6. the MCAP session file (it starts with the loop's parameters), the Zenoh queryables and
+   liveliness token, then ``READY=1`` to systemd.
 
 The main thread then ticks at ``[zenoh].state_rate_hz``: it drains the loop's telemetry
 (recording every cycle, publishing the latest), answers params queries, publishes stats about
@@ -45,6 +45,7 @@ from typing import Any
 
 from admittance.daemon import endpoints, telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
+from admittance.daemon.ecosystem import Ecosystem
 from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
@@ -67,16 +68,6 @@ class RunOptions:
     stop: StopRequest = field(default_factory=StopRequest)
 
 
-def claim_nothing(cfg: DaemonConfig) -> contextlib.AbstractContextManager:
-    """The default ``Backends.claim_ports``: claims nothing, harmlessly (``contextlib.nullcontext``).
-
-    A hook, not a claim: the exclusive claim of the bus and sensor ttys (TIOCEXCL and a lock
-    file, so a second daemon on the same ports fails before it writes anything) plugs in here,
-    first in the start order.
-    """
-    return contextlib.nullcontext()
-
-
 @dataclass
 class Backends:
     """Factories for the other parts of the project (the real ones are in admittance.daemon.backends)."""
@@ -87,8 +78,8 @@ class Backends:
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
     make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler, log=) -> DaemonInterface
-    # -> context manager holding the devices' ports for the whole run (step 0 of the start order)
-    claim_ports: Callable[[DaemonConfig], contextlib.AbstractContextManager] = claim_nothing
+    # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
+    claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
 
 
 class GatedSink:
@@ -126,6 +117,7 @@ class Supervisor:
         self.sensor: Any = None
         self.interface: Any = None
         self.recorder: Recorder | None = None
+        self.ecosystem = Ecosystem()  # session.mcap, ROS 2 bridge, Foxglove view: all optional
         self.final_stats: dict[str, Any] | None = None
         self.live = LiveParams(cfg)
         self._codec = Codec(cfg.zenoh.encoding)
@@ -153,8 +145,8 @@ class Supervisor:
         self.stop_event.set()
 
     def _start(self, stack: contextlib.ExitStack) -> None:
-        self.notifier.status("starting: ports")
-        stack.enter_context(self.backends.claim_ports(self.cfg))
+        self.notifier.status("starting: devices")
+        stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
         ports = stack.enter_context(self.backends.start_bench(self.cfg))
         bus_port, sensor_port, start_hand = ports
         for warning in endpoints.exposure_warnings(self.cfg.zenoh):
@@ -169,6 +161,7 @@ class Supervisor:
         self._tare()
         self._start_loop(stack, bus_port)
         gate.open()
+        self._start_mcap(stack)
         if self.interface is not None:
             self.interface.serve()
         self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
@@ -224,6 +217,13 @@ class Supervisor:
                                  t0=0.0, segment_s=self.cfg.record.segment_s)
         stack.callback(self.recorder.close)
 
+    def _start_mcap(self, stack: contextlib.ExitStack) -> None:
+        """The MCAP session file beside the recording: it starts with the loop's first parameters
+        and its t = 0, so it opens once the loop runs (the folder itself was claimed before)."""
+        folder = record_dir(self.cfg)
+        if folder is not None:
+            self.ecosystem.start_mcap(stack, folder, self.cfg, self._t0, self.get_params())
+
     def _open_interface(self, stack: contextlib.ExitStack) -> None:
         """Open the Zenoh session (claims the endpoint); it serves queries once the loop runs."""
         if self.backends.make_interface is None:
@@ -231,6 +231,7 @@ class Supervisor:
         self.notifier.status("starting: zenoh")
         self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self, log=self.options.log)
         stack.callback(self.interface.close)
+        self.ecosystem.start_views(stack, self.cfg, self.interface)
 
     def _release_unless_loop_ran(self, bus_port: str) -> None:
         """A start that failed after torque-on: the loop cannot apply the policy, so do it here."""
@@ -289,6 +290,8 @@ class Supervisor:
             self.interface.poll()
         if latest is not None:
             self._report_faults(latest)
+        for warning in self.ecosystem.publish(latest):
+            self._warn(warning)
         if self.sensor.error:
             self._warn(f"force sensor stopped: {self.sensor.error} (the joints hold)")
 
@@ -305,8 +308,10 @@ class Supervisor:
         if len(records) == 0:
             return None
         if self.recorder is not None:
-            for joint_id, columns in telemetry.columns_by_joint(records, self.cfg).items():
+            by_joint = telemetry.columns_by_joint(records, self.cfg)
+            for joint_id, columns in by_joint.items():
                 self.recorder.append(joint_id, columns)
+            self.ecosystem.record_cycles(by_joint)
         return telemetry.latest_state(records, self.cfg)
 
     def _publish_stats(self) -> None:
@@ -319,11 +324,13 @@ class Supervisor:
                              f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
             self.interface.publish_stats(stats_message(stats))
+        self.ecosystem.record("stats", stats)
 
     def _warn(self, text: str) -> None:
         if text not in self._warned:
             self._warned.add(text)
             self.options.log(f"warning: {text}")
+            self.ecosystem.record("event", f"warning: {text}")
 
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
@@ -340,12 +347,14 @@ class Supervisor:
         accepted, reason = self.loop.set_params(request)
         if accepted:
             self.options.log(f"params set: {clip(json.dumps(request, sort_keys=True), 400)}")
+            self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
         self.loop.tare(samples)
         self.options.log(f"tare requested over the next {samples} samples")
+        self.ecosystem.record("event", f"tare over the next {samples} samples")
         return True, ""
 
     # -- exit ----------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ instead of falling further behind.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -52,9 +53,19 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
     return out
 
 
+def joint_name(joint) -> str:
+    return getattr(joint, "name", "") or f"joint{joint.id}"
+
+
+def wall_offset_ns() -> int:
+    """CLOCK_REALTIME − CLOCK_MONOTONIC now: the loop stamps cycles on the monotonic clock only."""
+    return time.time_ns() - time.monotonic_ns()
+
+
 def latest_state(records: np.ndarray, cfg) -> State:
     """The newest row of each joint as a State message (present_tick from its last read)."""
     ids = records["id"]
+    wall_ns = wall_offset_ns()
     joints = []
     for joint in cfg.joints:
         rows = records[ids == joint.id]
@@ -62,10 +73,13 @@ def latest_state(records: np.ndarray, cfg) -> State:
             continue
         row = rows[-1]
         read = rows["present_tick"][rows["present_tick"] != NOT_READ]
+        present = int(read[-1]) if len(read) else None
         joints.append(JointState(
             id=joint.id, t=int(row["t_ns"]) * 1e-9, force=float(row["force"]), tau=float(row["torque"]),
             theta=float(row["theta"]), omega=float(row["omega"]), goal_tick=int(row["goal_tick"]),
-            present_tick=int(read[-1]) if len(read) else None, fault=int(row["fault"]),
+            present_tick=present, fault=int(row["fault"]), name=joint_name(joint),
+            wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
+            position=None if present is None else float(tick_to_rad(present, joint)),
         ))
     return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
 

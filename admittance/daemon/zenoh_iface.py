@@ -38,14 +38,15 @@ from admittance.daemon.messages import (
     Codec, ParamsReply, SetReply, decode, decode_set_request, decode_tare_request,
 )
 from admittance.daemon.schema import clip
-from admittance.errors import AdmittanceError, DeviceError
+from admittance.errors import AdmittanceError, ConfigError, DataError, DeviceError
 
 QUERY_BACKLOG = 32
 LOG_PERIOD_S = 10.0  # at most one line per kind of query problem per this long
 
 
 def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
-                scouting: bool = False) -> zenoh.Config:
+                scouting: bool = False, security: dict[str, Any] | None = None) -> zenoh.Config:
+    """A session configuration; ``security`` holds zenoh_security.security_entries (JSON5 path -> value)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(scouting))
@@ -55,7 +56,21 @@ def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect:
         conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    for path, value in (security or {}).items():
+        try:
+            conf.insert_json5(path, json.dumps(value))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"[zenoh]: {path}: {_short(str(exc))}") from None
     return conf
+
+
+def security_of(zcfg: Any) -> dict[str, Any]:
+    """The security entries of a [zenoh] table (its paths are already absolute: config.py)."""
+    from pathlib import Path
+
+    from admittance.daemon.zenoh_security import security_entries
+
+    return security_entries(zcfg, Path.cwd())
 
 
 def open_session(conf: zenoh.Config | Callable[[], zenoh.Config], what: str) -> zenoh.Session:
@@ -114,7 +129,8 @@ class DaemonInterface:
         self._log = RateLimitedLog(log or (lambda line: print(line, file=sys.stderr)))
         listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
         self._session = open_session(
-            lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting),
+            lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
+                                security=security_of(zcfg)),
             f"listening on {', '.join(zcfg.listen) or 'defaults'}")
         encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
             "application/msgpack")
@@ -136,6 +152,11 @@ class DaemonInterface:
             for leaf, answer in (("params", self._answer_params), ("tare", self._answer_tare))
         }
         self._token = self._session.liveliness().declare_token(f"{self.prefix}/alive")
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The daemon's own session: the ROS 2 bridge declares its publishers and tokens on it."""
+        return self._session
 
     def publish_state(self, message: Any) -> None:
         self._state_pub.put(self._codec.encode(message))
@@ -206,9 +227,9 @@ def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
 class Client:
     """A short-lived session for ``monitor``, ``set`` and ``tare``: connects to a daemon, listens nowhere."""
 
-    def __init__(self, connect: list[str]) -> None:
+    def __init__(self, connect: list[str], security: dict[str, Any] | None = None) -> None:
         self.connect = connect
-        self._session = open_session(lambda: make_config(mode="peer", listen=[], connect=connect),
+        self._session = open_session(lambda: make_config(mode="peer", listen=[], connect=connect, security=security),
                                      f"connecting to {', '.join(connect)}")
 
     def __enter__(self) -> Client:
@@ -236,20 +257,31 @@ class Client:
         """A subscriber whose ``try_recv()`` never blocks (for a redraw loop with its own clock)."""
         return _Polled(self._session.declare_subscriber(f"{prefix}/*", zenoh.handlers.RingChannel(16)))
 
+    def try_stream_benches(self, prefix: str) -> Any:
+        """Like try_stream, for every bench under ``prefix``: drain() gives (leaf, message, bench)."""
+        return _Polled(self._session.declare_subscriber(f"{prefix}/**", zenoh.handlers.RingChannel(256)),
+                       with_bench=True)
+
     def alive(self, prefix: str, timeout: float = 2.0) -> bool:
         return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))
 
 
 class _Polled:
-    def __init__(self, subscriber: Any) -> None:
+    def __init__(self, subscriber: Any, with_bench: bool = False) -> None:
         self._subscriber = subscriber
+        self._with_bench = with_bench
 
-    def drain(self) -> list[tuple[str, dict[str, Any]]]:
+    def drain(self) -> list[tuple]:
         out = []
         while (sample := self._subscriber.try_recv()) is not None:
-            leaf = str(sample.key_expr).rsplit("/", 1)[-1]
-            if leaf in ("state", "stats"):
-                out.append((leaf, decode(sample.payload.to_bytes())))
+            bench, _, leaf = str(sample.key_expr).rpartition("/")
+            if leaf not in ("state", "stats"):
+                continue
+            try:
+                message = decode(sample.payload.to_bytes())
+            except DataError:
+                continue  # someone else's payload on a matching key: not ours to show
+            out.append((leaf, message, bench) if self._with_bench else (leaf, message))
         return out
 
     def close(self) -> None:
