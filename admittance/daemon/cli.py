@@ -95,7 +95,7 @@ def _remote_args(parser: argparse.ArgumentParser) -> None:
                         help=f"zenoh endpoint of the daemon or router (default {DEFAULT_ENDPOINT}; repeatable)")
     parser.add_argument("--zenoh-config", type=Path, metavar="FILE",
                         help="a TOML file whose [zenoh] table gives this session's login, TLS files and "
-                             "connect endpoints (docs/zenoh.md)")
+                             "connect endpoints (default: none: no login, --connect or loopback; docs/zenoh.md)")
 
 
 def _positive(text: str) -> float:

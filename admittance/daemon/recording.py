@@ -99,8 +99,9 @@ class Recorder:
 
         ``columns`` holds ``t`` (s, monotonic), ``tau``, ``force``, ``theta_model``,
         ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read), ``cycle`` and
-        ``fault`` (the loop's fault bits of that joint, 0 when none).
+        ``fault`` (the loop's fault bits of that joint; 0, or absent, when none).
         """
+        fault = columns.get("fault", np.zeros(len(columns["t"])))
         keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
         if not keep.any():
             return 0
@@ -112,7 +113,7 @@ class Recorder:
         table = np.column_stack([
             t, theta[keep], columns["tau"][keep], columns["force"][keep],
             columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["cycle"][keep], columns["fault"][keep],
+            columns["cycle"][keep], fault[keep],
         ])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
