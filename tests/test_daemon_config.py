@@ -100,7 +100,7 @@ def test_params_path_is_resolved_beside_the_config_then_cwd_then_the_package(tmp
     (lambda d: d.pop("sensor"), r"\[sensor\] is required"),
     (lambda d: d["joints"][0].update(id=300), r"\[\[joints\]\] #1\.id: must be <= 252"),
     (lambda d: d["joints"][0].update(virtual_damping=-1.0), r"virtual_damping: must be >= 0"),
-    (lambda d: d["joints"][0].update(virtual_inertia=0.0), r"virtual_inertia: must be > 0"),
+    (lambda d: d["joints"][0].update(virtual_inertia=0.0), r"virtual_inertia: must be >= 0\.0001 kg·m²"),
     (lambda d: d["joints"].append(dict(d["joints"][0])), r"duplicate joint id 1"),
     (lambda d: d["joints"][0].update(virtual_damping=50.0), r"\[joints\.1\] virtual_\*: h·B/I = .* must be < 1"),
     (lambda d: d["joints"][0].update(params="nowhere.toml"), r"params: file 'nowhere.toml' not found"),
@@ -112,7 +112,7 @@ def test_params_path_is_resolved_beside_the_config_then_cwd_then_the_package(tmp
     (lambda d: d.update(bus={"port": "/dev/x", "protocol": 1}) or d["joints"][0].update(model="XM430-W350"),
      r"'XM430-W350' is not a Protocol 1\.0 model"),
     (lambda d: d["sensor"].update(kind="laser"), r"\[sensor\]\.kind: expected one of"),
-    (lambda d: d["sensor"].update(lever_arm=0.0), r"lever_arm: must not be 0"),
+    (lambda d: d["sensor"].update(lever_arm=0.0), r"lever_arm: must be at least 0\.001 m either side of 0"),
     (lambda d: d["sensor"].update(counts_per_newton=[1.0]), r"counts_per_newton: expected 3 values"),
     (lambda d: d["sensor"].update(port="mock"), r"needs the simulated bench"),
     (lambda d: d.update(loop={"rate_hz": 1000, "stale_timeout_ms": 0}), r"stale_timeout_ms: must be > 0"),
@@ -122,6 +122,12 @@ def test_params_path_is_resolved_beside_the_config_then_cwd_then_the_package(tmp
     (lambda d: d.update(zenoh={"prefix": "a//b"}), r"prefix: 'a//b' is not a valid key expression"),
     (lambda d: d.update(stop={"torque_policy": "float"}), r"torque_policy: expected one of 'hold', 'torque_off'"),
     (lambda d: d.update(joints=[]), r"\[\[joints\]\] must be a non-empty array"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/127.0.0.1:99999"]}),
+     r"\[zenoh\]\.listen\[0\]: 'tcp/127\.0\.0\.1:99999': the port must be a number 0\.\.65535"),
+    (lambda d: d.update(zenoh={"listen": [""]}), r"\[zenoh\]\.listen\[0\]: '' is not an endpoint"),
+    (lambda d: d.update(zenoh={"connect": ["foo/bar"]}), r"\[zenoh\]\.connect\[0\]: 'foo/bar': unknown protocol 'foo'"),
+    (lambda d: d.update(zenoh={"connect": ["tcp/256.1.1.1:7447"]}), r"'256\.1\.1\.1' is not an IPv4 address"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/[::g]:1"]}), r"in brackets is not an IPv6 address"),
 ])
 def test_errors_name_the_key_and_the_problem_in_one_line(tmp_path, mutate, expected):
     doc = minimal()
@@ -184,3 +190,21 @@ def test_run_check_prints_the_resolved_configuration(capsys):
     assert main(["run", "--check", "--config", str(data.example_config())]) == 0
     out = capsys.readouterr().out
     assert "joint 1: MX-64" in out and "I=0.02 kg·m²" in out and "zenoh: bench/arm1" in out
+
+
+@pytest.mark.parametrize("listen, mode, warned", [
+    (["tcp/127.0.0.1:7447"], "peer", []),
+    (["tcp/[::1]:7447", "tcp/localhost:7448", "unixsock-stream//tmp/z.sock"], "peer", []),
+    ([], "peer", ["listen is empty"]),
+    (["tcp/0.0.0.0:7447"], "peer", ["tcp/0.0.0.0:7447 is reachable from every interface"]),
+    (["tcp/[::]:7447", "tcp/192.168.1.5:7447"], "router", ["every interface", "the network"]),
+    ([], "client", []),  # a client listens nowhere
+])
+def test_listening_beyond_loopback_is_warned_about(listen, mode, warned):
+    from admittance.daemon.endpoints import exposure_warnings
+
+    zcfg = config.ZenohConfig(listen=listen, mode=mode, connect=["tcp/10.0.0.1:7447"])
+    warnings = exposure_warnings(zcfg)
+    assert len(warnings) == len(warned)
+    for line, expected in zip(warnings, warned):
+        assert expected in line and "can set parameters and tare" in line and "\n" not in line

@@ -20,7 +20,7 @@ def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
     present[np.arange(n) % read_every != 0] = np.nan
     return {"t": t, "tau": 0.1 * np.cos(t), "force": np.cos(t), "theta_model": np.sin(t),
             "omega_model": np.cos(t), "theta_goal": np.sin(t), "theta_present": present,
-            "cycle": np.round(t * 1e3)}
+            "cycle": np.round(t * 1e3), "fault": np.zeros(n)}
 
 
 def test_a_recording_loads_as_a_geometry_dataset_with_measured_theta(tmp_path):
@@ -79,7 +79,7 @@ def test_record_identify_reload_round_trip(tmp_path):
         "joints": [{"id": 1, "model": "MX-64", "virtual_inertia": inertia, "virtual_damping": damping,
                     "virtual_coulomb": coulomb}],
         "sensor": {"kind": "optoforce", "port": "mock", "lever_arm": 0.105},
-        "loop": {"sync_read_divisor": 2, "stale_timeout_ms": 1000.0},  # no hold when CI stalls the reader
+        "loop": {"sync_read_divisor": 2, "stale_timeout_ms": 500.0},  # no hold when CI stalls the reader (the most allowed)
         "zenoh": {"prefix": prefix, "listen": [endpoint]},
         "record": {"path": "rec", "segment_s": 2.0},
         "bench": {"profile": "sine:amplitude=0.12,frequency=0.7", "hand_delay_s": 0.5},

@@ -64,6 +64,8 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     loop.stop("hold")
     rec = loop.drain_telemetry()
     assert len(rec) >= 200 and np.all(np.diff(rec["cycle"]) == 1)
+    assert np.all(rec["fault"] == 0), f"the state guard held the joint (fault bits {set(rec['fault'].tolist())})"
+    assert np.all(rec["mode"] == 0), "the loop held: no force sample for stale_timeout_ms (the pusher stalled)"
     h = 1.0 / RATE_HZ
     # plant::admittance with F = 0, on the torque each cycle used: the velocity first (damping
     # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'.

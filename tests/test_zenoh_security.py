@@ -46,6 +46,7 @@ def serve(zcfg: ZenohConfig):
     """A DaemonInterface pumped like the supervisor does, until the returned stop() is called."""
     handler = Handler()
     iface = DaemonInterface(zcfg, Codec("json"), handler)
+    iface.serve()  # the queryables and the token, as the supervisor declares them once its loop runs
     done = threading.Event()
     state = State(cycle=1, joints=[JointState(id=1, t=0.0, force=0.0, tau=0.0, theta=0.0, omega=0.0, goal_tick=2048)])
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import threading
 from pathlib import Path
+from typing import Any
 
-from admittance.errors import ConfigError
+from admittance.errors import AdmittanceError, ConfigError
 
 DEFAULT_PREFIX = "bench/arm1"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -95,7 +95,7 @@ def _remote_args(parser: argparse.ArgumentParser) -> None:
                         help=f"zenoh endpoint of the daemon or router (default {DEFAULT_ENDPOINT}; repeatable)")
     parser.add_argument("--zenoh-config", type=Path, metavar="FILE",
                         help="a TOML file whose [zenoh] table gives this session's login, TLS files and "
-                             "connect endpoints (docs/zenoh.md; default: none, an anonymous session)")
+                             "connect endpoints (default: none: no login, --connect or loopback; docs/zenoh.md)")
 
 
 def _positive(text: str) -> float:
@@ -109,14 +109,20 @@ def _positive(text: str) -> float:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from admittance.daemon.stopsignals import stop_signals_call
+    import signal
 
-    stop = threading.Event()
-    with stop_signals_call(lambda *_: stop.set()):
+    from admittance.daemon.stopsignals import StopRequest, stop_signals_call
+
+    stop = StopRequest()
+    # After a run the process only exits; a late stop signal (a second SIGTERM during teardown)
+    # must not cut that exit short and turn a clean stop into -15. `--check` and
+    # `--print-example-config` run nothing and leave them be.
+    after = None if args.check or args.print_example_config else signal.SIG_IGN
+    with stop_signals_call(lambda *_: stop.set(), then=after):
         return _run(args, stop)
 
 
-def _run(args: argparse.Namespace, stop: threading.Event) -> int:
+def _run(args: argparse.Namespace, stop: Any) -> int:
     from admittance.daemon import config
 
     if args.print_example_config:
@@ -125,8 +131,12 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
         print(data.example_config().read_text(), end="")
         return 0
 
-    cfg = config.load_config(args.config) if args.config else config.load_default()
-    cfg = config.with_overrides(cfg, record=args.record)
+    try:
+        cfg = config.load_config(args.config) if args.config else config.load_default()
+        cfg = config.with_overrides(cfg, record=args.record)
+    except ConfigError as exc:
+        _stats_of_a_failed_start(args, exc)
+        raise
     if args.check:
         print(config.summary(cfg))
         return 0
@@ -140,6 +150,18 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
 
     options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop)
     return Supervisor(cfg, real_backends(), options).run()
+
+
+def _stats_of_a_failed_start(args: argparse.Namespace, error: ConfigError) -> None:
+    """--stats-json on every exit path: a configuration that did not load leaves its error."""
+    if args.stats_json is None or args.check:
+        return
+    from admittance.daemon.supervisor import error_fields, write_stats_file
+
+    try:
+        write_stats_file(args.stats_json, error_fields(error))
+    except AdmittanceError as exc:
+        print(f"admittance run: warning: {exc}", file=sys.stderr)
 
 
 def remote_client(args: argparse.Namespace):

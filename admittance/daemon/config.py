@@ -11,19 +11,29 @@ Two defaults are not constants and are filled after validation:
   among the fits shipped in the package (:mod:`admittance.data`);
 - ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
   ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively.
+
+The live keys (``live=True``) obey one more layer, shared with every live change: the rules
+between keys (:func:`check_joint_params`, :func:`check_loop_params`: limits in order and within
+what the servo reaches, a stable virtual joint, a low-pass below half the rate). The
+configuration runs them on the resolved file, and ``liveparams`` on every candidate set, so a
+value refused in the file is refused over Zenoh with the same reason, and the other way round.
+Why each bound is where it is: docs/daemon.md, "Bounds".
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import tomllib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from admittance import data
-from admittance.daemon.schema import build, did_you_mean, key
+from admittance.daemon import endpoints
+from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
@@ -31,6 +41,12 @@ MOCK_PORT = "mock"
 AXES = ("x", "y", "z")
 SENSOR_KINDS = ("optoforce", "can", "mock")
 _KEY_CHUNK = re.compile(r"^[^*$?#/]+$")
+# Every supported model (MX-28/64/106, XM430, XL330) has a 12-bit absolute encoder, and position
+# mode (set up by the servo checks) takes goals of one turn.
+TICKS_PER_REV = 4096
+GOAL_TICKS = (0, TICKS_PER_REV - 1)
+# The default position limits: a turn, clipped to what the joint's goal range reaches.
+DEFAULT_POSITION_LIMIT = 3.1  # rad
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,10 +60,15 @@ class BusConfig:
 class LimitsConfig:
     """Limits on the model's state (not just its output), so the integrator never winds up."""
 
-    position_min: float = key("float", -3.1, unit="rad", lo=-3.1416, hi=3.1416, live=True, doc="lowest model angle")
-    position_max: float = key("float", 3.1, unit="rad", lo=-3.1416, hi=3.1416, live=True, doc="highest model angle")
-    velocity_max: float = key("float", 6.0, unit="rad/s", lo=0.0, lo_open=True, live=True, doc="model speed limit")
-    acceleration_max: float = key("float", 200.0, unit="rad/s²", lo=0.0, lo_open=True, live=True,
+    # None = ∓3.1 rad clipped to the joint's reach (filled by _resolve_joint); an explicit value
+    # must lie within the reach.
+    position_min: float | None = key("float", None, unit="rad", lo=-math.pi, hi=math.pi, live=True,
+                                     doc="lowest model angle")
+    position_max: float | None = key("float", None, unit="rad", lo=-math.pi, hi=math.pi, live=True,
+                                     doc="highest model angle")
+    velocity_max: float = key("float", 6.0, unit="rad/s", lo=0.0, lo_open=True, hi=12.0, live=True,
+                              doc="model speed limit")
+    acceleration_max: float = key("float", 200.0, unit="rad/s²", lo=0.0, lo_open=True, hi=1000.0, live=True,
                                   doc="model acceleration limit")
 
 
@@ -60,11 +81,14 @@ class JointConfig:
     params: str = key("str", "", doc="fitted parameter file (Contract 2); default params/<model>.toml")
     name: str = key("str", "", doc="the joint's name in ROS 2 joint_states and MCAP; default joint<ID>")
     # None = the fitted plant's value (filled by _resolve_joint).
-    virtual_inertia: float | None = key("float", None, unit="kg·m²", lo=0.0, lo_open=True, live=True,
+    virtual_inertia: float | None = key("float", None, unit="kg·m²", lo=1e-4, hi=10.0, live=True,
                                         doc="felt inertia")
-    virtual_damping: float | None = key("float", None, unit="N·m·s/rad", lo=0.0, live=True, doc="felt damping")
-    virtual_coulomb: float | None = key("float", None, unit="N·m", lo=0.0, live=True, doc="felt Coulomb friction")
-    lever_arm: float | None = key("float", None, unit="m", live=True, doc="this joint's lever arm; default [sensor].lever_arm")
+    virtual_damping: float | None = key("float", None, unit="N·m·s/rad", lo=0.0, hi=100.0, live=True,
+                                        doc="felt damping")
+    virtual_coulomb: float | None = key("float", None, unit="N·m", lo=0.0, hi=10.0, live=True,
+                                        doc="felt Coulomb friction")
+    lever_arm: float | None = key("float", None, unit="m", lo=-2.0, hi=2.0, min_abs=1e-3, live=True,
+                                  doc="this joint's lever arm; default [sensor].lever_arm")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
     # Filled by resolve(): the parsed limits and the loaded parameter file.
     resolved_limits: LimitsConfig | None = dataclasses.field(default=None, metadata={"internal": True})
@@ -84,9 +108,14 @@ class SensorConfig:
     counts_per_newton: list = key("float_list", [451.89, 451.89, 451.89], unit="count/N", lo=0.0, lo_open=True,
                                   doc="OptoForce scale per axis")
     axis: str = key("str", "x", choices=AXES, doc="force axis that drives the joints")
-    lever_arm: float = key("float", unit="m", doc="torque = force × lever_arm (negative flips the direction)")
-    deadband: float = key("float", 0.0, unit="N", lo=0.0, live=True, doc="half-width of the smooth dead zone on the force")
-    lowpass_hz: float = key("float", 0.0, unit="Hz", lo=0.0, live=True, doc="first-order low-pass on the torque; 0 = off")
+    lever_arm: float = key("float", unit="m", lo=-2.0, hi=2.0, min_abs=1e-3,
+                           doc="torque = force × lever_arm (negative flips the direction)")
+    deadband: float = key("float", 0.0, unit="N", lo=0.0, hi=100.0, live=True,
+                          doc="half-width of the smooth dead zone on the force")
+    lowpass_hz: float = key("float", 0.0, unit="Hz", lo=0.0, hi=2000.0, live=True,
+                            doc="first-order low-pass on the torque; 0 = off")
+    bias: list = key("float_list", [0.0] * 6, unit="N, N·m", lo=-2000.0, hi=2000.0, length=6, live=True,
+                     doc="offset the loop subtracts (fx fy fz tx ty tz) after the start-up tare")
     tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
     saturation: str = key("str", "hold", choices=("hold", "pass"),
                           doc="a saturated sample (overload flag, clipped count): hold drops it (the joint holds), pass uses it")
@@ -99,9 +128,9 @@ class LoopConfig:
     rt_priority: int = key("int", 80, lo=0, hi=99, doc="SCHED_FIFO priority asked for; 0 = stay SCHED_OTHER")
     lock_memory: bool = key("bool", True, doc="mlockall the process (falls back, and reports, when refused)")
     sync_read_divisor: int = key("int", 10, lo=0, hi=10_000, doc="read present positions every N cycles; 0 = never")
-    stale_timeout_ms: float = key("float", 50.0, unit="ms", lo=0.0, lo_open=True, hi=10_000.0, live=True,
+    stale_timeout_ms: float = key("float", 50.0, unit="ms", lo=0.0, lo_open=True, hi=500.0, live=True,
                                   doc="no force sample for this long: hold position")
-    ramp_time_s: float = key("float", 0.5, unit="s", lo=0.0, hi=60.0, live=True,
+    ramp_time_s: float = key("float", 0.5, unit="s", lo=0.0, hi=10.0, live=True,
                              doc="a live parameter change blends in over this time (no jump)")
 
 
@@ -212,7 +241,7 @@ def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:
     where = str(path)
     for name in doc:
         if name not in (*TABLES, "joints"):
-            raise ConfigError(f"{where}: unknown table [{name}]{did_you_mean(name, [*TABLES, 'joints'])}")
+            raise ConfigError(f"{where}: unknown table [{clip(name)}]{did_you_mean(name, [*TABLES, 'joints'])}")
     for name in REQUIRED_TABLES:
         if name not in doc:
             raise ConfigError(f"{where}: [{name}] is required")
@@ -250,11 +279,7 @@ def _parse_joints(raw: Any, path: Path, protocol: int) -> tuple[JointConfig, ...
 
 
 def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
-    limits = build(LimitsConfig, joint.limits, f"{where}.limits")
-    if limits.position_min >= limits.position_max:
-        raise ConfigError(f"{where}.limits.position_min: must be below position_max ({limits.position_max:g} rad)")
-    if joint.lever_arm == 0.0:
-        raise ConfigError(f"{where}.lever_arm: must not be 0 m")
+    limits = _default_position_limits(build(LimitsConfig, joint.limits, f"{where}.limits"), reachable_range(joint))
     params_path = resolve_params_path(joint, path, where)
     plant = paramfile.load(params_path)
     if plant["model"].get("mode", "geometry") == "lumped":
@@ -279,6 +304,21 @@ def _or(value: float | None, fallback: float) -> float:
     return fallback if value is None else value
 
 
+def _default_position_limits(limits: LimitsConfig, reach: tuple[float, float]) -> LimitsConfig:
+    """An omitted position limit is ∓3.1 rad clipped to the reach (an explicit one is checked)."""
+    return dataclasses.replace(
+        limits,
+        position_min=_or(limits.position_min, max(-DEFAULT_POSITION_LIMIT, reach[0])),
+        position_max=_or(limits.position_max, min(DEFAULT_POSITION_LIMIT, reach[1])),
+    )
+
+
+def reachable_range(joint: JointConfig) -> tuple[float, float]:
+    """The joint angles the goal's tick range covers from ``zero_tick`` (direction taken into account)."""
+    ends = sorted(joint.direction * (t - joint.zero_tick) * 2 * math.pi / TICKS_PER_REV for t in GOAL_TICKS)
+    return ends[0], ends[1]
+
+
 def resolve_params_path(joint: JointConfig, config_path: Path, where: str) -> Path:
     """The joint's parameter file: beside the config file first, then in the working directory
     (a user's own fit wins over a shipped one), and last among the fits shipped in the package."""
@@ -299,8 +339,6 @@ def resolve_params_path(joint: JointConfig, config_path: Path, where: str) -> Pa
 def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> None:
     """Rules that involve more than one key."""
     bus, sensor, loop, zen = tables["bus"], tables["sensor"], tables["loop"], tables["zenoh"]
-    if sensor.lever_arm == 0.0:
-        raise ConfigError(f"{where}: [sensor].lever_arm: must not be 0 m")
     if sensor.kind == "optoforce" and not sensor.port:
         raise ConfigError(f"{where}: [sensor].port: required for kind {sensor.kind!r}")
     if sensor.kind == "can":
@@ -310,15 +348,18 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
     if len(sensor.counts_per_newton) != 3:
         raise ConfigError(f"{where}: [sensor].counts_per_newton: expected 3 values (x, y, z), got "
                           f"{len(sensor.counts_per_newton)}")
-    if sensor.lowpass_hz >= loop.rate_hz / 2:
-        raise ConfigError(f"{where}: [sensor].lowpass_hz: must be below half of [loop].rate_hz "
-                          f"({loop.rate_hz / 2:g} Hz), got {sensor.lowpass_hz:g}")
+    for j in joints:
+        joint_where = f"{where}: [joints.{j.id}]"
+        check_joint_params(joint_values(j), reach=reachable_range(j), rate_hz=loop.rate_hz, where=joint_where,
+                           name=lambda k, w=joint_where: f"{w}.{'limits.' if k in LIMIT_KEYS else ''}{k}")
+    check_loop_params(loop_values(tables), rate_hz=loop.rate_hz, where=where,
+                      name=lambda k: f"{where}: [{LOOP_LIVE[k][0]}].{k}")
     if zen.state_rate_hz > loop.rate_hz:
         raise ConfigError(f"{where}: [zenoh].state_rate_hz: must not exceed [loop].rate_hz ({loop.rate_hz:g} Hz)")
     if zen.mode == "client" and not zen.connect:
         raise ConfigError(f"{where}: [zenoh].connect: required with mode = \"client\" (a client only "
                           "reaches others through the router or peer it connects to)")
-    _check_stable(joints, loop.rate_hz, where)
+    check_endpoints(zen, where)
     check_prefix(zen.prefix, where)
     check_zenoh_security(zen, where)
     _check_ros2(tables["ros2"], where)
@@ -339,14 +380,22 @@ def load_zenoh_table(path: str | Path) -> ZenohConfig:
     zen = build(ZenohConfig, read_toml(path).get("zenoh", {}), f"{path}: [zenoh]")
     zen = absolute_zenoh_paths(zen, path.resolve().parent)
     check_prefix(zen.prefix, str(path))
+    check_endpoints(zen, str(path))
     check_zenoh_security(zen, str(path))
     return zen
 
 
 def check_prefix(prefix: str, where: str) -> None:
     if not all(_KEY_CHUNK.match(c) for c in prefix.split("/")):
-        raise ConfigError(f"{where}: [zenoh].prefix: {prefix!r} is not a valid key expression "
+        raise ConfigError(f"{where}: [zenoh].prefix: {shown(prefix)} is not a valid key expression "
                           "(non-empty '/'-separated chunks without * $ ? #)")
+
+
+def check_endpoints(zen: ZenohConfig, where: str) -> None:
+    """Every listen/connect endpoint parses (one line naming it, before any device is opened)."""
+    for name in ("listen", "connect"):
+        for i, text in enumerate(getattr(zen, name)):
+            endpoints.parse(text, f"{where}: [zenoh].{name}[{i}]")
 
 
 def _check_can(sensor: SensorConfig, where: str) -> None:
@@ -370,10 +419,10 @@ def check_zenoh_security(zen: ZenohConfig, where: str) -> None:
         raise ConfigError(f"{where}: [zenoh].auth_user and auth_password_file: give both or neither")
     if bool(zen.tls_certificate) != bool(zen.tls_private_key):
         raise ConfigError(f"{where}: [zenoh].tls_certificate and tls_private_key: give both or neither")
-    endpoints = [*zen.listen, *zen.connect]
+    everywhere = [*zen.listen, *zen.connect]
     if any(e.startswith("tls/") for e in zen.listen) and not zen.tls_certificate:
         raise ConfigError(f"{where}: [zenoh].tls_certificate: required to listen on a tls/ endpoint")
-    if any(e.startswith("tls/") for e in endpoints) and not zen.tls_ca:
+    if any(e.startswith("tls/") for e in everywhere) and not zen.tls_ca:
         raise ConfigError(f"{where}: [zenoh].tls_ca: required with a tls/ endpoint (it verifies the peer)")
     if zen.tls_client_auth and not (zen.tls_ca and zen.tls_certificate):
         raise ConfigError(f"{where}: [zenoh].tls_client_auth: needs tls_ca, tls_certificate and tls_private_key")
@@ -395,16 +444,80 @@ def _check_ros2(ros2: Ros2Config, where: str) -> None:
                           '(e.g. "/bench1": "/"-separated names, each a letter then letters, digits or _)')
 
 
-def _check_stable(joints: tuple[JointConfig, ...], rate_hz: float, where: str) -> None:
-    """The virtual joint must be integrable at the loop's step (the loop's own gate, run early
-    so that a bad value fails before any servo is touched)."""
-    from admittance import _rtcore
+# -- the live keys, and the rules between them (shared with every live set: liveparams) ----------
 
-    for j in joints:
-        reason = _rtcore.admittance_check_stable(j.virtual_inertia, j.virtual_damping, j.virtual_coulomb,
-                                                 1.0 / rate_hz)
+# Tables whose live keys belong to each joint ("1.virtual_damping"); every other table's live keys
+# are loop-wide ("deadband"). A key declared live=True in one of them is a live parameter.
+JOINT_TABLES = {"joints": JointConfig, "joints.limits": LimitsConfig}
+
+
+def _live_keys(tables: Mapping[str, type]) -> dict[str, tuple[str, dict]]:
+    return {f.name: (table, dict(f.metadata)) for table, cls in tables.items()
+            for f in dataclasses.fields(cls) if f.metadata.get("live")}
+
+
+JOINT_LIVE = _live_keys(JOINT_TABLES)  # name -> (table, metadata)
+LOOP_LIVE = _live_keys(TABLES)
+LIMIT_KEYS = tuple(k for k, (table, _) in JOINT_LIVE.items() if table == "joints.limits")
+# Every key of every table (live or not) -> the tables that have it, for a clear refusal of a
+# key that is not live (rate_hz is in [loop] and in [foxglove]).
+ALL_KEYS: dict[str, list[str]] = {}
+for _table, _cls in {**TABLES, **JOINT_TABLES}.items():
+    for _field in dataclasses.fields(_cls):
+        if not _field.metadata.get("internal"):
+            ALL_KEYS.setdefault(_field.name, []).append(_table)
+
+
+def joint_values(joint: JointConfig) -> dict[str, Any]:
+    """A resolved joint's live values, by key name."""
+    return {k: getattr(joint.resolved_limits if table == "joints.limits" else joint, k)
+            for k, (table, _) in JOINT_LIVE.items()}
+
+
+def loop_values(tables: Mapping[str, Any]) -> dict[str, Any]:
+    """The loop-wide live values of the parsed tables, by key name."""
+    return {k: getattr(tables[table], k) for k, (table, _) in LOOP_LIVE.items()}
+
+
+REACH_SLACK = 1e-9  # rad: the reach computed here and in the loop may differ by a rounding
+
+
+def check_joint_params(values: Mapping[str, Any], *, reach: tuple[float, float], rate_hz: float, where: str,
+                       name: Callable[[str], str]) -> dict[str, Any]:
+    """One joint's live values: each against its key's metadata, then the rules between them.
+
+    The configuration calls it on each resolved joint, liveparams on each candidate set, so
+    both refuse the same values for the same reasons. ``name(key)`` is how a message names a
+    key, ``where`` the joint. Values absent from ``values`` are not checked. Returns the values,
+    normalised.
+    """
+    out = {k: check_value(JOINT_LIVE[k][1], v, name(k)) for k, v in values.items()}
+    lo, hi = out.get("position_min"), out.get("position_max")
+    for k, v in (("position_min", lo), ("position_max", hi)):
+        if v is not None and not reach[0] - REACH_SLACK <= v <= reach[1] + REACH_SLACK:
+            raise ConfigError(f"{name(k)}: must be within [{reach[0]:.4f}, {reach[1]:.4f}] rad, the angles the "
+                              f"servo's goal range reaches from its zero_tick; got {shown(v)}")
+    if lo is not None and hi is not None and lo >= hi:
+        raise ConfigError(f"{name('position_min')}: must be below position_max ({hi:g} rad), got {lo:g}")
+    if {"virtual_inertia", "virtual_damping", "virtual_coulomb"} <= out.keys():
+        from admittance import _rtcore  # the plant's own gate: one source of physics
+
+        reason = _rtcore.admittance_check_stable(out["virtual_inertia"], out["virtual_damping"],
+                                                 out["virtual_coulomb"], 1.0 / rate_hz)
         if reason:
-            raise ConfigError(f"{where}: [joints.{j.id}] virtual_*: {reason}")
+            raise ConfigError(f"{where} virtual_*: {reason}")
+    return out
+
+
+def check_loop_params(values: Mapping[str, Any], *, rate_hz: float, where: str,
+                      name: Callable[[str], str]) -> dict[str, Any]:
+    """The loop-wide live values: each against its key's metadata, then the rules between them
+    (the same function on both paths, like :func:`check_joint_params`)."""
+    out = {k: check_value(LOOP_LIVE[k][1], v, name(k)) for k, v in values.items()}
+    if out.get("lowpass_hz", 0.0) >= rate_hz / 2:
+        raise ConfigError(f"{name('lowpass_hz')}: must be below half of [loop].rate_hz ({rate_hz / 2:g} Hz), "
+                          f"got {out['lowpass_hz']:g}")
+    return out
 
 
 def known_models(protocol: int) -> list[str]:
@@ -436,6 +549,7 @@ def summary(cfg: DaemonConfig) -> str:
                  f"stop: {cfg.stop.torque_policy}")
     z = cfg.zenoh
     lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
+    lines += [f"warning: {w}" for w in endpoints.exposure_warnings(z)]
     security = [name for name, on in (("user/password", z.auth_dictionary or z.auth_user),
                                       ("TLS", z.tls_ca or z.tls_certificate), ("mutual TLS", z.tls_client_auth),
                                       (f"ACL (operators {', '.join(z.operators)})", z.operators)) if on]

@@ -4,7 +4,7 @@
 ``[record].segment_s`` seconds (``joint1_000.csv``, ``joint1_001.csv``...), one trial each. The
 contract's columns are ``t`` (s from the start), ``theta`` (rad) and ``tau`` (N·m, the hand
 torque the model saw); extra columns keep the rest of the cycle (force, the model's angle and
-velocity, the goal angle, the cycle number) for plots and for replay checks.
+velocity, the goal angle, the cycle number, the fault bits) for plots and for replay checks.
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With
@@ -32,7 +32,7 @@ import tomli_w
 
 from admittance.errors import ConfigError
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "cycle")
+COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "cycle", "fault")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
@@ -98,8 +98,10 @@ class Recorder:
         """Append the rows of one joint; returns how many were written.
 
         ``columns`` holds ``t`` (s, monotonic), ``tau``, ``force``, ``theta_model``,
-        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read) and ``cycle``.
+        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read), ``cycle`` and
+        ``fault`` (the loop's fault bits of that joint; 0, or absent, when none).
         """
+        fault = columns.get("fault", np.zeros(len(columns["t"])))
         keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
         if not keep.any():
             return 0
@@ -111,7 +113,7 @@ class Recorder:
         table = np.column_stack([
             t, theta[keep], columns["tau"][keep], columns["force"][keep],
             columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["cycle"][keep],
+            columns["cycle"][keep], fault[keep],
         ])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from admittance import _rtcore
+from admittance.daemon.config import TICKS_PER_REV
 from admittance.daemon.messages import JointState, State
 
-# Every supported model (MX-28/64/106, XM430, XL330) has a 12-bit absolute encoder.
-TICKS_PER_REV = 4096
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 NOT_READ = -1  # present_tick of a cycle that did not read the servo
 
@@ -48,6 +48,7 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "theta_goal": tick_to_rad(rows["goal_tick"], joint),
             "theta_present": tick_to_rad(present, joint),
             "cycle": rows["cycle"].astype(float),
+            "fault": rows["fault"].astype(float),
         }
     return out
 
@@ -76,10 +77,22 @@ def latest_state(records: np.ndarray, cfg) -> State:
         joints.append(JointState(
             id=joint.id, t=int(row["t_ns"]) * 1e-9, force=float(row["force"]), tau=float(row["torque"]),
             theta=float(row["theta"]), omega=float(row["omega"]), goal_tick=int(row["goal_tick"]),
-            present_tick=present, name=joint_name(joint), wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
+            present_tick=present, fault=int(row["fault"]), name=joint_name(joint),
+            wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
             position=None if present is None else float(tick_to_rad(present, joint)),
         ))
-    return State(cycle=int(records["cycle"][-1]), joints=joints)
+    return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
+
+
+def mode_name(code: int) -> str:
+    """The loop's mode code in a telemetry row, by name ("running", "holding", "faulted")."""
+    modes = _rtcore.LOOP_MODES
+    return modes[code] if 0 <= code < len(modes) else f"unknown ({code})"
+
+
+def fault_names(bits: int) -> list[str]:
+    """The fault kinds set in a row's ``fault`` bitmask."""
+    return [name for k, name in enumerate(_rtcore.FAULT_KINDS) if bits >> k & 1]
 
 
 def params_values(params: dict[str, Any]) -> dict[str, float | list[float]]:

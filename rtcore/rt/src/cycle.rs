@@ -8,17 +8,21 @@
 //! 2. `take_force`: drain the sample ring to the newest sample (stale check, tare feed).
 //! 3. `condition_force`: bias, deadband, low-pass.
 //! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state,
-//!    or a hold (velocity zero, no integration) while the force is stale.
+//!    or a hold (velocity zero, no integration) while the force is stale. The step is guarded:
+//!    gains that are not usable, or a state that is not finite or leaves the envelope, hold
+//!    the joint at its last good state and raise `FaultKind::ModelStateInvalid` (see `fault`),
+//!    so nothing but a valid state ever becomes a goal.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
-//! 7. `publish`: telemetry records and counters.
+//! 7. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
+use crate::fault::{FaultKind, Faults, LoopMode};
 use crate::filter::{deadband, LowPass, TareAverager};
-use crate::joint::{integrate, user_torque, TickMap};
+use crate::joint::{integrate, state_in_envelope, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
 use crate::sensor::{ForceIntake, Intake};
 use crate::shared::Shared;
@@ -39,6 +43,10 @@ pub struct JointWiring {
 struct JointSlot {
     wiring: JointWiring,
     state: State,
+    /// The last state that passed the guard: where a fault holds the joint.
+    good: State,
+    /// This joint's faults this cycle.
+    faults: Faults,
     limits: Limits,
     ramp_from: JointGains,
     ramp_to: JointGains,
@@ -74,6 +82,10 @@ pub struct Controller {
     bias: [f64; 6],
     bias_generation: u64,
     intake: ForceIntake,
+    /// Faults of the loop as a whole this cycle (none raised yet: the bus and sensor kinds go here).
+    loop_faults: Faults,
+    /// The joints held this cycle by policy (stale force).
+    holding: bool,
     params: triple_buffer::Output<LoopParams>,
     bus: JointBus,
     sync_read_divisor: u64,
@@ -94,6 +106,8 @@ impl Controller {
             .map(|(wiring, jp)| JointSlot {
                 wiring: *wiring,
                 state: State::default(),
+                good: State::default(),
+                faults: Faults::NONE,
                 limits: jp.limits,
                 ramp_from: jp.gains,
                 ramp_to: jp.gains,
@@ -119,6 +133,8 @@ impl Controller {
             bias: p.bias,
             bias_generation: p.bias_generation,
             intake: ForceIntake::new(parts.force_ring),
+            loop_faults: Faults::NONE,
+            holding: false,
             params: parts.params,
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
@@ -140,6 +156,7 @@ impl Controller {
         let ticks = self.bus.read_present(t, deadline_ns)?;
         for ((slot, goal), &tick) in self.joints.iter_mut().zip(self.goals.iter_mut()).zip(ticks) {
             slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+            slot.good = slot.state;
             slot.present = tick;
             *goal = tick;
         }
@@ -242,14 +259,17 @@ impl Controller {
     }
 
     fn step_joints(&mut self, force: &[f64; 6], hold: bool) {
+        self.holding = hold;
         for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
+            slot.faults = Faults::NONE;
             if hold {
                 slot.state.omega = 0.0;
             } else {
                 integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
             }
+            guard_state(slot);
             *goal = slot.wiring.ticks.goal_tick(slot.state.theta);
         }
     }
@@ -303,6 +323,9 @@ impl Controller {
 
     fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool) {
         let stats = &self.shared.stats;
+        let active = self.joints.iter().fold(self.loop_faults, |all, slot| all.union(slot.faults));
+        let mode = LoopMode::of(active, self.holding);
+        stats.faults.record(active, mode);
         for (slot, &goal) in self.joints.iter().zip(&self.goals) {
             let record = Record {
                 cycle: self.cycle,
@@ -316,6 +339,8 @@ impl Controller {
                 present_tick: if read { slot.present } else { -1 },
                 period_error_ns: period_error_ns as i64,
                 latency_ns,
+                fault: slot.faults.union(self.loop_faults).bits(),
+                mode: mode as i64,
             };
             if self.telemetry.push(record).is_err() {
                 LoopStats::add(&stats.telemetry_drops, 1);
@@ -329,6 +354,22 @@ impl Controller {
     /// The stop policy's last traffic: Torque Enable = 0 on every joint.
     pub fn torque_off(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
         self.bus.set_torque(t, false)
+    }
+}
+
+/// The state guard of one joint, after its step: a state that is not finite or left the
+/// envelope, or gains the loop cannot integrate with, never reach the goal. The joint holds at
+/// its last good state (velocity zero: the goal it already has) and the fault is raised for
+/// this cycle; the next cycle tries again from that good state.
+fn guard_state(slot: &mut JointSlot) {
+    if slot.gains.usable() && state_in_envelope(&slot.state, &slot.wiring.ticks) {
+        slot.good = slot.state;
+        return;
+    }
+    slot.faults.insert(FaultKind::ModelStateInvalid);
+    slot.state = State { theta: slot.good.theta, omega: 0.0 };
+    if !slot.torque.is_finite() {
+        slot.torque = 0.0; // the record shows the hand's torque, unless the gains made it NaN
     }
 }
 

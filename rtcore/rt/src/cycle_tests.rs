@@ -4,6 +4,7 @@ use super::*;
 use crate::bus::memory::MemoryTransport;
 use crate::bus::Registers;
 use crate::clock::fake::FakeClock;
+use crate::fault::LoopMode;
 use crate::params::tests::params;
 use crate::sensor::ForceSample;
 use dxl::Protocol;
@@ -332,4 +333,128 @@ fn a_cycle_allocates_nothing() {
     assert_eq!(stats.sensor_stale_events.load(Ordering::Relaxed), 1, "the stale path ran");
     assert!(stats.bus_errors.load(Ordering::Relaxed) > 0, "the bus-error path ran");
     assert_eq!(allocations, 0, "a cycle allocated");
+}
+
+fn mode_now(r: &Rig) -> crate::fault::LoopMode {
+    r.shared.stats.faults.mode()
+}
+
+fn model_faults(r: &Rig) -> u64 {
+    r.shared.stats.faults.events(FaultKind::ModelStateInvalid)
+}
+
+/// A free joint pushed for `cycles` cycles; the rig and the last (good) record.
+fn pushed(cycles: usize) -> (Rig, Record) {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    for _ in 0..cycles {
+        r.cycle_with(Some(3.0));
+    }
+    let good = r.cycle_with(Some(3.0));
+    (r, good)
+}
+
+#[test]
+fn an_injected_nan_state_holds_the_last_good_goal_and_raises_a_fault() {
+    let (mut r, good) = pushed(100);
+    assert!(good.goal_tick > 2048 && good.mode == LoopMode::Running as i64 && good.fault == 0);
+    r.ctl.joints[0].state.theta = f64::NAN;
+    let held = r.cycle_with(Some(3.0));
+    assert_eq!(held.goal_tick, good.goal_tick, "the goal stays where it was (NaN as i64 is zero_tick: a jump)");
+    assert_eq!((held.theta, held.omega), (good.theta, 0.0), "the last good state, at rest");
+    assert_eq!(held.fault, FaultKind::ModelStateInvalid.bit());
+    assert_eq!(held.mode, LoopMode::Faulted as i64);
+    assert_eq!((model_faults(&r), mode_now(&r)), (1, LoopMode::Faulted));
+    // The cause is gone (the state was restored): the next cycle runs again, from rest.
+    let after = r.cycle_with(Some(3.0));
+    assert_eq!((after.fault, after.mode), (0, LoopMode::Running as i64));
+    assert!(after.theta > good.theta && (after.goal_tick - good.goal_tick).abs() <= 1);
+    assert_eq!(model_faults(&r), 1);
+}
+
+#[test]
+fn a_state_out_of_the_envelope_is_a_fault_too() {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    let good = r.cycle_with(Some(0.0));
+    r.ctl.joints[0].state.omega = 1e300;
+    let held = r.cycle_with(Some(0.0));
+    assert_eq!((held.goal_tick, held.omega, held.fault), (good.goal_tick, 0.0, FaultKind::ModelStateInvalid.bit()));
+}
+
+#[test]
+fn gains_that_bypassed_the_gate_hold_the_joint_until_a_good_set_arrives() {
+    let (mut r, good) = pushed(50);
+    let mut bad = free_joint();
+    bad.joints[0].gains.inertia = 0.0; // the gate refuses this; written straight to the buffer here
+    r.params.write(bad);
+    for _ in 0..20 {
+        let rec = r.cycle_with(Some(3.0));
+        assert_eq!((rec.goal_tick, rec.omega, rec.mode), (good.goal_tick, 0.0, LoopMode::Faulted as i64));
+        assert!(rec.theta.is_finite());
+    }
+    assert_eq!(model_faults(&r), 1, "one event for the whole episode");
+    r.params.write(free_joint());
+    let recovered = r.cycle_with(Some(3.0));
+    assert_eq!(recovered.mode, LoopMode::Running as i64);
+    assert!((recovered.goal_tick - good.goal_tick).abs() <= 1, "it starts again from where it held");
+}
+
+#[test]
+fn a_stale_hold_is_the_holding_mode_not_a_fault() {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    r.cycle_with(Some(1.0));
+    let held = (0..60).map(|_| r.cycle_with(None)).last().unwrap();
+    assert_eq!((held.mode, held.fault), (LoopMode::Holding as i64, 0));
+    assert_eq!(model_faults(&r), 0);
+}
+
+/// A set the gate accepts, drawn across the envelope (gains log-uniform, limits anywhere valid).
+fn accepted_set() -> impl proptest::strategy::Strategy<Value = LoopParams> {
+    use crate::params::envelope;
+    use crate::params::tests::{accepted_gains, reach};
+    use proptest::prelude::*;
+    let limits = (-3.1f64..3.1, 0.01f64..3.0, 0.01f64..envelope::VELOCITY_MAX, 1.0f64..envelope::ACCELERATION_MAX);
+    (accepted_gains(), limits, 0.0f64..0.05, proptest::collection::vec(-100.0f64..100.0, 6)).prop_filter_map(
+        "the set must pass the gate",
+        |(gains, (lo, width, v, a), ramp, bias)| {
+            let mut p = params(1);
+            p.joints[0].gains = gains;
+            p.joints[0].limits = Limits { position_min: lo, position_max: (lo + width).min(std::f64::consts::PI), velocity_max: v, acceleration_max: a };
+            p.ramp_time_s = ramp;
+            p.bias.copy_from_slice(&bias);
+            p.bias_generation = 1;
+            p.validate(&reach(1), RATE).ok().map(|_| p)
+        },
+    )
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+    /// Any sequence of accepted sets, each adopted (and ramped into) while a random force
+    /// pushes: every goal stays in the goal range, every state finite, no fault is raised, and
+    /// no cycle moves the goal by more than the fastest accepted speed allows.
+    #[test]
+    fn accepted_sets_keep_the_goals_finite_and_jump_free(
+        sets in proptest::collection::vec((accepted_set(), 1usize..60), 1..6),
+        forces in proptest::collection::vec(-500.0f64..500.0, 8),
+    ) {
+        let mut r = started(params(1), &[(1, 2048)]);
+        let mut previous = r.cycle_with(Some(0.0)).goal_tick;
+        let mut k = 0;
+        for (set, cycles) in sets {
+            // Limits apply at once: |Δθ| ≤ h·velocity_max of this set, plus a tick of rounding.
+            let max_step = set.joints[0].limits.velocity_max / RATE * 4096.0 / std::f64::consts::TAU + 1.0;
+            r.params.write(set);
+            for _ in 0..cycles {
+                let rec = r.cycle_with(Some(forces[k % forces.len()]));
+                k += 1;
+                proptest::prop_assert!(rec.theta.is_finite() && rec.omega.is_finite());
+                proptest::prop_assert!((0..=4095).contains(&rec.goal_tick));
+                proptest::prop_assert!(((rec.goal_tick - previous).abs() as f64) <= max_step,
+                    "goal {} → {}", previous, rec.goal_tick);
+                proptest::prop_assert_eq!(rec.fault, 0);
+                previous = rec.goal_tick;
+            }
+        }
+    }
 }
