@@ -46,9 +46,12 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-REPO = Path(__file__).resolve().parents[1]
-BENCH = REPO / "config" / "bench.toml"
-MX64 = REPO / "config" / "params" / "mx64.toml"
+from admittance import data
+from admittance.extras import require
+
+REPO = Path(__file__).resolve().parents[1]  # only for the default of --plots (docs/fidelity/)
+BENCH = data.bench_config()
+MX64 = data.params_file("MX-64")
 ADMITTANCE = Path(sys.executable).with_name("admittance")
 SERVOS = {"BAM MX-64": 0.0, "lag 25 ms": 0.025}  # [bench].servo_lag_s
 FREQUENCIES = (0.3, 0.5, 1.0, 2.0, 3.0)
@@ -336,6 +339,7 @@ def main() -> int:
     parser.add_argument("--skip-inertia", action="store_true", help="only the identification and the sweep")
     parser.add_argument("--inertia-only", action="store_true", help="only the smallest stable inertia")
     args = parser.parse_args()
+    require("matplotlib", "bench/fidelity.py (its Bode plots)")  # now, not after the sessions
     frequencies = (0.3, 1.0, 3.0) if args.quick else FREQUENCIES
     print(f"load before: {os.getloadavg()}", flush=True)
     results = {"sweep": [], "servo_models": {}, "smallest_stable": {}}

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import tomli_w
 
+from admittance import data
 from admittance.daemon.recording import COLUMNS, Recorder
 from admittance.ident import paramfile
 from admittance.ident.dataset import load_dataset
 
-REPO = Path(__file__).resolve().parents[1]
-BENCH = REPO / "config" / "bench.toml"
-MX64 = REPO / "config" / "params" / "mx64.toml"
+BENCH = data.bench_config()
+MX64 = data.params_file("MX-64")
 
 
 def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
@@ -27,7 +27,7 @@ def batch(t0: float, n: int, read_every: int = 1) -> dict[str, np.ndarray]:
     present[np.arange(n) % read_every != 0] = np.nan
     return {"t": t, "t_wake": t + 1e-5, "tau": 0.1 * np.cos(t), "force": np.cos(t), "theta_model": np.sin(t),
             "omega_model": np.cos(t), "theta_goal": np.sin(t), "theta_present": present,
-            "cycle": np.round(t * 1e3), "held": np.zeros(n)}
+            "cycle": np.round(t * 1e3), "mode": np.zeros(n), "fault": np.zeros(n)}
 
 
 def test_a_recording_loads_as_a_geometry_dataset_with_measured_theta(tmp_path):
@@ -61,19 +61,21 @@ def test_a_row_carries_the_next_cycles_torque_across_batches(tmp_path):
     assert np.allclose(trial.t, np.arange(40) * 1e-3), "t is the cycle's deadline, not its wake-up"
 
 
-def test_a_hold_between_two_reads_marks_the_next_row(tmp_path):
-    """Reads every 5th cycle; cycles 7 and 23 held (stale force): rows 10 and 25 say so, even the
-    one whose hold fell into the previous batch."""
+def test_a_hold_or_a_fault_between_two_reads_marks_the_next_row(tmp_path):
+    """Reads every 5th cycle; cycle 7 held (stale force: mode holding), cycle 18 faulted (the
+    state guard, fault bit 1): rows 10 and 20 say so, even the one whose fault fell after the
+    batch's last read (carried into the next batch)."""
     rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
     first, second = batch(0.0, 20, read_every=5), batch(0.02, 20, read_every=5)
-    first["held"][7] = 1.0
-    first["held"][18] = 1.0  # after the batch's last read: carried into the next batch
+    first["mode"][7] = 1.0
+    first["mode"][18], first["fault"][18] = 2.0, 1.0
     rec.append(1, first)
     rec.append(1, second)
     rec.close()
     rows = np.loadtxt(tmp_path / "joint1_000.csv", delimiter=",", skiprows=1)
     cycles, held = rows[:, COLUMNS.index("cycle")], rows[:, COLUMNS.index("held")]
     assert list(cycles[held == 1]) == [10.0, 20.0]
+    assert list(cycles[rows[:, COLUMNS.index("fault")] == 1]) == [20.0]
 
 
 def test_targets_go_into_each_segments_manifest_entry(tmp_path):
@@ -129,7 +131,7 @@ def bench_session(tmp_path, name: str, params: str | Path, *, cycles: int) -> tu
     endpoint, prefix = free_endpoint(), f"hil/{name}"
     cfg = tomllib.loads(BENCH.read_text())
     cfg["joints"][0]["params"] = str(params)
-    cfg["loop"]["stale_timeout_ms"] = 1000.0
+    cfg["loop"]["stale_timeout_ms"] = 500.0  # no hold when CI stalls the reader (the most allowed)
     cfg["zenoh"] = {"prefix": prefix, "listen": [endpoint]}
     cfg["record"] = {"path": name, "segment_s": 2.0}
     path = tmp_path / f"{name}.toml"

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 import tomli_w
 
+from admittance.daemon.mcap_recording import McapRecorder
 from admittance.daemon.recording import Recorder
 from admittance.errors import DataError
 
@@ -81,7 +82,7 @@ def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
     (ω, α, τ) -> rad is the compensation. Returns the rendering error (RMS present − model)."""
     n = int(seconds * RATE)
     cols = {k: np.full(n, np.nan) for k in ("t", "t_wake", "tau", "force", "theta_model", "omega_model",
-                                            "theta_goal", "theta_present", "cycle", "held")}
+                                            "theta_goal", "theta_present", "cycle", "mode", "fault")}
     theta = omega = 0.0
     h = H / SUBSTEPS
     for k in range(n):
@@ -97,17 +98,24 @@ def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
             if j == READ_AFTER - 1 and k % divisor == 0:
                 read = round(servo.theta / TICK) * TICK
         for key, value in (("t", t), ("t_wake", t), ("tau", tau), ("force", tau / 0.1), ("theta_model", theta),
-                           ("omega_model", omega), ("theta_goal", goal), ("cycle", k), ("held", 0.0)):
+                           ("omega_model", omega), ("theta_goal", goal), ("cycle", k), ("mode", 0.0), ("fault", 0.0)):
             cols[key][k] = value
         cols["theta_present"][k] = np.nan if read is None else read
-    rec = Recorder(folder, [(1, "MX-64")], measured_theta=True, t0=0.0, segment_s=3.0,
-                   joint_info={1: {"model": "MX-64", "params_file": "mx64.toml", "rate_hz": RATE, "friction": "stick",
-                                   "plant": {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}}})
-    rec.set_targets({"1.virtual_inertia": VIRTUAL[0], "1.virtual_damping": VIRTUAL[1], "1.virtual_coulomb": VIRTUAL[2],
-                     "1.servo_compensation": 1.0 if lead else 0.0})
+    info = {"model": "MX-64", "params_file": "mx64.toml", "rate_hz": RATE, "friction": "stick",
+            "plant": {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}}
+    rec = Recorder(folder, [(1, "MX-64")], measured_theta=True, t0=0.0, segment_s=3.0, joint_info={1: info})
+    params = {"1.virtual_inertia": VIRTUAL[0], "1.virtual_damping": VIRTUAL[1], "1.virtual_coulomb": VIRTUAL[2],
+              "1.servo_compensation": 1.0 if lead else 0.0}
+    rec.set_targets(params)
+    mcap = McapRecorder(folder / "session.mcap", {"joints": [{**info, "id": 1, "name": "joint1"}], "t0": 0.0,
+                                                  "segment_s": 3.0, "measured_theta": True, "rate_hz": RATE})
+    mcap.params("start", params)
     for start in range(0, n, 97):  # drained in batches, as the supervisor does
-        rec.append(1, {k: v[start:start + 97] for k, v in cols.items()})
+        batch = {k: v[start:start + 97] for k, v in cols.items()}
+        rec.append(1, batch)
+        mcap.append(1, batch, wall_offset_ns=0)
     rec.close()
+    mcap.close()
     read = ~np.isnan(cols["theta_present"])
     return float(np.sqrt(np.mean((cols["theta_present"][read] - cols["theta_model"][read]) ** 2)))
 
@@ -242,6 +250,22 @@ def test_holds_and_read_gaps_cut_the_segments(lag_recording):
     assert len(runs) == 3 and all(r["held"].sum() == 0 for r in runs)
     assert all(np.diff(r["t"]).max() <= MAX_GAP_S for r in runs)
     assert sum(r.n for r in runs) == keep.sum() - 1
+
+
+def test_the_session_mcap_gives_the_csv_folders_rows_targets_and_plant(lag_recording):
+    """`fidelity` reads a session.mcap (every cycle) into the rows, targets and plant its CSV
+    folder gives (the segments may be cut a few cycles apart: the CSV cuts at a drained batch)."""
+    from admittance.fidelity.recording import load_recording
+
+    folder = lag_recording[0]
+    from_csv, from_mcap = load_recording(folder), load_recording(folder / "session.mcap")
+    for column in ("t", "theta", "tau", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held"):
+        a, b = (np.concatenate([s[column] for s in r.segments]) for r in (from_csv, from_mcap))
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=column)
+    assert {(tuple(s.target.items()), s.compensation) for s in from_mcap.segments} == \
+        {(tuple(s.target.items()), s.compensation) for s in from_csv.segments} == \
+        {(tuple(zip(("virtual_inertia", "virtual_damping", "virtual_coulomb"), VIRTUAL)), 0.0)}
+    assert from_mcap.joints[1]["plant"] == from_csv.joints[1]["plant"]
 
 
 def test_a_recording_without_present_columns_is_refused(tmp_path):

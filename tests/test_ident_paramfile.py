@@ -9,12 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from admittance import data
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
 from helpers import examples
 
-MX64 = Path(__file__).resolve().parents[1] / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 
 
 def test_round_trip(tmp_path):

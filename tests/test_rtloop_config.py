@@ -29,7 +29,9 @@ def config(**overrides) -> dict:
     ({"joints": [{"virtual_inertia": 1.0}]}, "\"id\" is required"),
     ({"joints": [{"id": 1, "axis": "w"}]}, "axis"),
     ({"joints": [{"id": 1, "direction": 2}]}, "direction"),
-    ({"joints": [{"id": 1, "limits": {"position_max": -4.0}}]}, "position_min"),
+    ({"joints": [{"id": 1, "limits": {"position_max": -4.0}}]}, "position_max"),
+    ({"joints": [{"id": 1, "limits": {"position_min": 1.0, "position_max": 0.5}}]}, "position_min"),
+    ({"joints": [{"id": 1, "limits": {"velocity_max": 1e300}}]}, "velocity_max"),
     ({"joints": [{"id": 1, "virtual_damping": 100.0}]}, "h·B/I"),
     ({"joints": [{"id": 1}, {"id": 2, "goal_address": 30}]}, "must be equal"),
     ({"protocol": 3}, "protocol"),
@@ -99,7 +101,7 @@ def test_a_servo_model_turns_compensation_on_and_a_live_set_may_turn_it_off():
 def test_telemetry_dtype_is_the_documented_record():
     names = _rtcore.AdmittanceLoop.telemetry_dtype().names
     assert names == ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                     "present_tick", "period_error_ns", "latency_ns", "flags")
+                     "present_tick", "period_error_ns", "latency_ns", "fault", "mode")
     assert len(_rtcore.AdmittanceLoop(config()).drain_telemetry()) == 0
 
 

@@ -5,8 +5,12 @@ and `fidelity`.
 ``[record].segment_s`` seconds (``joint1_000.csv``, ``joint1_001.csv``...), one trial each. The
 contract's columns are ``t`` (s from the start), ``theta`` (rad) and ``tau`` (N·m, the hand
 torque the model saw); extra columns keep the rest of the cycle (force, the model's angle and
-velocity, the goal angle, the cycle's wake-up time, the cycle number, and ``held`` = 1 on a
-cycle that held because the force was stale) for `fidelity`, plots and replay checks.
+velocity, the goal angle, the cycle's wake-up time, the cycle number, ``held`` = 1 where the
+model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, plots and replay
+checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
+on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
+own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
+because the force was stale, or a fault held a joint.
 
 Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
 (so `identify` with theta := theta_model returns the configured I, B, F):
@@ -18,6 +22,9 @@ Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract
   cycle's newest torque over the interval that ends at k, while the contract's simulator
   applies τ(t) over the substep that *starts* at t. The recorder therefore holds each batch's
   last cycle back until the next batch (or the close) shows what follows it.
+
+The same rows are made from a ``session.mcap`` (every cycle) by :func:`recorded_rows`, so both
+files of a session give the same dataset (admittance.ident.loaders.load_recording).
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With
@@ -43,9 +50,11 @@ from typing import Any, TextIO
 import numpy as np
 import tomli_w
 
+from admittance.daemon.telemetry import MODE_RUNNING
 from admittance.errors import ConfigError
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held")
+COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
+           "fault")
 # The per-joint values written into each trial's manifest entry: what the loop ran.
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
@@ -73,7 +82,8 @@ class Recorder:
         self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
         self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
         self._pending: dict[int, dict[str, np.ndarray]] = {}
-        self._held_since_row: dict[int, bool] = {}
+        # Per joint: (held, fault) of the cycles after its last written row (see recorded_rows).
+        self._carry: dict[int, tuple[int, int]] = {}
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
@@ -136,9 +146,11 @@ class Recorder:
     def append(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
         """Append the rows of one joint (every cycle of a drained batch); returns how many were written.
 
-        ``columns`` holds ``t`` (s, the cycle's deadline), ``t_wake``, ``tau``, ``force``,
-        ``theta_model``, ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read),
-        ``cycle`` and ``held``. The batch's last cycle waits for the next batch (see the module doc).
+        ``columns`` holds ``t`` (s, the cycle's deadline), ``tau``, ``force``, ``theta_model``,
+        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read), ``cycle``, and
+        optionally ``t_wake`` (else ``t``), ``mode`` (the loop's mode code) and ``fault`` (that
+        joint's fault bits), both 0 when absent. The batch's last cycle waits for the next batch
+        (see the module doc).
         """
         columns = self._with_next_tau(joint_id, columns)
         return self._write(joint_id, columns) if columns is not None else 0
@@ -146,49 +158,33 @@ class Recorder:
     def _with_next_tau(self, joint_id: int, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
         """The pending cycle plus this batch, each with the following cycle's torque, minus the new
         last cycle (kept pending)."""
+        columns = with_defaults(columns)
         pending = self._pending.pop(joint_id, None)
         if pending is not None:
-            columns = {k: np.concatenate([pending[k], v]) for k, v in columns.items()}
+            columns = {k: np.concatenate([pending[k], v]) for k, v in columns.items() if k in pending}
         if len(columns["t"]) == 0:
             return None
         self._pending[joint_id] = {k: v[-1:] for k, v in columns.items()}
         if len(columns["t"]) == 1:
             return None
-        out = {k: v[:-1] for k, v in columns.items()}
-        follows = np.diff(columns["cycle"]) == 1  # a dropped record: keep the row's own torque
-        out["tau"] = np.where(follows, columns["tau"][1:], columns["tau"][:-1])
-        return out
+        tau = next_cycle_tau(columns["tau"], columns["cycle"])
+        return {**{k: v[:-1] for k, v in columns.items()}, "tau": tau[:-1]}
 
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
-        keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
-        held = self._held_since_previous_row(joint_id, columns["held"] > 0, keep)
-        if not keep.any():
+        rows, self._carry[joint_id] = recorded_rows(columns, measured_theta=self.measured_theta, t0=self.t0,
+                                                    carry=self._carry.get(joint_id, (0, 0)))
+        t = rows["t"]
+        if len(t) == 0:
             return 0
-        theta = columns["theta_present"] if self.measured_theta else columns["theta_model"]
-        t = columns["t"][keep] - self.t0
         if t[0] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS:
             self._files[joint_id].close()
             self._open_segment(joint_id, float(t[0]))
-        table = np.column_stack([
-            t, theta[keep], columns["tau"][keep], columns["force"][keep],
-            columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["t_wake"][keep] - self.t0, columns["cycle"][keep], held[keep],
-        ])
+        table = np.column_stack([rows[c] for c in COLUMNS])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
         self._segment_rows[joint_id] += len(table)
         return len(table)
-
-    def _held_since_previous_row(self, joint_id: int, held: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """Per cycle, 1 where any cycle since the previous written row held: a hold between two
-        reads leaves no row of its own, yet the model stood still across it."""
-        group = np.concatenate([[0], np.cumsum(keep)[:-1]])  # cycles up to and including each row
-        any_held = np.zeros(group[-1] + 1 if len(group) else 1, bool)
-        np.logical_or.at(any_held, group, held)
-        any_held[0] |= self._held_since_row.get(joint_id, False)
-        self._held_since_row[joint_id] = bool(any_held[-1]) if not keep[-1:].any() else False
-        return any_held[group].astype(float)
 
     def close(self) -> None:
         """Write the held-back cycles (with their own torque: nothing follows them), close the
@@ -203,3 +199,52 @@ class Recorder:
                 (self.folder / names.pop()).unlink()
                 self._entries[joint_id].pop()
         self._write_manifest()
+
+
+def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault`` 0."""
+    zeros = np.zeros(len(columns["t"]))
+    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, **columns}
+
+
+def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
+    """Each cycle's row with the following cycle's torque (module doc); a cycle whose next record
+    is missing (a dropped record, the last one) keeps its own."""
+    out = np.array(tau, dtype=float)
+    follows = np.diff(cycle) == 1
+    out[:-1] = np.where(follows, tau[1:], tau[:-1])
+    return out
+
+
+def held_cycles(mode: np.ndarray) -> np.ndarray:
+    """1 on a cycle where the model did not follow the torque: the loop was not running."""
+    return (np.nan_to_num(mode, nan=MODE_RUNNING) != MODE_RUNNING).astype(np.int64)
+
+
+def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> tuple[np.ndarray, int]:
+    """Per cycle, the bitwise OR of ``flags`` over the cycles since the previous kept row up to
+    its own kept row (``carry``: what the cycles after the last batch's last row had); and the
+    carry for the next batch."""
+    group = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
+    acc = np.zeros(int(group[-1]) + 1 if len(group) else 1, np.int64)
+    np.bitwise_or.at(acc, group, flags.astype(np.int64))
+    acc[0] |= carry
+    return acc[group], int(acc[-1]) if len(keep) and not keep[-1] else 0
+
+
+def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
+                  carry: tuple[int, int] = (0, 0)) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+    """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
+    cycle's: one row per cycle that read the servo (every cycle without reads), times from
+    ``t0``, ``held`` and ``fault`` gathered since the previous row. Also the (held, fault) carry."""
+    columns = with_defaults(columns)
+    n = len(columns["t"])
+    keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
+    held, held_carry = since_previous_row(held_cycles(columns["mode"]), keep, carry[0])
+    fault, fault_carry = since_previous_row(np.nan_to_num(columns["fault"]).astype(np.int64), keep, carry[1])
+    theta = columns["theta_present"] if measured_theta else columns["theta_model"]
+    rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
+            "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
+            "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
+            "held": held.astype(float), "fault": fault.astype(float)}
+    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)

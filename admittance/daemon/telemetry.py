@@ -11,17 +11,18 @@ instead of falling further behind.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
 
+from admittance import _rtcore
+from admittance.daemon.config import TICKS_PER_REV
 from admittance.daemon.messages import JointState, State
 
-# Every supported model (MX-28/64/106, XM430, XL330) has a 12-bit absolute encoder.
-TICKS_PER_REV = 4096
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 NOT_READ = -1  # present_tick of a cycle that did not read the servo
-FLAG_HOLD = 1  # flags bit: the force was stale and the model held
+MODE_RUNNING = _rtcore.LOOP_MODES.index("running")  # a cycle where every joint followed its model
 
 
 def tick_to_rad(tick: np.ndarray | int, joint) -> np.ndarray | float:
@@ -50,7 +51,8 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "theta_goal": tick_to_rad(rows["goal_tick"], joint),
             "theta_present": tick_to_rad(present, joint),
             "cycle": rows["cycle"].astype(float),
-            "held": (rows["flags"] & FLAG_HOLD).astype(float),
+            "fault": rows["fault"].astype(float),
+            "mode": rows["mode"].astype(float),  # the recorder's "held" (recording.held_cycles)
         }
     return out
 
@@ -94,9 +96,19 @@ class RenderingError:
         return {str(jid): math.sqrt(ms) for jid, ms in self._mean_square.items()}
 
 
+def joint_name(joint) -> str:
+    return getattr(joint, "name", "") or f"joint{joint.id}"
+
+
+def wall_offset_ns() -> int:
+    """CLOCK_REALTIME − CLOCK_MONOTONIC now: the loop stamps cycles on the monotonic clock only."""
+    return time.time_ns() - time.monotonic_ns()
+
+
 def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = None) -> State:
     """The newest row of each joint as a State message (present_tick from its last read)."""
     ids = records["id"]
+    wall_ns = wall_offset_ns()
     joints = []
     for joint in cfg.joints:
         rows = records[ids == joint.id]
@@ -104,13 +116,27 @@ def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = No
             continue
         row = rows[-1]
         read = rows["present_tick"][rows["present_tick"] != NOT_READ]
+        present = int(read[-1]) if len(read) else None
         joints.append(JointState(
             id=joint.id, t=int(row["t_ns"]) * 1e-9, force=float(row["force"]), tau=float(row["torque"]),
             theta=float(row["theta"]), omega=float(row["omega"]), goal_tick=int(row["goal_tick"]),
-            present_tick=int(read[-1]) if len(read) else None,
+            present_tick=present, fault=int(row["fault"]), name=joint_name(joint),
+            wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
+            position=None if present is None else float(tick_to_rad(present, joint)),
             rendering_rms=rendering.rms(joint.id) if rendering is not None else None,
         ))
-    return State(cycle=int(records["cycle"][-1]), joints=joints)
+    return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
+
+
+def mode_name(code: int) -> str:
+    """The loop's mode code in a telemetry row, by name ("running", "holding", "faulted")."""
+    modes = _rtcore.LOOP_MODES
+    return modes[code] if 0 <= code < len(modes) else f"unknown ({code})"
+
+
+def fault_names(bits: int) -> list[str]:
+    """The fault kinds set in a row's ``fault`` bitmask."""
+    return [name for k, name in enumerate(_rtcore.FAULT_KINDS) if bits >> k & 1]
 
 
 def params_values(params: dict[str, Any]) -> dict[str, float | list[float]]:

@@ -1,4 +1,4 @@
-"""``admittance fidelity RECORDING --json OUT.json [--params-out FILE.toml]`` (fidelity.md contract).
+"""``admittance fidelity RECORDING --json FILE.json [--params-out FILE.toml]`` (fidelity.md contract).
 
 Registration stays import-light; NumPy and the Rust core load when the command runs. Bad input
 (not a recording, no motion, no present positions...) is a ``DataError``: one line, exit 1.
@@ -21,10 +21,12 @@ def register(subparsers) -> None:
         "horn really rendered against the one the loop ran, and identify the servo's tracking dynamics "
         "(shared/contracts/fidelity.md, docs/fidelity.md).",
     )
-    p.add_argument("recording", metavar="DIR", help="a recording of `admittance run --record DIR`")
-    p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="write the result here")
+    p.add_argument("recording", metavar="RECORDING",
+                   help="a recording of `admittance run --record DIR`: the folder, or its session.mcap")
+    p.add_argument("--json", dest="json_out", metavar="FILE.json", required=True, help="write the result here")
     p.add_argument("--params-out", metavar="FILE.toml",
-                   help="also write the joint's plant with the servo model: a joint's `params` that compensates")
+                   help="also write the joint's plant with the servo model: a joint's `params` that compensates "
+                   "(default: not written)")
     p.add_argument("--joint", type=int, metavar="ID", help="the joint to analyse (default: the first)")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=run_fidelity)

@@ -2,8 +2,12 @@
 
 A recording is a dataset (datasets.md) whose CSVs carry, besides ``t``, ``theta`` (the present
 angle read from the servo) and ``tau``, the cycle's ``theta_model``, ``omega_model``,
-``theta_goal`` and, from this version on, ``t_wake`` and ``cycle``; its manifest says where
-``theta`` came from and, per segment, what the loop ran (``virtual_*``, ``servo_compensation``).
+``theta_goal`` and, from this version on, ``t_wake``, ``cycle`` and ``held``; its manifest says
+where ``theta`` came from and, per segment, what the loop ran (``virtual_*``,
+``servo_compensation``). The same session's ``session.mcap`` (a file, or a folder holding one
+and no manifest) gives the same segments: its cycles are turned into the CSV's rows by the
+recorder's own function (``admittance.ident.loaders.recording_segments``), what the loop ran
+comes from its ``/params`` messages and the joints' plants from ``/session``.
 Everything is checked here, so the analysis never meets a half recording: each problem is one
 ``DataError`` line that says what is wrong and what to do.
 """
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from admittance.daemon.ecosystem import MCAP_NAME
 from admittance.errors import DataError
 from admittance.ident.dataset import MANIFEST, MIN_SAMPLES, TrialData, load_dataset
 from admittance.ident.paramfile import read_toml
@@ -83,8 +88,13 @@ class Recording:
         return [s for s in self.segments if s.joint_id == joint_id]
 
 
-def load_recording(folder: str | Path) -> Recording:
-    folder = Path(folder)
+def load_recording(path: str | Path) -> Recording:
+    """A --record folder (its CSVs and manifest), or a session.mcap (the file, or a folder that
+    holds one and no manifest)."""
+    path = Path(path)
+    if path.suffix == ".mcap" or (path.is_dir() and not (path / MANIFEST).is_file() and (path / MCAP_NAME).is_file()):
+        return _from_mcap(path)
+    folder = path
     if not folder.is_dir():
         raise DataError(f"{folder}: recording folder not found")
     manifest_path = folder / MANIFEST
@@ -95,23 +105,70 @@ def load_recording(folder: str | Path) -> Recording:
     if source is None:
         raise DataError(f"{manifest_path}: not a recording of `admittance run --record` (no theta_source)")
     if source != PRESENT:
-        raise DataError(f"{folder}: no present positions recorded (theta is {source!r}); record with "
-                        "[loop].sync_read_divisor > 0 so the loop reads the servo")
+        raise _no_present_positions(folder, repr(source))
     dataset = load_dataset(folder)  # the contract's checks, and each trial's load
     entries = manifest.get("trials")
     whole = [_segment(folder, manifest_path, i, e, trial) for i, (e, trial) in enumerate(zip(entries, dataset.trials))]
+    joints = {int(j["id"]): j for j in manifest.get("joints", []) if isinstance(j, dict) and "id" in j}
+    return _recording(folder, whole, joints)
+
+
+def _recording(where: Path, whole: list[Segment], joints: dict[int, dict]) -> Recording:
+    """The stretches of the whole segments, checked for motion."""
     segments = tuple(run for segment in whole for run in _runs(segment))
     held = sum(int(s.columns.get("held", np.zeros(0)).sum()) for s in whole)
     gaps = sum(int((np.diff(s["t"]) > MAX_GAP_S).sum()) for s in whole)
     if not segments:
-        raise DataError(f"{folder}: no stretch of {MIN_RUN_S:g} s without a hold (stale force) or a gap of "
+        raise DataError(f"{where}: no stretch of {MIN_RUN_S:g} s without a hold (stale force) or a gap of "
                         f"{1e3 * MAX_GAP_S:g} ms between reads; record again (on a loaded machine, raise "
                         "[loop].stale_timeout_ms)")
-    joints = {int(j["id"]): j for j in manifest.get("joints", []) if isinstance(j, dict) and "id" in j}
-    recording = Recording(folder, segments, joints, held, gaps)
+    recording = Recording(where, segments, joints, held, gaps)
     for joint_id in recording.joint_ids():
-        _check_motion(folder, joint_id, recording.of_joint(joint_id))
+        _check_motion(where, joint_id, recording.of_joint(joint_id))
     return recording
+
+
+def _no_present_positions(where: Path, source: str) -> DataError:
+    return DataError(f"{where}: no present positions recorded (theta is {source}); record with "
+                     "[loop].sync_read_divisor > 0 so the loop reads the servo")
+
+
+def _from_mcap(path: Path) -> Recording:
+    """The segments of a session.mcap, as its CSV folder gives them."""
+    from admittance.ident.loaders import read_recording, recording_dataset, recording_segments
+
+    rec = read_recording(path)  # DataError: not found, not an MCAP of ours
+    if not rec.session.get("measured_theta", True):
+        raise _no_present_positions(rec.path, "the model angle")
+    per_joint = recording_segments(rec)
+    trials = iter(recording_dataset(rec).trials)  # the same segments, in the same order, with their load
+    t0 = float(rec.session["t0"])
+    sets = sorted(rec.params, key=lambda p: p.get("t", 0.0))
+    whole = []
+    for jid, segments in per_joint.items():
+        for k, columns in enumerate(segments):
+            _check_finite(f"{rec.path}: joint{jid}_{k:03d}", columns)
+            target, compensation, changed = _ran(sets, jid, t0 + columns["t"][0], t0 + columns["t"][-1])
+            whole.append(Segment(f"joint{jid}_{k:03d}", jid, columns, next(trials), target, compensation, changed))
+    joints = {int(j["id"]): j for j in rec.session.get("joints", []) if isinstance(j, dict) and "id" in j}
+    return _recording(rec.path, whole, joints)
+
+
+def _ran(sets: list[dict], joint_id: int, start: float, end: float) -> tuple[dict[str, float], float | None, bool]:
+    """What the loop ran for a joint from ``start`` (monotonic s): the values of the last /params
+    message before it (the start's when none is), and whether another changed them by ``end``."""
+    def values(message: dict) -> tuple[dict[str, float], float | None]:
+        params = message.get("params", {})
+        got = {k: _number(params[f"{joint_id}.{k}"], f"/params {joint_id}.{k}")
+               for k in (*TARGET_KEYS, "servo_compensation") if f"{joint_id}.{k}" in params}
+        return got, got.pop("servo_compensation", None)
+
+    if not sets:
+        return {}, None, False
+    before = [m for m in sets if m.get("t", 0.0) <= start] or sets[:1]
+    ran = values(before[-1])
+    changed = any(values(m) != ran for m in sets if start < m.get("t", 0.0) <= end)
+    return ran[0], ran[1], changed
 
 
 def _segment(folder: Path, manifest_path: Path, index: int, entry: dict, trial: TrialData) -> Segment:
@@ -173,11 +230,15 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
                 out[c][k] = float(row[col])
             except (ValueError, IndexError):
                 raise DataError(f"{path}: line {k + 2}: column {c!r}: not a number") from None
-    for c, values in out.items():
+    _check_finite(str(path), out)
+    return out
+
+
+def _check_finite(where: str, columns: dict[str, np.ndarray]) -> None:
+    for c, values in columns.items():
         if not np.all(np.isfinite(values)):
             bad = int(np.flatnonzero(~np.isfinite(values))[0])
-            raise DataError(f"{path}: column {c!r}: NaN or infinite value at row {bad}")
-    return out
+            raise DataError(f"{where}: column {c!r}: NaN or infinite value at row {bad}")
 
 
 def _number(value, where: str) -> float:

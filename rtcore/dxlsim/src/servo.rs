@@ -9,6 +9,13 @@
 //! Hardware errors use the P2 Hardware Error Status bit layout (bit 0 input voltage, 2
 //! overheating, 3 encoder, 4 electrical shock, 5 overload). P1's error byte has voltage,
 //! overheating and overload at the same bit positions, so one value serves both protocols.
+//! A bit in the Shutdown mask (P1: Alarm Shutdown) turns torque off and keeps it off: a write
+//! of Torque Enable = 1 is taken and undone at once, until a REBOOT (P2) or until the cause is
+//! gone (P1, which has no reboot).
+//!
+//! Silence: after a REBOOT (once its status packet is sent) and after a brown-out, the servo
+//! boots for a while and neither answers nor executes anything (`is_silent`); its horn keeps
+//! moving under the physics meanwhile.
 use std::collections::VecDeque;
 
 use dxl::packet::Protocol;
@@ -25,6 +32,11 @@ use crate::units::*;
 pub const HW_INPUT_VOLTAGE: u8 = 0x01;
 /// Hardware Error Status bit: overheating.
 pub const HW_OVERHEATING: u8 = 0x04;
+/// Hardware Error Status bit: overload (a persistent load above the motor's output).
+pub const HW_OVERLOAD: u8 = 0x20;
+/// How long a servo is silent after a REBOOT by default: an XC330 answers again after about
+/// 0.4 s (ROBOTIS-GIT/emanual issue 1698); the e-manual gives no figure for MX servos.
+pub const DEFAULT_REBOOT_TIME_S: f64 = 0.4;
 /// The hardware bits P1's error byte can carry (voltage, overheating, overload).
 pub const P1_HARDWARE_BITS: u8 = 0x25;
 /// Moving threshold (rad/s) when the model has no Moving Threshold item: P2's default of
@@ -49,6 +61,10 @@ pub struct ServoSpec {
     pub ambient_temperature: f64,
     /// s: the horn follows its goal as a first-order lag instead of by firmware and motor.
     pub first_order_lag: Option<f64>,
+    /// Seconds a REBOOT keeps the servo silent after its status packet.
+    pub reboot_time_s: f64,
+    /// Seconds of stall at the duty limit before the overload bit sets (None: never).
+    pub overload_time_s: Option<f64>,
 }
 
 /// What Python's `servo_state` reports.
@@ -67,6 +83,8 @@ pub struct Snapshot {
     pub temperature: f64,
     pub hardware_error: u8,
     pub time: f64,
+    /// Booting (after a REBOOT or a brown-out): no answers, no instructions executed.
+    pub silent: bool,
 }
 
 pub struct Servo {
@@ -83,6 +101,9 @@ pub struct Servo {
     current: f64,
     temperature: f64,
     hardware_error: u8,
+    /// Bits raised by `set_hardware_error`: their cause is the injection, so P1 keeps them
+    /// until they are cleared the same way (P2 until a REBOOT).
+    injected: u8,
     time: f64,
     /// A REG_WRITE waiting for ACTION: (address, data).
     pub registered: Option<(u16, Vec<u8>)>,
@@ -91,6 +112,10 @@ pub struct Servo {
     /// Whole turns CLEAR removed from the reported position (ticks): reported = encoder + this.
     tick_offset: i64,
     hand: Option<Hand>,
+    /// Simulated time until which the servo boots (silent).
+    silent_until: f64,
+    /// Seconds the motor has stalled at its duty limit (the overload detector).
+    stalled_s: f64,
 }
 
 impl Servo {
@@ -116,11 +141,14 @@ impl Servo {
             current: 0.0,
             temperature,
             hardware_error: 0,
+            injected: 0,
             time: 0.0,
             registered: None,
             torque_history: VecDeque::new(),
             tick_offset: 0,
             hand: None,
+            silent_until: 0.0,
+            stalled_s: 0.0,
         };
         servo.publish();
         servo.hold_present_position();
@@ -167,6 +195,11 @@ impl Servo {
         self.hardware_error
     }
 
+    /// Booting after a REBOOT or a brown-out: the servo neither answers nor executes.
+    pub fn is_silent(&self) -> bool {
+        self.time < self.silent_until
+    }
+
     fn torque_enabled(&self) -> bool {
         self.reg.torque_enable.is_some_and(|k| self.table.value(k) != 0)
     }
@@ -176,7 +209,10 @@ impl Servo {
     pub fn write(&mut self, address: u16, data: &[u8]) -> Result<(), TableError> {
         self.check_limits(address, data)?;
         let locked = self.eeprom_locked();
-        self.table.write(address, data, locked)
+        self.table.write(address, data, locked)?;
+        // Torque Enable = 1 during a shutdown is taken and undone at once.
+        self.enforce_shutdown();
+        Ok(())
     }
 
     /// Whether `write` would accept this now, without writing (REG_WRITE checks up front).
@@ -233,16 +269,45 @@ impl Servo {
     /// Raises hardware error bits (P2 layout); a bit in the Shutdown mask turns torque off.
     pub fn set_hardware_error(&mut self, bits: u8) {
         self.hardware_error = bits;
+        self.injected = bits;
         self.enforce_shutdown();
         self.publish();
     }
 
     /// REBOOT: RAM back to defaults (torque off), hardware errors cleared, EEPROM and the
-    /// horn's physical state kept.
+    /// horn's physical state kept; silent for `reboot_time_s` (the caller has queued the
+    /// status packet already: a servo answers REBOOT, then boots).
     pub fn reboot(&mut self) {
+        self.reset_ram();
+        self.silent_until = self.time + self.spec.reboot_time_s;
+    }
+
+    /// A brown-out: the supply dipped and the servo reset as at power-up (RAM back to
+    /// defaults, torque off, errors cleared, the position folded into one turn), then boots
+    /// for `seconds` in silence.
+    pub fn brown_out(&mut self, seconds: f64) {
+        let tick = rad_to_tick(self.state.theta) + self.tick_offset;
+        self.tick_offset -= 4096 * tick.div_euclid(4096);
+        self.reset_ram();
+        self.silent_until = self.time + seconds.max(0.0);
+    }
+
+    /// Torque Enable cleared with no error bit: torque found off (another client's write, a
+    /// firmware that does not flag it).
+    pub fn torque_off(&mut self) {
+        if let Some(k) = self.reg.torque_enable {
+            self.table.store(k, 0);
+        }
+        self.torque_was_on = false;
+    }
+
+    fn reset_ram(&mut self) {
         self.table.reload_ram();
         self.hardware_error = 0;
+        self.injected = 0;
         self.registered = None;
+        self.stalled_s = 0.0;
+        self.torque_was_on = false;
         self.publish();
         self.hold_present_position();
     }
@@ -285,6 +350,7 @@ impl Servo {
         plant::step(&mut self.state, &self.spec.params, &load, self.spec.friction, tau, self.time, h);
         self.record_hand(applied, (self.state.omega - before) / h);
         self.heat(h);
+        self.detect_overload(h);
         self.time += h;
     }
 
@@ -315,6 +381,20 @@ impl Servo {
     fn record_hand(&mut self, applied: f64, alpha: f64) {
         if let Some(hand) = &mut self.hand {
             hand.record(applied, alpha);
+        }
+    }
+
+    /// The overload detector (when configured): a motor held at its duty limit without moving
+    /// for `overload_time_s` sets the overload bit (a shutdown bit by default).
+    fn detect_overload(&mut self, h: f64) {
+        let Some(limit_s) = self.spec.overload_time_s else { return };
+        let saturated = self.torque_enabled() && self.duty.abs() >= self.duty_limit() * 0.999 && self.duty != 0.0;
+        let stalled = self.state.omega.abs() <= self.moving_threshold();
+        self.stalled_s = if saturated && stalled { self.stalled_s + h } else { 0.0 };
+        if self.stalled_s >= limit_s {
+            self.hardware_error |= HW_OVERLOAD;
+        } else if self.spec.protocol == Protocol::V1 && self.stalled_s == 0.0 {
+            self.hardware_error &= !(HW_OVERLOAD & !self.injected); // P1 clears a bit once its cause is gone
         }
     }
 
@@ -442,7 +522,7 @@ impl Servo {
             if active {
                 self.hardware_error |= bit;
             } else if self.spec.protocol == Protocol::V1 {
-                self.hardware_error &= !bit;
+                self.hardware_error &= !(bit & !self.injected);
             }
         }
     }
@@ -515,6 +595,7 @@ impl Servo {
             temperature: self.temperature,
             hardware_error: self.hardware_error,
             time: self.time,
+            silent: self.is_silent(),
         }
     }
 }
@@ -626,6 +707,31 @@ mod tests {
         assert_eq!(snap.hardware_error & HW_OVERHEATING, HW_OVERHEATING);
         assert!(!snap.torque_enabled, "Shutdown turns torque off");
         assert_eq!(s.table.get("Hardware Error Status"), Some(HW_OVERHEATING as i64));
+    }
+
+    #[test]
+    fn a_stall_at_the_duty_limit_trips_the_overload_shutdown_when_configured() {
+        let stall = |overload_time_s: Option<f64>, protocol: Protocol| {
+            let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
+            let config = ServoConfig { overload_time_s, protocol, ..ServoConfig::new(1, params) };
+            let mut bus = build_bus(vec![config], 1_000_000).unwrap();
+            let s = servo(&mut bus);
+            // A goal far away saturates the duty (4.74 N·m at 12 V); a hand pushing back with
+            // 4.7 N·m holds the horn where it is: a stall at the duty limit.
+            set(s, "Goal Position", 2048 + 1000);
+            set(s, "Torque Enable", 1);
+            s.set_external_torque(-4.7);
+            run(s, 1.0);
+            s.snapshot()
+        };
+        let tripped = stall(Some(0.3), Protocol::V2);
+        assert_eq!(tripped.hardware_error, HW_OVERLOAD);
+        assert!(!tripped.torque_enabled, "overload is in the default Shutdown mask");
+        let p1 = stall(Some(0.3), Protocol::V1);
+        assert!(!p1.torque_enabled, "P1 Alarm Shutdown has overload too");
+        let off = stall(None, Protocol::V2);
+        assert_eq!(off.hardware_error, 0, "no detector configured: no overload");
+        assert!(off.torque_enabled);
     }
 
     #[test]

@@ -19,7 +19,10 @@
 //! w is a weight in [0, 1] (`servo_compensation`). It never jumps: a change blends linearly
 //! over the loop's ramp time, but over at least `MIN_BLEND_S`, so that even with
 //! `ramp_time_s = 0` turning the compensation on or off cannot step the goal by the whole lead.
-//! While the force is stale the loop holds, and the lead is frozen with it, so the goal stays.
+//! While the force is stale (or a fault holds the joint) the loop holds, and the lead is frozen
+//! with it, so the goal stays. The model then starts again from rest, where its lead is small:
+//! the frozen lead's difference to the new one fades out over `RELEASE_S` instead of stepping
+//! the goal back by it.
 use plant::servo::{lead, ServoModel};
 
 /// The shortest blend of the weight, s.
@@ -27,6 +30,8 @@ pub const MIN_BLEND_S: f64 = 0.2;
 /// A lead beyond this (rad) is clipped: a safety net against a wild model, far above any lag a
 /// servo that follows at all shows (a 25 ms lag at 6 rad/s is 0.15 rad).
 pub const MAX_LEAD: f64 = 0.3;
+/// s: the time constant over which a frozen lead hands over to the running one after a hold.
+pub const RELEASE_S: f64 = 0.05;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Compensation {
@@ -38,12 +43,16 @@ pub struct Compensation {
     lead: f64,
     /// The acceleration the lead uses (low-passed, see the module doc).
     alpha: f64,
+    /// The last cycle held (the lead was frozen).
+    held: bool,
+    /// What is left of a frozen lead's difference to the running one (fades over RELEASE_S).
+    carry: f64,
 }
 
 impl Compensation {
     /// A joint's compensation at `weight` (already validated: 0 without a model).
     pub fn new(model: Option<ServoModel>, weight: f64) -> Self {
-        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0, alpha: 0.0 }
+        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0, alpha: 0.0, held: false, carry: 0.0 }
     }
 
     /// The weight it blends to now.
@@ -60,7 +69,9 @@ impl Compensation {
     pub fn retarget(&mut self, model: Option<ServoModel>, weight: f64) {
         self.model = model;
         if weight != self.to {
-            self.from = self.weight;
+            // A weight that bypassed the gate (NaN) is refused at the goal by the state guard;
+            // the next blend starts from off, not from it.
+            self.from = if self.weight.is_finite() { self.weight } else { 0.0 };
             self.to = weight;
             self.progress = 0.0;
         }
@@ -75,22 +86,35 @@ impl Compensation {
         self.weight = self.from + self.progress * (self.to - self.from);
     }
 
+    /// A cycle whose goal was not made here (a fault held the joint): the lead stays frozen,
+    /// and the next goal hands it over as after any hold.
+    pub fn hold(&mut self) {
+        self.held = true;
+    }
+
     /// The angle to send as the goal for a model at `theta` moving at `omega` with
     /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
     /// the last cycle is kept, so holding never moves the goal.
     /// `h` is the cycle's step (for the acceleration's filter).
     pub fn goal(&mut self, theta: f64, omega: f64, alpha: f64, tau: f64, hold: bool, h: f64) -> f64 {
         let Some(model) = self.model else { return theta };
-        if !hold {
+        // A non-finite input would stay in the filter for good: the lead is then kept as it was.
+        if !hold && alpha.is_finite() && tau.is_finite() {
             let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
             let led = lead(&model, omega, self.alpha, tau);
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
-            self.lead = if led.is_finite() { led.clamp(-MAX_LEAD, MAX_LEAD) } else { self.lead };
+            let led = if led.is_finite() { led.max(-MAX_LEAD).min(MAX_LEAD) } else { self.lead };
+            if self.held {
+                self.carry += self.lead - led; // released: hand the frozen lead over, no step
+            }
+            self.carry -= self.carry * h / (RELEASE_S + h);
+            self.lead = led;
         }
-        theta + self.weight * self.lead
+        self.held = hold;
+        theta + self.weight * (self.lead + self.carry)
     }
 }
 
@@ -128,6 +152,20 @@ mod tests {
             last = g;
         }
         assert_eq!(c.weight(), 1.0);
+    }
+
+    #[test]
+    fn a_release_hands_the_frozen_lead_over_without_a_step() {
+        let mut c = Compensation::new(Some(LAG), 1.0);
+        let h = 1e-3;
+        let moving = c.goal(0.2, 1.0, 0.0, 0.0, false, h);
+        assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true, h), moving);
+        let released = c.goal(0.2, 0.0, 0.0, 0.0, false, h);
+        assert!((released - moving).abs() < 0.027 * h / RELEASE_S * 1.01, "{released} after {moving}");
+        for _ in 0..(10.0 * RELEASE_S / h) as usize {
+            c.goal(0.2, 0.0, 0.0, 0.0, false, h);
+        }
+        assert!((c.goal(0.2, 0.0, 0.0, 0.0, false, h) - 0.2).abs() < 1e-5, "the running lead (0 at rest) in the end");
     }
 
     #[test]

@@ -8,7 +8,7 @@
 use crate::bus::Registers;
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
-use crate::params::{JointGains, JointParams, Limits, LoopParams, SensorParams};
+use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
 use crate::sched::RtRequest;
 use dxl::Protocol;
 
@@ -101,6 +101,18 @@ impl LoopConfig {
         self.joints.iter().map(|j| j.id).collect()
     }
 
+    /// Each joint's id and the angles its goal range reaches, in joint order (what the
+    /// position limits are checked against).
+    pub fn reach(&self) -> Vec<Reach> {
+        self.joints
+            .iter()
+            .map(|j| {
+                let (theta_min, theta_max) = j.ticks.theta_range();
+                Reach { id: j.id, theta_min, theta_max }
+            })
+            .collect()
+    }
+
     pub fn initial_params(&self) -> LoopParams {
         LoopParams {
             joints: self
@@ -155,7 +167,7 @@ impl LoopConfig {
                 ));
             }
         }
-        self.initial_params().validate(&ids, self.rate_hz)
+        self.initial_params().validate(&self.reach(), self.rate_hz)
     }
 }
 

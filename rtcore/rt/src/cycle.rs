@@ -7,25 +7,30 @@
 //!    accepted sets is itself stable. The position state is never touched, so nothing jumps.
 //! 2. `take_force`: drain the sample ring to the newest sample (stale check, tare feed).
 //! 3. `condition_force`: bias, deadband, low-pass.
-//! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state
-//!    per deadline since the last cycle (a skipped deadline is integrated too, so the model's
-//!    time is the deadlines' time), or a hold (velocity zero, no integration) while the force is
-//!    stale; the goal is the model's angle plus the servo compensation's lead (`compensation`).
+//! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
+//!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
+//!    deadlines' time), or a hold (velocity zero, no integration) while the force is stale.
+//!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
+//!    step is guarded: gains that are not usable, a state that is not finite or leaves the
+//!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
+//!    with the goal it already has and raise `FaultKind::ModelStateInvalid` (see `fault`), so
+//!    nothing but a valid state ever becomes a goal.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
-//! 7. `publish`: telemetry records and counters.
+//! 7. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
+use crate::fault::{FaultKind, Faults, LoopMode};
 use crate::filter::{deadband, LowPass, TareAverager};
-use crate::joint::{integrate, user_torque, TickMap};
+use crate::joint::{integrate, state_in_envelope, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
 use crate::sensor::{ForceIntake, Intake};
 use crate::shared::Shared;
-use crate::telemetry::{LoopStats, Record, FLAG_HOLD};
+use crate::telemetry::{LoopStats, Record};
 use plant::State;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -42,6 +47,10 @@ pub struct JointWiring {
 struct JointSlot {
     wiring: JointWiring,
     state: State,
+    /// The last state that passed the guard: where a fault holds the joint.
+    good: State,
+    /// This joint's faults this cycle.
+    faults: Faults,
     limits: Limits,
     ramp_from: JointGains,
     ramp_to: JointGains,
@@ -82,6 +91,10 @@ pub struct Controller {
     bias: [f64; 6],
     bias_generation: u64,
     intake: ForceIntake,
+    /// Faults of the loop as a whole this cycle (none raised yet: the bus and sensor kinds go here).
+    loop_faults: Faults,
+    /// The joints held this cycle by policy (stale force).
+    holding: bool,
     params: triple_buffer::Output<LoopParams>,
     bus: JointBus,
     sync_read_divisor: u64,
@@ -107,6 +120,8 @@ impl Controller {
             .map(|(wiring, jp)| JointSlot {
                 wiring: *wiring,
                 state: State::default(),
+                good: State::default(),
+                faults: Faults::NONE,
                 limits: jp.limits,
                 ramp_from: jp.gains,
                 ramp_to: jp.gains,
@@ -133,6 +148,8 @@ impl Controller {
             bias: p.bias,
             bias_generation: p.bias_generation,
             intake: ForceIntake::new(parts.force_ring),
+            loop_faults: Faults::NONE,
+            holding: false,
             params: parts.params,
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
@@ -156,6 +173,7 @@ impl Controller {
         let ticks = self.bus.read_present(t, deadline_ns)?;
         for ((slot, goal), &tick) in self.joints.iter_mut().zip(self.goals.iter_mut()).zip(ticks) {
             slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+            slot.good = slot.state;
             slot.present = tick;
             *goal = tick;
         }
@@ -190,11 +208,10 @@ impl Controller {
         let force = self.condition_force(&intake.newest.forces);
         let steps = self.steps_due(deadline_ns);
         self.step_joints(&force, intake.stale, steps);
-        let flags = if intake.stale { FLAG_HOLD } else { 0 };
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
         let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
-        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read, flags);
+        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
     }
 
@@ -260,39 +277,48 @@ impl Controller {
         self.lowpass.apply(&f)
     }
 
-    /// Model steps due at this deadline: one per deadline since the last cycle's, so the model
-    /// keeps the deadlines' time through an overrun (recordings and `identify` rely on it).
+    /// Model steps due at this deadline: as many as bring the model's own time (whole steps
+    /// of one period) nearest to the deadline, so the model keeps the deadlines' time through
+    /// an overrun (recordings and `identify` rely on it). Counted against the model's time,
+    /// not the previous deadline, so a grid that shifts or stretches by a bounded amount (a
+    /// phase-locked clock) keeps the two within half a period instead of drifting apart; a
+    /// grid that moved back gives a cycle of no step. A stall longer than the catch-up cap
+    /// loses the rest of its time (the model's time restarts at this deadline).
     fn steps_due(&mut self, deadline_ns: u64) -> u64 {
-        let steps = match self.model_ns {
-            Some(last) => ((deadline_ns.saturating_sub(last) + self.period_ns / 2) / self.period_ns).clamp(1, MAX_CATCH_UP_STEPS),
-            None => 1,
+        let Some(model_ns) = self.model_ns else {
+            self.model_ns = Some(deadline_ns);
+            return 1;
         };
-        self.model_ns = Some(deadline_ns);
+        let due = deadline_ns.saturating_sub(model_ns).saturating_add(self.period_ns / 2) / self.period_ns;
+        let steps = due.min(MAX_CATCH_UP_STEPS);
+        self.model_ns = Some(if due > MAX_CATCH_UP_STEPS { deadline_ns } else { model_ns + steps * self.period_ns });
         steps
     }
 
     fn step_joints(&mut self, force: &[f64; 6], hold: bool, steps: u64) {
+        self.holding = hold;
+        let h = self.h;
         for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
+            slot.faults = Faults::NONE;
             let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
             } else {
                 for _ in 0..steps {
-                    alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
+                    alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, h);
                 }
             }
-            slot.compensation.advance(self.h, self.ramp_time_s);
-            let State { theta, omega } = slot.state;
-            // A model brought to rest within one step (a stick, a position limit) decelerated
-            // by ω/h: the reference stops, and the servo is to hold, not to brake that hard.
-            let alpha = if omega == 0.0 { 0.0 } else { alpha };
-            let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, self.h);
-            // The lead may not carry the goal past a position limit (a state already outside a
-            // narrowed range stays where it is, as the integrator lets it).
-            let led = led.clamp(slot.limits.position_min.min(theta), slot.limits.position_max.max(theta));
-            *goal = slot.wiring.ticks.goal_tick(led);
+            slot.compensation.advance(h, self.ramp_time_s);
+            // No step (a hold, or a grid that moved back): the lead stays, so the goal does.
+            match state_usable(slot).then(|| compensated_goal(slot, alpha, hold || steps == 0, h)).flatten() {
+                Some(tick) => {
+                    slot.good = slot.state;
+                    *goal = tick;
+                }
+                None => hold_at_good(slot), // and the goal it already has
+            }
         }
     }
 
@@ -348,8 +374,11 @@ impl Controller {
         }
     }
 
-    fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool, flags: i64) {
+    fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool) {
         let stats = &self.shared.stats;
+        let active = self.joints.iter().fold(self.loop_faults, |all, slot| all.union(slot.faults));
+        let mode = LoopMode::of(active, self.holding);
+        stats.faults.record(active, mode);
         for (slot, &goal) in self.joints.iter().zip(&self.goals) {
             let record = Record {
                 cycle: self.cycle,
@@ -363,7 +392,8 @@ impl Controller {
                 present_tick: if read { slot.present } else { -1 },
                 period_error_ns: period_error_ns as i64,
                 latency_ns,
-                flags,
+                fault: slot.faults.union(self.loop_faults).bits(),
+                mode: mode as i64,
             };
             if self.telemetry.push(record).is_err() {
                 LoopStats::add(&stats.telemetry_drops, 1);
@@ -377,6 +407,41 @@ impl Controller {
     /// The stop policy's last traffic: Torque Enable = 0 on every joint.
     pub fn torque_off(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
         self.bus.set_torque(t, false)
+    }
+}
+
+/// The state guard's test, after a joint's step: gains the loop can integrate with and a state
+/// that is finite and inside the envelope.
+fn state_usable(slot: &JointSlot) -> bool {
+    slot.gains.usable() && state_in_envelope(&slot.state, &slot.wiring.ticks)
+}
+
+/// The goal tick of a usable state: the model's angle plus the compensation's lead, which may
+/// not carry the goal past a position limit (a state already outside a narrowed range stays
+/// where it is, as the integrator lets it). None when the led angle is not finite: it would
+/// reach the bus as tick 0, a jump across the range.
+fn compensated_goal(slot: &mut JointSlot, alpha: f64, hold: bool, h: f64) -> Option<i64> {
+    let State { theta, omega } = slot.state;
+    // A model brought to rest within one step (a stick, a position limit) decelerated by ω/h:
+    // the reference stops, and the servo is to hold, not to brake that hard.
+    let alpha = if omega == 0.0 { 0.0 } else { alpha };
+    let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, h);
+    if !led.is_finite() {
+        return None; // checked before the limits: max/min would turn a NaN into a bound
+    }
+    // min/max, not clamp: clamp panics on crossed or NaN bounds, and the RT thread never panics.
+    Some(slot.wiring.ticks.goal_tick(led.max(slot.limits.position_min.min(theta)).min(slot.limits.position_max.max(theta))))
+}
+
+/// The guard's policy when a state or its goal is not usable: the joint holds at its last good
+/// state (velocity zero; its goal is left as it is) and the fault is raised for this cycle; the
+/// next cycle tries again from that good state.
+fn hold_at_good(slot: &mut JointSlot) {
+    slot.faults.insert(FaultKind::ModelStateInvalid);
+    slot.state = State { theta: slot.good.theta, omega: 0.0 };
+    slot.compensation.hold();
+    if !slot.torque.is_finite() {
+        slot.torque = 0.0; // the record shows the hand's torque, unless the gains made it NaN
     }
 }
 

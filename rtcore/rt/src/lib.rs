@@ -17,6 +17,7 @@
 //! - [`histogram`]: fixed log-spaced timing histograms.
 //! - [`sensor`], [`filter`]: force samples in, tare, deadband, low-pass.
 //! - [`params`]: named parameters, validation, all-or-nothing sets.
+//! - [`fault`]: the fault kinds, their bits and counters, and the loop's mode.
 //! - [`joint`]: one joint's torque, limited integration and goal tick.
 //! - [`compensation`]: the servo model inverted: the goal that makes the horn follow the model.
 //! - [`bus`]: SyncWrite / SyncRead against a `Transport`.
@@ -26,6 +27,7 @@
 pub mod bus;
 pub mod clock;
 pub mod compensation;
+pub mod fault;
 pub mod filter;
 pub mod histogram;
 pub mod joint;

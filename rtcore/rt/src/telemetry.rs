@@ -6,6 +6,7 @@
 //!
 //! Why counters are atomics: the RT thread writes them with uncontended relaxed operations and
 //! Python reads them whenever it likes; there is no lock the loop could wait on.
+use crate::fault::{FaultCounters, LoopMode};
 use crate::histogram::{Histogram, Percentiles};
 use crate::sched::RtReport;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
@@ -31,15 +32,14 @@ pub struct Record {
     pub period_error_ns: i64,
     /// Arrival of the sample this SyncWrite used first → end of the write; −1 when no new sample.
     pub latency_ns: i64,
-    /// Bit set: `FLAG_HOLD` (the force was stale: the model held instead of integrating).
-    pub flags: i64,
+    /// The faults active for this joint this cycle (its own and the loop's): `FaultKind::bit`s.
+    pub fault: u64,
+    /// The loop's mode this cycle: `LoopMode` as a number (0 running, 1 holding, 2 faulted).
+    pub mode: i64,
 }
 
-/// `Record::flags` bit: the cycle held (stale force); its model angle did not follow the torque.
-pub const FLAG_HOLD: i64 = 1;
-
 /// The field names in layout order, each 8 bytes: (name, numpy type code).
-pub const RECORD_FIELDS: [(&str, &str); 12] = [
+pub const RECORD_FIELDS: [(&str, &str); 13] = [
     ("cycle", "<u8"),
     ("t_ns", "<u8"),
     ("id", "<i8"),
@@ -51,7 +51,8 @@ pub const RECORD_FIELDS: [(&str, &str); 12] = [
     ("present_tick", "<i8"),
     ("period_error_ns", "<i8"),
     ("latency_ns", "<i8"),
-    ("flags", "<i8"),
+    ("fault", "<u8"),
+    ("mode", "<i8"),
 ];
 
 impl Record {
@@ -63,9 +64,11 @@ impl Record {
         for v in [self.force, self.torque, self.theta, self.omega] {
             out.extend_from_slice(&v.to_le_bytes());
         }
-        for v in [self.goal_tick, self.present_tick, self.period_error_ns, self.latency_ns, self.flags] {
+        for v in [self.goal_tick, self.present_tick, self.period_error_ns, self.latency_ns] {
             out.extend_from_slice(&v.to_le_bytes());
         }
+        out.extend_from_slice(&self.fault.to_le_bytes());
+        out.extend_from_slice(&self.mode.to_le_bytes());
     }
 }
 
@@ -83,6 +86,8 @@ pub struct LoopStats {
     pub latency: Histogram,
     /// Wake-up → end of the cycle's bus traffic: what a cycle costs.
     pub work: Histogram,
+    /// Fault events per kind, and the loop's mode (see `fault`).
+    pub faults: FaultCounters,
     /// Set once by the loop thread before its first cycle.
     pub rt: Mutex<RtReport>,
 }
@@ -101,6 +106,9 @@ pub struct StatsSnapshot {
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
     pub sync_reads: u64,
+    /// (kind name, events), every kind.
+    pub faults: Vec<(&'static str, u64)>,
+    pub mode: LoopMode,
     pub rt: RtReport,
 }
 
@@ -122,6 +130,8 @@ impl LoopStats {
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
             sync_reads: self.sync_reads.load(Relaxed),
+            faults: self.faults.snapshot(),
+            mode: self.faults.mode(),
             rt: self.rt.lock().map(|r| r.clone()).unwrap_or_default(),
         }
     }
@@ -133,7 +143,7 @@ mod tests {
 
     #[test]
     fn the_byte_layout_matches_the_field_table() {
-        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, flags: FLAG_HOLD, ..Default::default() };
+        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, fault: 1, mode: 2, ..Default::default() };
         let mut out = Vec::new();
         r.write_le(&mut out);
         assert_eq!(out.len(), 8 * RECORD_FIELDS.len());
@@ -145,6 +155,7 @@ mod tests {
         assert_eq!(i64::from_le_bytes(field("id")), -2);
         assert_eq!(f64::from_le_bytes(field("theta")), 0.5);
         assert_eq!(i64::from_le_bytes(field("latency_ns")), -1);
-        assert_eq!(i64::from_le_bytes(field("flags")), FLAG_HOLD);
+        assert_eq!(u64::from_le_bytes(field("fault")), 1);
+        assert_eq!(i64::from_le_bytes(field("mode")), 2);
     }
 }
