@@ -23,6 +23,7 @@
 //! with it, so the goal stays. The model then starts again from rest, where its lead is small:
 //! the frozen lead's difference to the new one fades out over `RELEASE_S` instead of stepping
 //! the goal back by it.
+use crate::joint::bound;
 use plant::servo::{lead, ServoModel};
 
 /// The shortest blend of the weight, s.
@@ -106,7 +107,7 @@ impl Compensation {
             let led = lead(&model, omega, self.alpha, tau);
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
-            let led = if led.is_finite() { led.max(-MAX_LEAD).min(MAX_LEAD) } else { self.lead };
+            let led = if led.is_finite() { bound(led, MAX_LEAD) } else { self.lead };
             if self.held {
                 self.carry += self.lead - led; // released: hand the frozen lead over, no step
             }

@@ -372,8 +372,9 @@ fn a_grid_that_shifts_or_stretches_keeps_the_model_within_half_a_period_of_it() 
     assert!(steps > 3000, "the stretched grid's extra time was integrated: {steps}");
 }
 
-#[test]
-fn a_non_finite_compensated_goal_is_a_fault_and_the_goal_stays() {
+/// A damped joint with the lagging servo compensated, pushed to a steady 1 rad/s (its lead is
+/// 17 ticks): the set, the rig and the last (good) record.
+fn pushed_with_compensation() -> (LoopParams, Rig, Record) {
     let mut p = free_joint();
     p.joints[0].gains.damping = 0.2;
     p.joints[0].servo = Some(lagging_servo());
@@ -384,6 +385,12 @@ fn a_non_finite_compensated_goal_is_a_fault_and_the_goal_stays() {
     }
     let good = r.cycle_with(Some(2.0));
     assert!(good.goal_tick > 2048 + 10 && good.fault == 0);
+    (p, r, good)
+}
+
+#[test]
+fn a_non_finite_compensated_goal_is_a_fault_and_the_goal_stays() {
+    let (p, mut r, good) = pushed_with_compensation();
     let mut bad = p.clone();
     bad.joints[0].compensation = f64::NAN; // the gate refuses this; written straight to the buffer here
     r.params.write(bad);
@@ -401,15 +408,7 @@ fn a_non_finite_compensated_goal_is_a_fault_and_the_goal_stays() {
 
 #[test]
 fn a_fault_with_compensation_on_keeps_the_led_goal() {
-    let mut p = free_joint();
-    p.joints[0].gains.damping = 0.2;
-    p.joints[0].servo = Some(lagging_servo());
-    p.joints[0].compensation = 1.0;
-    let mut r = started(p, &[(1, 2048)]);
-    for _ in 0..300 {
-        r.cycle_with(Some(2.0));
-    }
-    let good = r.cycle_with(Some(2.0));
+    let (_, mut r, good) = pushed_with_compensation();
     r.ctl.joints[0].state.theta = f64::NAN;
     let held = r.cycle_with(Some(2.0));
     assert_eq!((held.goal_tick, held.fault), (good.goal_tick, FaultKind::ModelStateInvalid.bit()));
