@@ -168,7 +168,8 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     1. the recording is honest: `identify` with theta := theta_model returns the configured
        I, B, F within 3/3/5 % (it was 18/28/12 % off when rows carried the wake-up time and the
        cycle's own torque);
-    2. `fidelity` identifies the servo and writes the plant with its [servo] model;
+    2. `fidelity` identifies the servo and writes the plant with its [servo] model (and reads
+       the session's session.mcap to the same figures);
     3. a session with that file compensates: the rendering error is ≥ 3× lower, and `identify`
        on the *measured* angle (what the user felt) is within 10 % (I, B) and 10 % + 5 mN·m (F)
        of the configured joint (without compensation it was 13 %, 54 % and 16 % off);
@@ -189,6 +190,11 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     assert main(["fidelity", str(plain), "--json", str(tmp_path / "plain_fidelity.json"),
                  "--params-out", str(servo_params), "--quiet"]) == 0
     before = json.loads((tmp_path / "plain_fidelity.json").read_text())["rendering_rmse"]
+    # The daemon's session.mcap carries what fidelity needs (the same rows, targets and plant).
+    assert main(["fidelity", str(plain / "session.mcap"), "--json", str(tmp_path / "mcap.json"), "--quiet"]) == 0
+    from_mcap = json.loads((tmp_path / "mcap.json").read_text())
+    assert from_mcap["rendering_rmse"] == pytest.approx(before, rel=0.02)
+    assert from_mcap["target"] == json.loads((tmp_path / "plain_fidelity.json").read_text())["target"]
     compensated, stats = bench_session(tmp_path, "compensated", servo_params, cycles=4500)
     assert stats["rendering_rms"]["1"] > 0, "the live figure is in the stats file"
     assert main(["fidelity", str(compensated), "--json", str(tmp_path / "comp.json"), "--quiet"]) == 0
