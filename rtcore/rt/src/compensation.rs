@@ -170,6 +170,17 @@ mod tests {
     }
 
     #[test]
+    fn a_non_finite_input_never_poisons_the_lead() {
+        let model = ServoModel { inertial_time: 0.02, ..LAG }; // with the acceleration filter
+        let mut c = Compensation::new(Some(model), 1.0);
+        let before = c.goal(0.1, 1.0, 2.0, 0.1, false, 1e-3);
+        assert_eq!(c.goal(0.1, 1.0, f64::NAN, 0.1, false, 1e-3), before, "the lead kept");
+        assert_eq!(c.goal(0.1, 1.0, 2.0, f64::INFINITY, false, 1e-3), before);
+        let faster = c.goal(0.1, 2.0, 2.0, 0.1, false, 1e-3);
+        assert!(faster.is_finite() && faster > before + 0.01, "and the next cycles lead again: {faster}");
+    }
+
+    #[test]
     fn holding_freezes_the_lead() {
         let mut c = Compensation::new(Some(LAG), 1.0);
         let moving = c.goal(0.2, 1.0, 0.0, 0.3, false, 1e-3);
