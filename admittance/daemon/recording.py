@@ -218,13 +218,15 @@ def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
 
 def held_cycles(mode: np.ndarray) -> np.ndarray:
     """1 on a cycle where the model did not follow the torque: the loop was not running."""
-    return (np.nan_to_num(mode, nan=MODE_RUNNING) != MODE_RUNNING).astype(np.int64)
+    return (np.isfinite(mode) & (mode != MODE_RUNNING)).astype(np.int64)  # NaN: an older file, running
 
 
 def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> tuple[np.ndarray, int]:
     """Per cycle, the bitwise OR of ``flags`` over the cycles since the previous kept row up to
     its own kept row (``carry``: what the cycles after the last batch's last row had); and the
     carry for the next batch."""
+    if not carry and not flags.any():  # the usual batch: nothing held, no fault
+        return np.zeros(len(keep), np.int64), 0
     group = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
     acc = np.zeros(int(group[-1]) + 1 if len(group) else 1, np.int64)
     np.bitwise_or.at(acc, group, flags.astype(np.int64))
@@ -241,7 +243,9 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     n = len(columns["t"])
     keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
     held, held_carry = since_previous_row(held_cycles(columns["mode"]), keep, carry[0])
-    fault, fault_carry = since_previous_row(np.nan_to_num(columns["fault"]).astype(np.int64), keep, carry[1])
+    faults = columns["fault"]
+    faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
+    fault, fault_carry = since_previous_row(faults, keep, carry[1])
     theta = columns["theta_present"] if measured_theta else columns["theta_model"]
     rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
             "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
