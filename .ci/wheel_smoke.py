@@ -61,6 +61,14 @@ def _identified(path: str) -> Callable[[str], None]:
     return check
 
 
+def _fidelity(path: str) -> Callable[[str], None]:
+    def check(out: str) -> None:
+        result = json.loads(Path(path).read_text())
+        assert result["rendering_rmse"] > 0 and result["servo"]["time_constant"] > 0, result.get("servo")
+        assert result["target_source"].startswith("recording"), result["target_source"]
+    return check
+
+
 def _joint_line(out: str) -> None:
     assert "joint 1: MX-64" in out, out
 
@@ -95,6 +103,10 @@ def smoke_steps() -> list[Step]:
         Step("example config", ["run", "--print-example-config"], _example_config),
         Step("run on the embedded bench", [*_bench_run(), "--duration", "3", "--stats-json", "stats.json"],
              _stats("stats.json")),
+        Step("record a session", [*_bench_run(), "--duration", "8", "--record", "rec"]),
+        Step("fidelity", ["fidelity", "rec", "--json", "fidelity.json", "--quiet"], _fidelity("fidelity.json")),
+        Step("fidelity on the MCAP", ["fidelity", "rec/session.mcap", "--json", "fidelity-mcap.json", "--quiet"],
+             _fidelity("fidelity-mcap.json")),
         Step("mock-bench", ["mock-bench", "--print-ports"], _ports, until_signal=True),
         Step("synth", ["synth", "ds", "--trials", "4", "--duration", "4"]),
         Step("identify", ["identify", "ds", "--json", "ident.json", "--quiet"], _identified("ident.json")),

@@ -23,6 +23,7 @@ SUBCOMMAND_MODULES = (
     "admittance.bringup.cli",  # setup
     "admittance.ident.cli",  # identify, synth
     "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
+    "admittance.fidelity.cli",  # fidelity
 )
 
 

@@ -51,4 +51,4 @@ def test_every_subcommand_explains_itself(name, parser):
 def test_the_walk_covers_every_subcommand():
     names = {name for name, _ in subcommands()}
     assert {"run", "monitor", "set", "tare", "mock-bench", "setup", "identify", "synth", "thesis", "breakaway",
-            "predict", "ladder", "convert"} <= names
+            "predict", "ladder", "convert", "fidelity"} <= names

@@ -144,6 +144,16 @@ def test_unreadable_files_give_one_line(tmp_path):
         config.load_config(bad)
 
 
+def test_compensation_needs_a_servo_model_in_the_parameter_file(tmp_path):
+    doc = minimal()
+    doc["joints"][0]["servo_compensation"] = 1.0
+    assert "servo_compensation: 1 needs a servo model" in error_of(tmp_path, doc)
+    doc["joints"][0]["servo_compensation"] = 0.0
+    assert config.load_config(write(tmp_path, doc)).joints[0].servo_compensation == 0.0
+    doc["joints"][0]["servo_compensation"] = 1.5
+    assert "servo_compensation: must be <= 1" in error_of(tmp_path, doc)
+
+
 def test_a_lumped_parameter_file_is_refused(tmp_path):
     lumped = tmp_path / "lumped.toml"
     lumped.write_text('[model]\nmode = "lumped"\n[params]\nmotor_inertia = 1.0\n')

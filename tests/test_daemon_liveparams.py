@@ -69,6 +69,9 @@ OUT_OF_RANGE = [
     ({"bias": [0.0, 0.0, 0.0, 0.0, 0.0, -2001.0]}, "bias"),
     # Individually valid, jointly unstable: h·B/I = 1e-3 · 50 / 0.02 = 2.5.
     ({"virtual_inertia": 0.02, "virtual_damping": 50.0}, "virtual_*"),
+    ({"servo_compensation": 1.01}, "servo_compensation"),
+    ({"servo_compensation": -0.01}, "servo_compensation"),
+    ({"1.servo_compensation": 0.5}, "servo_compensation"),  # in [0, 1], but the file has no [servo] model
 ]
 SCALAR_KEYS = sorted(set(config.JOINT_LIVE) | set(config.LOOP_LIVE) - {"bias"})
 NOT_FINITE = [({key: value}, key) for key in SCALAR_KEYS for value in (NAN, INF, -INF)] + [
@@ -133,7 +136,8 @@ def _same(a: dict, b: dict) -> bool:
 @pytest.mark.parametrize("request_", [
     {"virtual_damping": 0.08, "1.virtual_inertia": 0.03},
     {"1.position_min": -1.5, "2.position_max": 1.6, "velocity_max": 12.0, "acceleration_max": 1000.0},
-    {"lever_arm": -0.001, "deadband": 100.0, "lowpass_hz": 499.0, "stale_timeout_ms": 500.0, "ramp_time_s": 10.0},
+    {"lever_arm": -0.001, "deadband": 100.0, "lowpass_hz": 499.0, "stale_timeout_ms": 500.0, "ramp_time_s": 10.0,
+     "servo_compensation": 0.0},
     {"bias": [2000, -2000, 0, 0, 0, 1], "virtual_inertia": 1e-4, "virtual_damping": 0.0, "virtual_coulomb": 10.0},
 ])
 def test_values_at_the_bounds_are_accepted_on_both_paths(supervisor, tmp_path, request_):

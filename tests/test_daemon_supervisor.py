@@ -215,6 +215,38 @@ def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
     assert h.published, "state and stats are published while running"
 
 
+def test_the_rendering_error_reaches_the_state_the_stats_and_the_stats_file(tmp_path):
+    """The fake's horn reads 2048 + n ticks while its model is at 0.001·n rad: a growing gap."""
+    from admittance.daemon.messages import State
+
+    h = Harness(tmp_path, stop_after=0.2)
+    h.supervisor.run()
+    states = [m for m in h.published if isinstance(m, State)]
+    last = states[-1].joints[0]
+    gap = (last.present_tick - 2048) * 2 * np.pi / 4096 - last.theta  # the largest gap so far
+    assert last.rendering_rms is not None and 0 < last.rendering_rms <= gap
+    stats = json.loads(h.stats_path.read_text())
+    assert set(stats["rendering_rms"]) == {"1", "2"}
+    assert any("rendering_rms" in m for m in h.published if isinstance(m, dict))
+
+
+def test_the_running_rendering_error_is_an_rms_over_about_a_second_of_reads():
+    from admittance.daemon.telemetry import RAD_PER_TICK, RenderingError
+
+    cfg = SimpleNamespace(joints=[SimpleNamespace(id=1, zero_tick=2048, direction=1)])
+    tracker = RenderingError(cfg, window_s=1.0)
+    assert tracker.rms(1) is None
+    rec = np.zeros(3000, RECORD_DTYPE)
+    rec["id"], rec["t_ns"], rec["cycle"] = 1, 10**9 + np.arange(3000) * 10**6, np.arange(3000)
+    rec["present_tick"] = np.where(np.arange(3000) % 10 == 0, 2050, -1)  # 2 ticks off, read every 10th cycle
+    tracker.update(rec)
+    assert tracker.rms(1) == pytest.approx(2 * RAD_PER_TICK)
+    rec["t_ns"] += 3 * 10**9
+    rec["theta"] = 2 * RAD_PER_TICK  # the horn now sits on the model
+    tracker.update(rec[:1001])
+    assert tracker.rms(1) ** 2 == pytest.approx((2 * RAD_PER_TICK) ** 2 * np.exp(-1.0), rel=0.02)
+
+
 def test_the_gate_keeps_pre_tare_samples_from_the_loop(tmp_path):
     h = Harness(tmp_path, stop_after=0.05)
     h.supervisor.run()

@@ -75,7 +75,9 @@ def virtual_step(theta: float, omega: float, tau: float, inertia: float, damping
 def replay_runs(rec: dict[str, np.ndarray], inertia: float, damping: float, coulomb: float) -> np.ndarray:
     """Replay the recorded torque through the virtual joint over every run of consecutive cycles
     (rows are missing where a present-position read failed), each run started from its first
-    recorded state; returns the replayed angle at every row (NaN at run starts)."""
+    recorded state; returns the replayed angle at every row (NaN at run starts). As recordings
+    define it (docs/daemon.md): a row's ``tau`` is the torque the model integrates from that row's
+    time ``t`` (a deadline) on, one step of h per deadline."""
     out = np.full(len(rec["t"]), np.nan)
     theta = omega = 0.0
     for i in range(1, len(out)):
@@ -83,7 +85,8 @@ def replay_runs(rec: dict[str, np.ndarray], inertia: float, damping: float, coul
             continue
         if np.isnan(out[i - 1]):
             theta, omega = rec["theta_model"][i - 1], rec["omega_model"][i - 1]
-        theta, omega = virtual_step(theta, omega, rec["tau"][i], inertia, damping, coulomb)
+        for _ in range(round((rec["t"][i] - rec["t"][i - 1]) * RATE_HZ)):
+            theta, omega = virtual_step(theta, omega, rec["tau"][i - 1], inertia, damping, coulomb)
         out[i] = theta
     return out
 
@@ -143,6 +146,11 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
             rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "virtual_inertia": -1.0})
             assert rejected["accepted"] is False and "inertia" in rejected["reason"]
             assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2  # all or nothing
+            # mx64.toml has no [servo] model: compensation cannot be turned on, and nothing else changes
+            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "servo_compensation": 1})
+            assert rejected["accepted"] is False and "servo model" in rejected["reason"]
+            assert client.query_params(PREFIX)["params"]["1.servo_compensation"] == 0.0
+            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2
             wait_for_cycles(client, PREFIX, int(RATE_HZ))  # the 0.5 s ramp, then several I/B
     assert daemon.returncode == 0, daemon.stderr
     rec = read_recording(tmp_path / "rec")
@@ -152,9 +160,10 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
     omega = rec["omega_model"]
     assert abs(omega.max() - v1) < 0.1 * v1
     assert abs(np.median(omega[rec["cycle"] > rec["cycle"][-1] - 200]) - v2) < 0.1 * v2
-    # Per cycle of model time: the loop integrates a fixed step h per cycle, while ``t`` is the
-    # wake-up time, whose jitter (a late wake followed by an on-time one) would fake a jump.
-    model_dt = np.diff(rec["cycle"]) / RATE_HZ
+    # Per interval of model time: ``t`` is the cycle's deadline, and the loop integrates one step
+    # of h per deadline (a skipped one included), so the model's time is ``t``; the wake-up time
+    # ``t_wake`` would add the scheduler's jitter and fake a jump.
+    model_dt = np.diff(rec["t"])
     speeds = np.abs(np.diff(rec["theta_model"])) / model_dt
     assert speeds.max() < 1.5 * v1, "no cycle jumped"
     assert np.all(np.abs(np.diff(omega)) <= 200.0 * model_dt + 1e-9), "within acceleration_max"

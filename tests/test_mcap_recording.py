@@ -126,7 +126,9 @@ def test_a_sigkilled_daemon_leaves_a_readable_mcap(tmp_path):
     assert np.all(np.diff(cycles) == 1)  # every cycle, none missing, up to the last chunk
     assert [p["source"] for p in rec.params][:2] == ["start", "set"]
     read = np.isfinite(rec.joints[1]["theta_present"])
-    # Every 5th cycle reads the servo; a loaded machine may time a read out, never add one.
-    assert np.all(cycles[read] % 5 == 0)
+    # Every 5th cycle reads the servo; a loaded machine may time a read out, and the loop then
+    # tries once more on the next cycle (docs/fidelity.md), never otherwise.
+    read_cycles = set(cycles[read].tolist())
+    assert all(c % 5 == 0 or (c % 5 == 1 and c - 1 not in read_cycles) for c in read_cycles)
     assert read.sum() > 0.5 * np.sum(cycles % 5 == 0)
     assert load_recording(tmp_path / "rec").trials[0].n_samples > 50

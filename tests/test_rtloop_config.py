@@ -12,6 +12,9 @@ from admittance import _rtcore
 from admittance.errors import ConfigError, DeviceError
 
 
+SERVO = {"time_constant": 0.02, "inertial_time": 0.0, "dead_time": 0.001, "compliance": 0.02, "deadband": 0.0}
+
+
 def config(**overrides) -> dict:
     joints = [{"id": 1, "virtual_inertia": 0.02, "virtual_damping": 0.05},
               {"id": 2, "virtual_inertia": 0.03, "virtual_damping": 0.05, "axis": "ty"}]
@@ -34,6 +37,10 @@ def config(**overrides) -> dict:
     ({"protocol": 3}, "protocol"),
     ({"rt_policy": "rr"}, "rt_policy"),
     ({"lowpass_hz": 600.0}, "lowpass_hz"),
+    ({"joints": [{"id": 1, "servo_compensation": 1.0}]}, "needs a servo model"),
+    ({"joints": [{"id": 1, "servo": {"time_constant": 0.02}}]}, "inertial_time\" is required"),
+    ({"joints": [{"id": 1, "servo": {**SERVO, "time_constant": -1.0}}]}, "time_constant"),
+    ({"joints": [{"id": 1, "servo": SERVO, "servo_compensation": 2.0}]}, "servo_compensation"),
 ])
 def test_bad_configurations_name_the_key(overrides, message):
     with pytest.raises(ConfigError, match=message):
@@ -79,6 +86,16 @@ def test_the_sink_takes_up_to_six_components():
         sink.push(5, [float("nan")])
     with pytest.raises(ValueError, match="monotonic_ns"):
         sink.push(time.time_ns(), [0.0])
+
+
+def test_a_servo_model_turns_compensation_on_and_a_live_set_may_turn_it_off():
+    loop = _rtcore.AdmittanceLoop(config(joints=[{"id": 1, "servo": SERVO}, {"id": 2}]))
+    assert loop.params()["1.servo_compensation"] == 1.0 and loop.params()["2.servo_compensation"] == 0.0
+    assert loop.set_params({"1.servo_compensation": 0.0}) == (True, "")
+    before = loop.params()
+    accepted, reason = loop.set_params({"servo_compensation": 1.0, "1.virtual_damping": 0.2})
+    assert not accepted and "joint 2" in reason and "servo model" in reason
+    assert loop.params() == before, "all or nothing"
 
 
 def test_telemetry_dtype_is_the_documented_record():

@@ -93,11 +93,13 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
 
     servos = [{"id": j.id, "model": j.model, "protocol": cfg.bus.protocol, "params_file": j.params}
               for j in cfg.joints]
-    s = cfg.sensor
+    s, b = cfg.sensor, cfg.bench
+    hand = (b.hand_inertia, b.hand_damping, b.hand_stiffness)
     bench = MockBench(BenchConfig(
-        servos=servos, baudrate=cfg.bus.baudrate, profile=cfg.bench.profile,
+        servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile,
         sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
-        counts_per_newton=list(s.counts_per_newton), noise_std_n=cfg.bench.noise_std_n, can_id=s.can_id))
+        counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
+        hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None))
     hand = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
     bench.profile = hand
     return bench, hand

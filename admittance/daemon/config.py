@@ -10,14 +10,16 @@ Two defaults are not constants and are filled after validation:
   path is looked up beside the configuration file, then in the working directory, and last
   among the fits shipped in the package (:mod:`admittance.data`);
 - ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
-  ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively.
+  ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively;
+- ``servo_compensation`` defaults to 1 (on) when the parameter file carries a ``[servo]`` model
+  (``admittance fidelity --params-out``), else 0.
 
 The live keys (``live=True``) obey one more layer, shared with every live change: the rules
 between keys (:func:`check_joint_params`, :func:`check_loop_params`: limits in order and within
-what the servo reaches, a stable virtual joint, a low-pass below half the rate). The
-configuration runs them on the resolved file, and ``liveparams`` on every candidate set, so a
-value refused in the file is refused over Zenoh with the same reason, and the other way round.
-Why each bound is where it is: docs/daemon.md, "Bounds".
+what the servo reaches, a stable virtual joint, a compensation only with a servo model, a
+low-pass below half the rate). The configuration runs them on the resolved file, and
+``liveparams`` on every candidate set, so a value refused in the file is refused over Zenoh with
+the same reason, and the other way round. Why each bound is where it is: docs/daemon.md, "Bounds".
 """
 
 from __future__ import annotations
@@ -89,6 +91,10 @@ class JointConfig:
                                         doc="felt Coulomb friction")
     lever_arm: float | None = key("float", None, unit="m", lo=-2.0, hi=2.0, min_abs=1e-3, live=True,
                                   doc="this joint's lever arm; default [sensor].lever_arm")
+    # None = 1 when the parameter file has a [servo] model, else 0 (filled by _resolve_joint).
+    servo_compensation: float | None = key("float", None, lo=0.0, hi=1.0, live=True,
+                                           doc="weight of the servo compensation: 1 = on, 0 = off; "
+                                               "default 1 when `params` has a [servo] model, else 0")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
     # Filled by resolve(): the parsed limits and the loaded parameter file.
     resolved_limits: LimitsConfig | None = dataclasses.field(default=None, metadata={"internal": True})
@@ -197,6 +203,14 @@ class BenchConfig:
     hand_delay_s: float = key("float", 0.5, unit="s", lo=0.0, hi=3600.0,
                               doc="the hand starts this long after the loop runs (it keeps off during the tare)")
     noise_std_n: float = key("float", 0.0, unit="N", lo=0.0, hi=10.0, doc="sensor noise of the simulated sensor")
+    servo_lag_s: float = key("float", 0.0, unit="s", lo=0.0, hi=10.0,
+                             doc="0: the BAM-style MX firmware and motor; > 0: a horn that lags its goal by this "
+                                 "time constant instead (embedded bench only)")
+    hand_inertia: float = key("float", 0.0, unit="kg·m²", lo=0.0, hi=1.0,
+                              doc="a hand gripping the horn (embedded bench): its inertia rides with the horn")
+    hand_damping: float = key("float", 0.0, unit="N·m·s/rad", lo=0.0, hi=100.0, doc="the gripping hand's damping")
+    hand_stiffness: float = key("float", 0.0, unit="N·m/rad", lo=0.0, hi=1000.0,
+                                doc="the gripping hand's stiffness about where it gripped")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -288,6 +302,7 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
     fitted = plant["params"]
     if "motor_inertia" not in fitted:
         raise ConfigError(f"{where}.params: {params_path} has no motor_inertia")
+    compensation = _or(joint.servo_compensation, 1.0 if "servo" in plant else 0.0)  # checked in check_joint_params
     return dataclasses.replace(
         joint,
         params=str(params_path),
@@ -295,6 +310,7 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
         virtual_inertia=_or(joint.virtual_inertia, fitted["motor_inertia"]),
         virtual_damping=_or(joint.virtual_damping, fitted.get("damping", 0.0)),
         virtual_coulomb=_or(joint.virtual_coulomb, fitted.get("coulomb", 0.0)),
+        servo_compensation=compensation,
         resolved_limits=limits,
         plant=plant,
     )
@@ -311,6 +327,11 @@ def _default_position_limits(limits: LimitsConfig, reach: tuple[float, float]) -
         position_min=_or(limits.position_min, max(-DEFAULT_POSITION_LIMIT, reach[0])),
         position_max=_or(limits.position_max, min(DEFAULT_POSITION_LIMIT, reach[1])),
     )
+
+
+def has_servo_model(joint: JointConfig) -> bool:
+    """The joint's parameter file carries a servo model (``[servo]``) to compensate with."""
+    return "servo" in (joint.plant or {})
 
 
 def reachable_range(joint: JointConfig) -> tuple[float, float]:
@@ -350,8 +371,8 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
                           f"{len(sensor.counts_per_newton)}")
     for j in joints:
         joint_where = f"{where}: [joints.{j.id}]"
-        check_joint_params(joint_values(j), reach=reachable_range(j), rate_hz=loop.rate_hz, where=joint_where,
-                           name=lambda k, w=joint_where: f"{w}.{'limits.' if k in LIMIT_KEYS else ''}{k}")
+        check_joint_params(joint_values(j), reach=reachable_range(j), has_servo=has_servo_model(j),
+                           rate_hz=loop.rate_hz, where=joint_where, name=lambda k, w=joint_where: f"{w}.{'limits.' if k in LIMIT_KEYS else ''}{k}")
     check_loop_params(loop_values(tables), rate_hz=loop.rate_hz, where=where,
                       name=lambda k: f"{where}: [{LOOP_LIVE[k][0]}].{k}")
     if zen.state_rate_hz > loop.rate_hz:
@@ -482,8 +503,8 @@ def loop_values(tables: Mapping[str, Any]) -> dict[str, Any]:
 REACH_SLACK = 1e-9  # rad: the reach computed here and in the loop may differ by a rounding
 
 
-def check_joint_params(values: Mapping[str, Any], *, reach: tuple[float, float], rate_hz: float, where: str,
-                       name: Callable[[str], str]) -> dict[str, Any]:
+def check_joint_params(values: Mapping[str, Any], *, reach: tuple[float, float], has_servo: bool, rate_hz: float,
+                       where: str, name: Callable[[str], str]) -> dict[str, Any]:
     """One joint's live values: each against its key's metadata, then the rules between them.
 
     The configuration calls it on each resolved joint, liveparams on each candidate set, so
@@ -499,6 +520,10 @@ def check_joint_params(values: Mapping[str, Any], *, reach: tuple[float, float],
                               f"servo's goal range reaches from its zero_tick; got {shown(v)}")
     if lo is not None and hi is not None and lo >= hi:
         raise ConfigError(f"{name('position_min')}: must be below position_max ({hi:g} rad), got {lo:g}")
+    if out.get("servo_compensation", 0.0) > 0 and not has_servo:
+        raise ConfigError(f"{name('servo_compensation')}: {out['servo_compensation']:g} needs a servo model, and "
+                          "this joint's parameter file has no [servo] table (make one with `admittance fidelity "
+                          "RECORDING --params-out FILE`)")
     if {"virtual_inertia", "virtual_damping", "virtual_coulomb"} <= out.keys():
         from admittance import _rtcore  # the plant's own gate: one source of physics
 
@@ -542,7 +567,8 @@ def summary(cfg: DaemonConfig) -> str:
     for j in cfg.joints:
         lines.append(f"joint {j.id}: {j.model}, zero tick {j.zero_tick}, params {j.params}; virtual "
                      f"I={j.virtual_inertia:g} kg·m², B={j.virtual_damping:g} N·m·s/rad, "
-                     f"F={j.virtual_coulomb:g} N·m, lever arm {j.lever_arm:g} m")
+                     f"F={j.virtual_coulomb:g} N·m, lever arm {j.lever_arm:g} m; servo compensation "
+                     f"{j.servo_compensation:g}{'' if 'servo' in j.plant else ' (no [servo] model)'}")
     s = cfg.sensor
     lines.append(f"sensor: {s.kind} on {s.port or '-'}, axis {s.axis}, tare {s.tare_samples} samples")
     lines.append(f"loop: {cfg.loop.rate_hz:g} Hz, rt priority {cfg.loop.rt_priority}; "

@@ -30,10 +30,14 @@ class Ecosystem:
         self._failed: list[str] = []
 
     def start_mcap(self, stack: contextlib.ExitStack, folder: Path, cfg: Any, t0: float,
-                   params: dict[str, Any]) -> None:
+                   params: dict[str, Any], joint_info: dict[int, dict] | None = None) -> None:
+        """``joint_info``: per joint id, what the CSV manifest's [[joints]] carries (plant, servo
+        model, loop timing), so `admittance fidelity` can judge the MCAP alone."""
         from admittance.daemon.mcap_recording import McapRecorder
 
-        session = {"joints": [{"id": j.id, "name": telemetry.joint_name(j), "model": j.model} for j in cfg.joints],
+        info = joint_info or {}
+        session = {"joints": [{**info.get(j.id, {}), "id": j.id, "name": telemetry.joint_name(j), "model": j.model}
+                              for j in cfg.joints],
                    "t0": t0, "segment_s": cfg.record.segment_s, "measured_theta": cfg.loop.sync_read_divisor > 0,
                    "rate_hz": cfg.loop.rate_hz, "prefix": cfg.zenoh.prefix}
         self.mcap = McapRecorder(folder / MCAP_NAME, session)

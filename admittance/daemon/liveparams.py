@@ -11,7 +11,8 @@ configuration file with those values would pass, with the same reasons.
 3. The candidate, that is the loop's current values with every change applied, goes through
    the rule functions the configuration uses (``config.check_joint_params``,
    ``config.check_loop_params``): limits in order and within the servo's reach, a stable
-   virtual joint, a low-pass below half the rate.
+   virtual joint, a compensation only on a joint whose parameter file has a servo model, a
+   low-pass below half the rate.
 
 Only a request that passes all three reaches the loop, which checks it once more against its
 own envelope (rtcore/rt/src/params.rs) before publishing it whole.
@@ -23,7 +24,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from admittance.daemon.config import (
-    ALL_KEYS, JOINT_LIVE, LOOP_LIVE, DaemonConfig, check_joint_params, check_loop_params, reachable_range,
+    ALL_KEYS, JOINT_LIVE, LOOP_LIVE, DaemonConfig, check_joint_params, check_loop_params, has_servo_model,
+    reachable_range,
 )
 from admittance.daemon.schema import check_value, clip, did_you_mean
 from admittance.errors import ConfigError
@@ -56,8 +58,9 @@ class LiveParams:
             if not targets:
                 loop[key] = value
         for jid, values in joints.items():
-            check_joint_params(values, reach=reachable_range(self.joints[jid]), rate_hz=self.rate_hz,
-                               where=f"joint {jid}", name=lambda k, jid=jid: f"{jid}.{k}")
+            joint = self.joints[jid]
+            check_joint_params(values, reach=reachable_range(joint), has_servo=has_servo_model(joint),
+                               rate_hz=self.rate_hz, where=f"joint {jid}", name=lambda k, jid=jid: f"{jid}.{k}")
         check_loop_params(loop, rate_hz=self.rate_hz, where="loop", name=str)
         return out
 

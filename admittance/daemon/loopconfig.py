@@ -66,6 +66,8 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "virtual_damping": joint.virtual_damping,
         "virtual_coulomb": joint.virtual_coulomb,
         "lever_arm": joint.lever_arm,
+        "servo": joint.plant.get("servo"),
+        "servo_compensation": joint.servo_compensation,
         "limits": {
             # Within what the tick range reaches: the configuration checked (or clipped) them.
             "position_min": limits.position_min,

@@ -7,10 +7,15 @@ any MCAP reader open without our code:
 | channel | one message per | content |
 |---|---|---|
 | ``/session`` | session (first message) | joints (id, name, model), t0 (s, CLOCK_MONOTONIC of t = 0), segment_s, measured_theta, rate_hz, prefix |
-| ``/joint<ID>/cycle`` | loop cycle | t (s, monotonic), wall (s, Unix), cycle, force (N), tau (N·m), theta_model (rad), omega_model (rad/s), theta_goal (rad), theta_present (rad, null where not read), rendering_error (theta_present − theta_model, rad, null where not read) |
+| ``/joint<ID>/cycle`` | loop cycle | t (s, monotonic: the cycle's deadline, the model's time), t_wake (s, monotonic: when the cycle woke, wrote the goal and read the servo), wall (s, Unix, of t), cycle, force (N), tau (N·m, the torque this cycle integrated), theta_model (rad), omega_model (rad/s), theta_goal (rad), theta_present (rad, null where not read), rendering_error (theta_present − theta_model, rad, null where not read), fault (the joint's fault bits), mode (the loop's mode code: 0 running, 1 holding, 2 faulted) |
 | ``/params`` | start and each accepted change | source ("start", "set"), request, params (every live value) |
 | ``/stats`` | about a second | the ``--stats-json`` object so far |
 | ``/events`` | tare, warning | text |
+
+``t`` is the CSV dataset's time base (recording.py): the loop integrates one step per deadline,
+so the deadline is the model's clock. A cycle message carries the torque that cycle
+integrated; the CSV row and :func:`admittance.ident.loaders.load_recording` pair each angle
+with the next cycle's (recording.next_cycle_tau), so both files give the same dataset.
 
 Every message's ``log_time`` is its wall-clock time (ns since the Unix epoch) and
 ``publish_time`` its CLOCK_MONOTONIC time (ns): the loop stamps cycles on the monotonic clock and
@@ -31,6 +36,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
+from admittance.daemon.recording import with_defaults
 from admittance.errors import ConfigError
 
 CHUNK_BYTES = 32 * 1024
@@ -38,9 +44,10 @@ NUMBER = {"type": "number"}
 NULLABLE = {"type": ["number", "null"]}
 CYCLE_SCHEMA = {
     "title": "admittance.Cycle", "type": "object",
-    "properties": {"t": NUMBER, "wall": NUMBER, "cycle": {"type": "integer"}, "force": NUMBER, "tau": NUMBER,
-                   "theta_model": NUMBER, "omega_model": NUMBER, "theta_goal": NUMBER,
-                   "theta_present": NULLABLE, "rendering_error": NULLABLE},
+    "properties": {"t": NUMBER, "t_wake": NUMBER, "wall": NUMBER, "cycle": {"type": "integer"}, "force": NUMBER,
+                   "tau": NUMBER, "theta_model": NUMBER, "omega_model": NUMBER, "theta_goal": NUMBER,
+                   "theta_present": NULLABLE, "rendering_error": NULLABLE, "fault": {"type": "integer"},
+                   "mode": {"type": "integer"}},
 }
 OBJECT = {"type": "object"}
 SESSION_SCHEMA = {"title": "admittance.Session", "type": "object",
@@ -94,19 +101,22 @@ class McapRecorder:
 
     def append(self, joint_id: int, columns: dict[str, np.ndarray], wall_offset_ns: int) -> None:
         """Every cycle of one joint (the columns of telemetry.columns_by_joint)."""
+        columns = with_defaults(columns)
         present = columns["theta_present"]
         error = present - columns["theta_model"]
         t_ns = np.rint(columns["t"] * 1e9).astype(np.int64).tolist()
-        rows = zip(t_ns, columns["cycle"].astype(np.int64).tolist(), columns["force"].tolist(),
-                   columns["tau"].tolist(), columns["theta_model"].tolist(), columns["omega_model"].tolist(),
-                   columns["theta_goal"].tolist(), _nan_to_none(present), _nan_to_none(error))
+        rows = zip(t_ns, columns["t_wake"].tolist(), columns["cycle"].astype(np.int64).tolist(),
+                   columns["force"].tolist(), columns["tau"].tolist(), columns["theta_model"].tolist(),
+                   columns["omega_model"].tolist(), columns["theta_goal"].tolist(), _nan_to_none(present),
+                   _nan_to_none(error), columns["fault"].astype(np.int64).tolist(),
+                   columns["mode"].astype(np.int64).tolist())
         topic = f"/joint{joint_id}/cycle"
-        for mono, cycle, force, tau, theta, omega, goal, theta_present, rendering_error in rows:
+        for mono, t_wake, cycle, force, tau, theta, omega, goal, theta_present, rendering_error, fault, mode in rows:
             wall = mono + wall_offset_ns
             self._log(topic, CYCLE_SCHEMA, {
-                "t": mono * 1e-9, "wall": wall * 1e-9, "cycle": cycle, "force": force, "tau": tau,
+                "t": mono * 1e-9, "t_wake": t_wake, "wall": wall * 1e-9, "cycle": cycle, "force": force, "tau": tau,
                 "theta_model": theta, "omega_model": omega, "theta_goal": goal, "theta_present": theta_present,
-                "rendering_error": rendering_error}, mono, wall)
+                "rendering_error": rendering_error, "fault": fault, "mode": mode}, mono, wall)
 
     def params(self, source: str, params: dict[str, Any], request: dict[str, Any] | None = None) -> None:
         self._log("/params", PARAMS_SCHEMA, {"source": source, "request": request or {}, "params": params},

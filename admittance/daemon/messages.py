@@ -40,6 +40,7 @@ class JointState(msgspec.Struct, omit_defaults=True):
     name: str | None = None  # the joint's configured name, else "joint<ID>"
     wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
     position: float | None = None  # rad, the measured angle of present_tick
+    rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
 
 
 class State(msgspec.Struct):

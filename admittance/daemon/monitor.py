@@ -36,6 +36,15 @@ def joint_line(joint: dict[str, Any]) -> str:
     return line
 
 
+def rendering_line(stats: dict[str, Any]) -> list[str]:
+    """The horn's distance from the model, per joint (the daemon's running RMS, last ~1 s)."""
+    rms = stats.get("rendering_rms") or {}
+    if not rms:
+        return []
+    joints = "  ".join(f"joint {jid} {1e3 * value:6.2f} mrad" for jid, value in sorted(rms.items()))
+    return [f"render  |present − model| RMS  {joints}"]
+
+
 def stats_lines(stats: dict[str, Any]) -> list[str]:
     rt = stats.get("rt", {})
     period, latency = stats.get("period_us", {}), stats.get("latency_us", {})
@@ -49,6 +58,7 @@ def stats_lines(stats: dict[str, Any]) -> list[str]:
         f"sensor samples {stats.get('sensor_samples', 0)}  stale events {stats.get('sensor_stale_events', 0)}  "
         f"rt {rt.get('policy', '?')} prio {rt.get('priority', 0)} "
         f"mlock {'yes' if rt.get('memory_locked') else 'no'}",
+        *rendering_line(stats),
     ]
 
 
@@ -98,7 +108,9 @@ class View:
         bench = bench or self.prefix
         self.benches.setdefault(bench, {})[kind] = message
         if kind == "stats" and not self.tty:
-            self.out.write(self._label(bench) + stats_lines(message)[0] + "\n")
+            label = self._label(bench)
+            self.out.write("\n".join(label + line for line in [stats_lines(message)[0], *rendering_line(message)])
+                           + "\n")
 
     def _label(self, bench: str) -> str:
         return "" if bench == self.prefix else f"{bench}  "

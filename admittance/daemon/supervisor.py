@@ -121,6 +121,7 @@ class Supervisor:
         self.final_stats: dict[str, Any] | None = None
         self.live = LiveParams(cfg)
         self._codec = Codec(cfg.zenoh.encoding)
+        self.rendering = telemetry.RenderingError(cfg)
         self._t0 = 0.0
         self._warned: set[str] = set()
         self.watchdog: Watchdog | None = None
@@ -190,6 +191,7 @@ class Supervisor:
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         if self.recorder is not None:
             self.recorder.t0 = self._t0
+            self.recorder.set_targets(self.loop.params())  # what the first segment runs
         try:
             self.loop.start()
         except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
@@ -214,15 +216,30 @@ class Supervisor:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
         self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
-                                 t0=0.0, segment_s=self.cfg.record.segment_s)
+                                 t0=0.0, segment_s=self.cfg.record.segment_s, joint_info=self.joint_info())
         stack.callback(self.recorder.close)
+
+    def joint_info(self) -> dict[int, dict]:
+        """What a recording needs to be judged later (`admittance fidelity`): each joint's plant
+        and servo model, and the loop's timing (the manifest's [[joints]], the MCAP's /session)."""
+        info = {}
+        for j in self.cfg.joints:
+            plant = j.plant or {}
+            entry = {"model": j.model, "params_file": j.params, "rate_hz": self.cfg.loop.rate_hz,
+                     "sync_read_divisor": self.cfg.loop.sync_read_divisor,
+                     "friction": str(plant.get("model", {}).get("friction", "stick")),
+                     "plant": dict(plant.get("params", {}))}
+            if "servo" in plant:
+                entry["servo"] = dict(plant["servo"])
+            info[j.id] = entry
+        return info
 
     def _start_mcap(self, stack: contextlib.ExitStack) -> None:
         """The MCAP session file beside the recording: it starts with the loop's first parameters
         and its t = 0, so it opens once the loop runs (the folder itself was claimed before)."""
         folder = record_dir(self.cfg)
         if folder is not None:
-            self.ecosystem.start_mcap(stack, folder, self.cfg, self._t0, self.get_params())
+            self.ecosystem.start_mcap(stack, folder, self.cfg, self._t0, self.get_params(), self.joint_info())
 
     def _open_interface(self, stack: contextlib.ExitStack) -> None:
         """Open the Zenoh session (claims the endpoint); it serves queries once the loop runs."""
@@ -251,6 +268,7 @@ class Supervisor:
         self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
+        self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint()}
         self.options.log(self._summary_line(self.final_stats))
 
     def _summary_line(self, stats: dict[str, Any]) -> str:
@@ -307,19 +325,20 @@ class Supervisor:
         records = self.loop.drain_telemetry()
         if len(records) == 0:
             return None
+        self.rendering.update(records)
         if self.recorder is not None:
             by_joint = telemetry.columns_by_joint(records, self.cfg)
             for joint_id, columns in by_joint.items():
                 self.recorder.append(joint_id, columns)
             self.ecosystem.record_cycles(by_joint)
-        return telemetry.latest_state(records, self.cfg)
+        return telemetry.latest_state(records, self.cfg, self.rendering)
 
     def _publish_stats(self) -> None:
         for warning in self.loop.warnings():
             self._warn(warning)
         if not self.loop.running():
             raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
-        stats = self.loop.stats()
+        stats = {**self.loop.stats(), "rendering_rms": self.rendering.by_joint()}
         self.notifier.status(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                              f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
@@ -347,6 +366,8 @@ class Supervisor:
         accepted, reason = self.loop.set_params(request)
         if accepted:
             self.options.log(f"params set: {clip(json.dumps(request, sort_keys=True), 400)}")
+            if self.recorder is not None:
+                self.recorder.set_targets(self.loop.params())
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 
@@ -374,6 +395,8 @@ class Supervisor:
         stats = dict(self.final_stats or {})
         if error is None and not stats:
             return
+        if stats:  # the loop ran: its rendering error too, on an error's way out as well
+            stats.setdefault("rendering_rms", self.rendering.by_joint())
         stats["daemon"] = {
             "queries": getattr(self.interface, "queries", 0),
             "query_errors": getattr(self.interface, "query_errors", 0),

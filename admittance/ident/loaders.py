@@ -434,13 +434,14 @@ def trial_names(files: Sequence[str | Path]) -> list[str]:
 # Files are read with the streaming reader, message by message, so a file cut short (SIGKILL,
 # power loss: no summary at its end) reads back up to its last complete chunk.
 
-MCAP_CYCLE_COLUMNS = ("t", "wall", "cycle", "force", "tau", "theta_model", "omega_model", "theta_goal",
-                      "theta_present", "rendering_error")
+MCAP_CYCLE_COLUMNS = ("t", "t_wake", "wall", "cycle", "force", "tau", "theta_model", "omega_model", "theta_goal",
+                      "theta_present", "rendering_error", "fault", "mode")
 
 
 @dataclass
 class Recording:
-    """A session.mcap read back: per joint ID, every cycle's columns as float arrays (NaN = not read)."""
+    """A session.mcap read back: per joint ID, every cycle's columns as float arrays (NaN = not read,
+    or absent from an older file). Each ``params`` entry carries ``t``: its monotonic time (s)."""
 
     path: Path
     session: dict[str, Any]
@@ -480,7 +481,7 @@ def read_recording(path: str | Path) -> Recording:
                 elif topic == "/session":
                     session = body
                 elif topic == "/params":
-                    params.append(body)
+                    params.append({**body, "t": message.publish_time * 1e-9})
                 elif topic == "/stats":
                     stats.append(body)
                 elif topic == "/events":
@@ -505,30 +506,49 @@ def _segments(t: np.ndarray, segment_s: float) -> list[np.ndarray]:
     return out
 
 
+def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]:
+    """Per joint, the rows the session's CSV dataset has (recording.recorded_rows: one per cycle
+    that read the servo, the next cycle's torque, held and fault since the previous row, times
+    from t0), cut into segments of ``segment_s`` seconds."""
+    from admittance.daemon.recording import next_cycle_tau, recorded_rows
+
+    measured = bool(rec.session.get("measured_theta", True))
+    t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
+    out = {}
+    for jid in sorted(rec.joints):
+        cols = dict(rec.joints[jid])
+        cols["tau"] = next_cycle_tau(cols["tau"], cols["cycle"])
+        if not np.isfinite(cols["t_wake"]).all():
+            cols["t_wake"] = cols["t"]  # an older file
+        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0)
+        out[jid] = [{k: v[index] for k, v in rows.items()} for index in _segments(rows["t"], segment_s)] \
+            if rows["t"].size else []
+    return out
+
+
 def load_recording(path: str | Path):
     """A session.mcap as the Dataset that ``load_dataset`` gives for the session's CSV folder.
 
     ``path`` is the .mcap file or the --record folder. This is the entry point `identify`
     (through load_dataset) and `fidelity` use; see docs/identification.md.
     """
+    return recording_dataset(read_recording(path))
+
+
+def recording_dataset(rec: Recording):
+    """The Dataset of a read recording: one trial per segment of :func:`recording_segments`, in
+    its order (joints by id)."""
     from admittance.daemon.recording import NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE
     from admittance.ident.dataset import Dataset, TrialData, load_geometry
 
-    rec = read_recording(path)
     measured = bool(rec.session.get("measured_theta", True))
-    t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
     models = {int(j["id"]): j.get("model", "") for j in rec.session.get("joints", [])}
     inertia, gravity = load_geometry(None, NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE)
     trials = []
-    for jid in sorted(rec.joints):
-        cols = rec.joints[jid]
-        keep = np.isfinite(cols["theta_present"]) if measured else np.isfinite(cols["theta_model"])
-        t = cols["t"][keep] - t0
-        theta = (cols["theta_present"] if measured else cols["theta_model"])[keep]
-        tau = cols["tau"][keep]
-        for k, rows in enumerate(_segments(t, segment_s) if t.size else []):
+    for jid, segments in recording_segments(rec).items():
+        for k, rows in enumerate(segments):
             name = f"joint{jid}_{k:03d}"
-            ts, th, ta = check_series(Path(f"{rec.path}:{name}"), t[rows], theta[rows], tau[rows])
+            ts, th, ta = check_series(Path(f"{rec.path}:{name}"), rows["t"], rows["theta"], rows["tau"])
             trials.append(TrialData(name=name, t=ts, theta=th, tau=ta, load_inertia=inertia, gravity_torque=gravity,
                                     meta={"format": "mcap", "joint_id": jid, "motor": models.get(jid, ""),
                                           "source": str(rec.path)}))

@@ -12,6 +12,11 @@ both: the hand pushes on the sensor mounted on the horn, so at each sensor sampl
 goes to the sensor (as F = τ / lever_arm) and to the horn (``bus.set_external_torque``). Doing
 both in the sensor's thread keeps them consistent without a second 1 kHz thread.
 
+Two options change the simulated truth for fidelity checks (docs/fidelity.md): ``hand`` =
+(inertia, damping, stiffness) makes the hand grip the horn, so the sensor reads the torque it
+transmits (the profile is then the muscle's torque), and a servo's ``first_order_lag`` (s)
+replaces its firmware and motor by a horn that lags its goal.
+
 Stable paths: a pty's number changes when it is unplugged and replugged, so the bench also
 offers each pty at a symlink in a directory of its own (``links``: ``<dir>/dxl`` and
 ``<dir>/sensor``), re-pointed at every replug and removed while unplugged, as udev's
@@ -43,7 +48,7 @@ SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a 
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
 MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
-                            "reboot_time_s", "overload_time_s")
+                            "reboot_time_s", "overload_time_s", "first_order_lag")
 
 
 @dataclass
@@ -74,6 +79,9 @@ class BenchConfig:
     can_channel: str = "admittance-mock"
     can_id: int = 0x100
     seed: int = 0
+    # A hand gripping the horn: (inertia kg·m², damping N·m·s/rad, stiffness N·m/rad); None = a pure torque.
+    hand: tuple[float, float, float] | None = None
+    first_order_lag: float | None = None  # s: every servo lags its goal instead of firmware + motor
 
 
 def params_path(model: str) -> Path:
@@ -117,6 +125,8 @@ def _servo_spec(servo: Mapping[str, Any], config: BenchConfig) -> dict[str, Any]
     model = servo.get("model", config.model)
     params, friction = load_plant(model, servo.get("params_file", config.params_file), config.effects)
     extra = {key: servo[key] for key in MOCKBUS_PASSTHROUGH_KEYS if key in servo}
+    if config.first_order_lag is not None:
+        extra.setdefault("first_order_lag", config.first_order_lag)
     return extra | {
         "id": int(servo["id"]),
         "model": model,
@@ -162,6 +172,11 @@ class MockBench:
         self._link_dir = tempfile.mkdtemp(prefix="admittance-bench-")
         try:
             self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay, f"{self._link_dir}/dxl")
+            if cfg.hand is not None:
+                try:
+                    self.bus.set_hand(self.hand_servo_id, *cfg.hand)
+                except (TypeError, ValueError) as exc:
+                    raise ConfigError(f"MockBench: hand: {exc}") from None
             self.sensor = self._make_sensor()
         except BaseException:
             shutil.rmtree(self._link_dir, ignore_errors=True)
@@ -188,9 +203,12 @@ class MockBench:
         return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed, link=link)
 
     def _hand_torque(self, t: float) -> float:
+        """The torque the sensor reads: the profile's, or with a gripping hand what it transmits."""
         tau = self.profile(t)
         self.bus.set_external_torque(self.hand_servo_id, tau)
-        return tau
+        if self.config.hand is None:
+            return tau
+        return self.bus.servo_state(self.hand_servo_id)["hand_torque"]
 
     @property
     def bus_port(self) -> str:

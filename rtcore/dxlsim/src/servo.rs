@@ -22,6 +22,7 @@ use dxl::packet::Protocol;
 use plant::{FrictionLaw, Load, Params, State};
 
 use crate::firmware::{Gains, Mode, PositionController};
+use crate::hand::{follow_lag, Hand};
 use crate::motor::{clip_duty, Motor, MAX_PWM};
 use crate::registers::Registers;
 use crate::table::{ControlTable, TableError};
@@ -58,6 +59,8 @@ pub struct ServoSpec {
     pub motor: Motor,
     pub initial_theta: f64,
     pub ambient_temperature: f64,
+    /// s: the horn follows its goal as a first-order lag instead of by firmware and motor.
+    pub first_order_lag: Option<f64>,
     /// Seconds a REBOOT keeps the servo silent after its status packet.
     pub reboot_time_s: f64,
     /// Seconds of stall at the duty limit before the overload bit sets (None: never).
@@ -75,6 +78,8 @@ pub struct Snapshot {
     pub duty: f64,
     pub motor_torque: f64,
     pub external_torque: f64,
+    /// What a sensor between the hand and the horn reads (the external torque without a hand).
+    pub hand_torque: f64,
     pub temperature: f64,
     pub hardware_error: u8,
     pub time: f64,
@@ -106,6 +111,7 @@ pub struct Servo {
     torque_history: VecDeque<f64>,
     /// Whole turns CLEAR removed from the reported position (ticks): reported = encoder + this.
     tick_offset: i64,
+    hand: Option<Hand>,
     /// Simulated time until which the servo boots (silent).
     silent_until: f64,
     /// Seconds the motor has stalled at its duty limit (the overload detector).
@@ -140,6 +146,7 @@ impl Servo {
             registered: None,
             torque_history: VecDeque::new(),
             tick_offset: 0,
+            hand: None,
             silent_until: 0.0,
             stalled_s: 0.0,
         };
@@ -321,6 +328,10 @@ impl Servo {
     pub fn step(&mut self, h: f64) {
         self.update_alarms();
         self.enforce_shutdown();
+        if let Some(tc) = self.spec.first_order_lag.filter(|_| self.torque_enabled() && self.mode() == Mode::Position) {
+            self.step_lagging(tc, h);
+            return;
+        }
         let duty = if self.torque_enabled() { self.firmware_duty(h) } else { 0.0 };
         let omega = self.state.omega;
         self.duty = duty;
@@ -332,11 +343,45 @@ impl Servo {
         };
         self.motor_torque = torque;
         self.current = current;
-        let tau = self.delayed(torque + self.external_torque, h);
-        plant::step(&mut self.state, &self.spec.params, &self.spec.load, self.spec.friction, tau, self.time, h);
+        let (applied, hand_inertia) = self.hand_applied();
+        let tau = self.delayed(torque + applied, h);
+        let load = Load { inertia: self.spec.load.inertia + hand_inertia, ..self.spec.load };
+        let before = self.state.omega;
+        plant::step(&mut self.state, &self.spec.params, &load, self.spec.friction, tau, self.time, h);
+        self.record_hand(applied, (self.state.omega - before) / h);
         self.heat(h);
         self.detect_overload(h);
         self.time += h;
+    }
+
+    /// `first_order_lag`: the horn follows its goal, whatever pushes on it (hand.rs).
+    fn step_lagging(&mut self, time_constant: f64, h: f64) {
+        let (applied, _) = self.hand_applied();
+        let before = self.state.omega;
+        let goal = self.position_goal();
+        follow_lag(&mut self.state, goal, time_constant, h);
+        self.record_hand(applied, (self.state.omega - before) / h);
+        (self.duty, self.motor_torque, self.current) = (0.0, 0.0, 0.0);
+        self.time += h;
+    }
+
+    /// A hand on the horn (`None`: the scripted torque alone, a pure force source).
+    pub fn set_hand(&mut self, hand: Option<Hand>) {
+        self.hand = hand;
+    }
+
+    /// The hand's torque on the horn besides its inertia, and that inertia.
+    fn hand_applied(&self) -> (f64, f64) {
+        match &self.hand {
+            Some(hand) => (hand.applied(self.external_torque, &self.state), hand.inertia),
+            None => (self.external_torque, 0.0),
+        }
+    }
+
+    fn record_hand(&mut self, applied: f64, alpha: f64) {
+        if let Some(hand) = &mut self.hand {
+            hand.record(applied, alpha);
+        }
     }
 
     /// The overload detector (when configured): a motor held at its duty limit without moving
@@ -546,6 +591,7 @@ impl Servo {
             duty: self.duty,
             motor_torque: self.motor_torque,
             external_torque: self.external_torque,
+            hand_torque: self.hand.map_or(self.external_torque, |hand| hand.sensed),
             temperature: self.temperature,
             hardware_error: self.hardware_error,
             time: self.time,
@@ -751,5 +797,40 @@ mod tests {
         assert_eq!(s.table.get("Present Position"), Some(rad_to_tick(s.snapshot().theta)));
         assert_eq!(s.table.get("Present Input Voltage"), Some(120));
         assert_eq!(s.table.get("Realtime Tick"), Some(500));
+    }
+
+    #[test]
+    fn a_first_order_lag_servo_follows_its_goal_whatever_pushes_it() {
+        let params = Params { motor_inertia: 0.0147, ..Params::default() };
+        let config = ServoConfig { first_order_lag: Some(0.025), ..ServoConfig::new(1, params) };
+        let mut bus = build_bus(vec![config], 1_000_000).unwrap();
+        let s = servo(&mut bus);
+        set(s, "Torque Enable", 1);
+        set(s, "Goal Position", 2048 + 512);
+        s.set_external_torque(2.0); // ignored: the horn only follows the goal
+        run(s, 0.025);
+        let quarter = std::f64::consts::FRAC_PI_4;
+        assert!((s.snapshot().theta - quarter * (1.0 - (-1.0f64).exp())).abs() < 1e-6, "{:?}", s.snapshot());
+        run(s, 1.0);
+        assert!((s.snapshot().theta - quarter).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_gripping_hand_adds_its_inertia_and_the_sensor_reads_what_it_transmits() {
+        let spin = |hand: Option<Hand>| {
+            let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 0.0);
+            let s = servo(&mut bus);
+            s.set_hand(hand);
+            s.set_external_torque(0.5);
+            run(s, 0.05);
+            s.snapshot()
+        };
+        let free = spin(None);
+        let held = spin(Some(Hand::new(0.0147, 0.0, 0.0, 0.0).unwrap()));
+        assert_eq!(free.hand_torque, 0.5, "no hand: the sensor reads the script");
+        assert!(held.omega < 0.6 * free.omega, "twice the inertia: {} vs {}", held.omega, free.omega);
+        // Equal inertias: the hand's takes half of what accelerates the pair (push − Coulomb −
+        // damping), so the sensor reads 0.5 − (0.5 − 0.084 − B·ω)/2 ≈ 0.29 + B·ω/2.
+        assert!((held.hand_torque - 0.5 * (0.5 + 0.084)).abs() < 0.02, "{}", held.hand_torque);
     }
 }

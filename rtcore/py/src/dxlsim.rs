@@ -16,7 +16,7 @@ use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
-const SERVO_KEYS: [&str; 16] = [
+const SERVO_KEYS: [&str; 17] = [
     "id",
     "model",
     "protocol",
@@ -31,6 +31,7 @@ const SERVO_KEYS: [&str; 16] = [
     "ambient_temperature",
     "registers",
     "name",
+    "first_order_lag",
     "reboot_time_s",
     "overload_time_s",
 ];
@@ -89,6 +90,7 @@ fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
         initial_theta: field(d, "initial_theta", defaults.initial_theta)?,
         ambient_temperature: field(d, "ambient_temperature", defaults.ambient_temperature)?,
         registers: registers.into_iter().collect(),
+        first_order_lag: field(d, "first_order_lag", None)?,
         reboot_time_s: field(d, "reboot_time_s", defaults.reboot_time_s)?,
         overload_time_s: field(d, "overload_time_s", None)?,
     })
@@ -122,6 +124,7 @@ fn snapshot_dict<'py>(py: Python<'py>, s: &Snapshot) -> PyResult<Bound<'py, PyDi
     d.set_item("duty", s.duty)?;
     d.set_item("motor_torque", s.motor_torque)?;
     d.set_item("external_torque", s.external_torque)?;
+    d.set_item("hand_torque", s.hand_torque)?;
     d.set_item("temperature", s.temperature)?;
     d.set_item("hardware_error", s.hardware_error)?;
     d.set_item("time", s.time)?;
@@ -246,6 +249,21 @@ impl PyMockBus {
             return Err(config_error(py, format!("external torque must be finite, got {tau}")));
         }
         self.with_servo(py, id, |s| s.set_external_torque(tau))
+    }
+
+    /// A hand grips the horn where it is now: its inertia (kg·m²) rides with the horn, its
+    /// damping (N·m·s/rad) and stiffness (N·m/rad) pull it back; `set_external_torque` is then the
+    /// muscle's torque and `servo_state(id)["hand_torque"]` what a sensor between them reads.
+    /// All zero lets go (the external torque acts alone again).
+    #[pyo3(signature = (id, inertia=0.0, damping=0.0, stiffness=0.0))]
+    fn set_hand(&self, py: Python<'_>, id: u8, inertia: f64, damping: f64, stiffness: f64) -> PyResult<()> {
+        let off = inertia == 0.0 && damping == 0.0 && stiffness == 0.0;
+        let result = self.with_servo(py, id, |s| {
+            let hand = if off { None } else { Some(dxlsim::hand::Hand::new(inertia, damping, stiffness, s.snapshot().theta)?) };
+            s.set_hand(hand);
+            Ok::<(), String>(())
+        })?;
+        result.map_err(|e| config_error(py, e))
     }
 
     /// Raises Hardware Error Status bits (P2 layout: 0x01 voltage, 0x04 overheating, 0x08

@@ -9,6 +9,7 @@ use dxl::Protocol;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
+use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
 use rtloop::fault::{FaultKind, LoopMode};
 use rtloop::histogram::Percentiles;
 use rtloop::params::{joint_value, LoopParams};
@@ -41,7 +42,7 @@ const LOOP_KEYS: [&str; 19] = [
     "torque_on_start",
 ];
 
-const JOINT_KEYS: [&str; 18] = [
+const JOINT_KEYS: [&str; 20] = [
     "id",
     "model",
     "goal_address",
@@ -60,6 +61,8 @@ const JOINT_KEYS: [&str; 18] = [
     "axis",
     "lever_arm",
     "limits",
+    "servo",
+    "servo_compensation",
 ];
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
@@ -126,7 +129,24 @@ fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult
         set(&limits, "velocity_max", &where_, &mut l.velocity_max)?;
         set(&limits, "acceleration_max", &where_, &mut l.acceleration_max)?;
     }
+    if let Some(servo) = opt::<Bound<'_, PyDict>>(d, "servo", &where_)? {
+        j.servo = Some(servo_model(&servo, &format!("{where_}.servo"))?);
+    }
+    // On by default when the joint has a servo model.
+    j.compensation = if j.servo.is_some() { 1.0 } else { 0.0 };
+    set(d, "servo_compensation", &where_, &mut j.compensation)?;
     Ok(j)
+}
+
+/// A `[servo]` table: every one of `SERVO_PARAM_NAMES`, numbers.
+fn servo_model(d: &Bound<'_, PyDict>, where_: &str) -> PyResult<ServoModel> {
+    check_keys(d, &SERVO_PARAM_NAMES, where_)?;
+    let mut values = [0.0; SERVO_PARAM_NAMES.len()];
+    for (value, name) in values.iter_mut().zip(SERVO_PARAM_NAMES) {
+        *value = opt(d, name, where_)?
+            .ok_or_else(|| config_error(d.py(), format!("{where_}: \"{name}\" is required")))?;
+    }
+    ServoModel::from_slice(&values).map_err(|e| config_error(d.py(), format!("{where_}: {e}")))
 }
 
 fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {

@@ -23,6 +23,10 @@ pub struct JointConfig {
     pub axis: usize,
     pub gains: JointGains,
     pub limits: Limits,
+    /// The servo's tracking dynamics (the parameter file's `[servo]`), if identified.
+    pub servo: Option<plant::servo::ServoModel>,
+    /// Weight of the servo compensation in [0, 1]; needs `servo`.
+    pub compensation: f64,
 }
 
 impl JointConfig {
@@ -42,6 +46,8 @@ impl JointConfig {
             axis: 0,
             gains: JointGains { inertia: 0.01467, damping: 0.03471, coulomb: 0.08426, lever_arm: 0.1 },
             limits: Limits { position_min, position_max, velocity_max: std::f64::consts::TAU, acceleration_max: 200.0 },
+            servo: None,
+            compensation: 0.0,
         }
     }
 }
@@ -109,7 +115,11 @@ impl LoopConfig {
 
     pub fn initial_params(&self) -> LoopParams {
         LoopParams {
-            joints: self.joints.iter().map(|j| JointParams { gains: j.gains, limits: j.limits }).collect(),
+            joints: self
+                .joints
+                .iter()
+                .map(|j| JointParams { gains: j.gains, limits: j.limits, servo: j.servo, compensation: j.compensation })
+                .collect(),
             sensor: self.sensor,
             ramp_time_s: self.ramp_time_s,
             bias: self.bias,

@@ -7,11 +7,14 @@
 //!    accepted sets is itself stable. The position state is never touched, so nothing jumps.
 //! 2. `take_force`: drain the sample ring to the newest sample (stale check, tare feed).
 //! 3. `condition_force`: bias, deadband, low-pass.
-//! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state,
-//!    or a hold (velocity zero, no integration) while the force is stale. The step is guarded:
-//!    gains that are not usable, or a state that is not finite or leaves the envelope, hold
-//!    the joint at its last good state and raise `FaultKind::ModelStateInvalid` (see `fault`),
-//!    so nothing but a valid state ever becomes a goal.
+//! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
+//!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
+//!    deadlines' time), or a hold (velocity zero, no integration) while the force is stale.
+//!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
+//!    step is guarded: gains that are not usable, a state that is not finite or leaves the
+//!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
+//!    with the goal it already has and raise `FaultKind::ModelStateInvalid` (see `fault`), so
+//!    nothing but a valid state ever becomes a goal.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
@@ -20,6 +23,7 @@
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
+use crate::compensation::Compensation;
 use crate::fault::{FaultKind, Faults, LoopMode};
 use crate::filter::{deadband, LowPass, TareAverager};
 use crate::joint::{integrate, state_in_envelope, user_torque, TickMap};
@@ -54,7 +58,12 @@ struct JointSlot {
     force: f64,
     torque: f64,
     present: i64,
+    compensation: Compensation,
 }
+
+/// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
+/// longer stall loses the rest of its time rather than jumping the goal by that much motion.
+const MAX_CATCH_UP_STEPS: u64 = 10;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
@@ -89,7 +98,12 @@ pub struct Controller {
     params: triple_buffer::Output<LoopParams>,
     bus: JointBus,
     sync_read_divisor: u64,
+    /// A due read failed last cycle: try once more now (a recording's row, and the rendering
+    /// error, would otherwise wait a whole divisor).
+    read_retry: bool,
     cycle: u64,
+    /// The deadline the model has been integrated up to.
+    model_ns: Option<u64>,
     latency_from_ns: Option<u64>,
     telemetry: rtrb::Producer<Record>,
     shared: Arc<Shared>,
@@ -115,6 +129,7 @@ impl Controller {
                 force: 0.0,
                 torque: 0.0,
                 present: -1,
+                compensation: Compensation::new(jp.servo, jp.compensation),
             })
             .collect::<Vec<_>>();
         let mut lowpass = LowPass::default();
@@ -138,7 +153,9 @@ impl Controller {
             params: parts.params,
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
+            read_retry: false,
             cycle: 0,
+            model_ns: None,
             latency_from_ns: None,
             telemetry: parts.telemetry,
             shared: parts.shared,
@@ -189,7 +206,8 @@ impl Controller {
         self.advance_ramp();
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
-        self.step_joints(&force, intake.stale);
+        let steps = self.steps_due(deadline_ns);
+        self.step_joints(&force, intake.stale, steps);
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
         let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
@@ -206,6 +224,7 @@ impl Controller {
             slot.ramp_from = slot.gains;
             slot.ramp_to = jp.gains;
             slot.limits = jp.limits;
+            slot.compensation.retarget(jp.servo, jp.compensation);
         }
         self.ramp_progress = 0.0;
         self.ramp_time_s = p.ramp_time_s;
@@ -258,19 +277,48 @@ impl Controller {
         self.lowpass.apply(&f)
     }
 
-    fn step_joints(&mut self, force: &[f64; 6], hold: bool) {
+    /// Model steps due at this deadline: as many as bring the model's own time (whole steps
+    /// of one period) nearest to the deadline, so the model keeps the deadlines' time through
+    /// an overrun (recordings and `identify` rely on it). Counted against the model's time,
+    /// not the previous deadline, so a grid that shifts or stretches by a bounded amount (a
+    /// phase-locked clock) keeps the two within half a period instead of drifting apart; a
+    /// grid that moved back gives a cycle of no step. A stall longer than the catch-up cap
+    /// loses the rest of its time (the model's time restarts at this deadline).
+    fn steps_due(&mut self, deadline_ns: u64) -> u64 {
+        let Some(model_ns) = self.model_ns else {
+            self.model_ns = Some(deadline_ns);
+            return 1;
+        };
+        let due = deadline_ns.saturating_sub(model_ns).saturating_add(self.period_ns / 2) / self.period_ns;
+        let steps = due.min(MAX_CATCH_UP_STEPS);
+        self.model_ns = Some(if due > MAX_CATCH_UP_STEPS { deadline_ns } else { model_ns + steps * self.period_ns });
+        steps
+    }
+
+    fn step_joints(&mut self, force: &[f64; 6], hold: bool, steps: u64) {
         self.holding = hold;
+        let h = self.h;
         for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
             slot.faults = Faults::NONE;
+            let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
             } else {
-                integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
+                for _ in 0..steps {
+                    alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, h);
+                }
             }
-            guard_state(slot);
-            *goal = slot.wiring.ticks.goal_tick(slot.state.theta);
+            slot.compensation.advance(h, self.ramp_time_s);
+            // No step (a hold, or a grid that moved back): the lead stays, so the goal does.
+            match state_usable(slot).then(|| compensated_goal(slot, alpha, hold || steps == 0, h)).flatten() {
+                Some(tick) => {
+                    slot.good = slot.state;
+                    *goal = tick;
+                }
+                None => hold_at_good(slot), // and the goal it already has
+            }
         }
     }
 
@@ -301,17 +349,22 @@ impl Controller {
         }
     }
 
-    /// Reads the present positions when due; true if this cycle read them.
+    /// Reads the present positions when due, or once more the cycle after a due read failed;
+    /// true if this cycle read them. A silent servo so costs at most two reads per divisor.
     fn read_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> bool {
-        if self.sync_read_divisor == 0 || !self.cycle.is_multiple_of(self.sync_read_divisor) {
+        let due = self.sync_read_divisor > 0 && self.cycle.is_multiple_of(self.sync_read_divisor);
+        let retry = std::mem::take(&mut self.read_retry);
+        if !due && !retry {
             return false;
         }
+        self.read_retry = due && self.sync_read_divisor > 1;
         match self.bus.read_present(t, deadline_ns) {
             Ok(ticks) => {
                 for (slot, &tick) in self.joints.iter_mut().zip(ticks) {
                     slot.present = tick;
                 }
                 LoopStats::add(&self.shared.stats.sync_reads, 1);
+                self.read_retry = false;
                 true
             }
             Err(_) => {
@@ -357,17 +410,36 @@ impl Controller {
     }
 }
 
-/// The state guard of one joint, after its step: a state that is not finite or left the
-/// envelope, or gains the loop cannot integrate with, never reach the goal. The joint holds at
-/// its last good state (velocity zero: the goal it already has) and the fault is raised for
-/// this cycle; the next cycle tries again from that good state.
-fn guard_state(slot: &mut JointSlot) {
-    if slot.gains.usable() && state_in_envelope(&slot.state, &slot.wiring.ticks) {
-        slot.good = slot.state;
-        return;
+/// The state guard's test, after a joint's step: gains the loop can integrate with and a state
+/// that is finite and inside the envelope.
+fn state_usable(slot: &JointSlot) -> bool {
+    slot.gains.usable() && state_in_envelope(&slot.state, &slot.wiring.ticks)
+}
+
+/// The goal tick of a usable state: the model's angle plus the compensation's lead, which may
+/// not carry the goal past a position limit (a state already outside a narrowed range stays
+/// where it is, as the integrator lets it). None when the led angle is not finite: it would
+/// reach the bus as tick 0, a jump across the range.
+fn compensated_goal(slot: &mut JointSlot, alpha: f64, hold: bool, h: f64) -> Option<i64> {
+    let State { theta, omega } = slot.state;
+    // A model brought to rest within one step (a stick, a position limit) decelerated by ω/h:
+    // the reference stops, and the servo is to hold, not to brake that hard.
+    let alpha = if omega == 0.0 { 0.0 } else { alpha };
+    let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, h);
+    if !led.is_finite() {
+        return None; // checked before the limits: max/min would turn a NaN into a bound
     }
+    // min/max, not clamp: clamp panics on crossed or NaN bounds, and the RT thread never panics.
+    Some(slot.wiring.ticks.goal_tick(led.max(slot.limits.position_min.min(theta)).min(slot.limits.position_max.max(theta))))
+}
+
+/// The guard's policy when a state or its goal is not usable: the joint holds at its last good
+/// state (velocity zero; its goal is left as it is) and the fault is raised for this cycle; the
+/// next cycle tries again from that good state.
+fn hold_at_good(slot: &mut JointSlot) {
     slot.faults.insert(FaultKind::ModelStateInvalid);
     slot.state = State { theta: slot.good.theta, omega: 0.0 };
+    slot.compensation.hold();
     if !slot.torque.is_finite() {
         slot.torque = 0.0; // the record shows the hand's torque, unless the gains made it NaN
     }

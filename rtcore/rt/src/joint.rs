@@ -74,7 +74,7 @@ pub fn integrate(state: &mut State, gains: &JointGains, limits: &Limits, tau: f6
 }
 
 /// `x` limited to ±`limit`, without `clamp`'s panic on a NaN or a negative limit.
-fn bound(x: f64, limit: f64) -> f64 {
+pub(crate) fn bound(x: f64, limit: f64) -> f64 {
     x.min(limit).max(-limit)
 }
 

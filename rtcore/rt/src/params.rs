@@ -8,9 +8,9 @@
 //!
 //! Names are the configuration's keys: per joint `virtual_inertia`, `virtual_damping`,
 //! `virtual_coulomb`, `lever_arm`, `position_min`, `position_max`, `velocity_max`,
-//! `acceleration_max` (bare = every joint, `"<id>.name"` = one joint, an optional `limits.`
-//! before the limit names); loop-wide `deadband`, `lowpass_hz`, `stale_timeout_ms`,
-//! `ramp_time_s` and `bias` (6 numbers).
+//! `acceleration_max`, `servo_compensation` (bare = every joint, `"<id>.name"` = one joint, an
+//! optional `limits.` before the limit names); loop-wide `deadband`, `lowpass_hz`,
+//! `stale_timeout_ms`, `ramp_time_s` and `bias` (6 numbers).
 //!
 //! This is the second gate. The daemon's schema (`admittance/daemon/config.py`) checks every
 //! live value against its documented, physical bounds before a set reaches the loop; the
@@ -19,6 +19,7 @@
 //! makes it panic (`clamp` with a NaN or crossed bounds), divide by zero, or wind a goal past
 //! the servo's range.
 use plant::admittance::{check_stable, AdmittanceParams};
+use plant::servo::ServoModel;
 
 /// The loop's own bounds on every parameter: numerical safety, not taste (see the module doc).
 pub mod envelope {
@@ -126,6 +127,10 @@ pub struct Limits {
 pub struct JointParams {
     pub gains: JointGains,
     pub limits: Limits,
+    /// The servo's identified tracking dynamics (from the joint's parameter file); not settable.
+    pub servo: Option<ServoModel>,
+    /// Weight of the servo compensation in [0, 1] (`servo_compensation`; needs `servo`).
+    pub compensation: f64,
 }
 
 /// Force conditioning shared by all joints.
@@ -158,7 +163,7 @@ pub enum ParamValue {
     Vector([f64; 6]),
 }
 
-const JOINT_KEYS: [&str; 8] = [
+const JOINT_KEYS: [&str; 9] = [
     "virtual_inertia",
     "virtual_damping",
     "virtual_coulomb",
@@ -167,6 +172,7 @@ const JOINT_KEYS: [&str; 8] = [
     "position_max",
     "velocity_max",
     "acceleration_max",
+    "servo_compensation",
 ];
 const LOOP_KEYS: [&str; 5] = ["deadband", "lowpass_hz", "stale_timeout_ms", "ramp_time_s", "bias"];
 
@@ -185,6 +191,7 @@ fn joint_field<'a>(j: &'a mut JointParams, key: &str) -> Option<&'a mut f64> {
         "position_max" => &mut j.limits.position_max,
         "velocity_max" => &mut j.limits.velocity_max,
         "acceleration_max" => &mut j.limits.acceleration_max,
+        "servo_compensation" => &mut j.compensation,
         _ => return None,
     })
 }
@@ -344,7 +351,23 @@ fn validate_joint(j: &JointParams, reach: &Reach, h: f64) -> Result<(), String> 
         ));
     }
     positive_up_to("velocity_max", l.velocity_max, VELOCITY_MAX)?;
-    positive_up_to("acceleration_max", l.acceleration_max, ACCELERATION_MAX)
+    positive_up_to("acceleration_max", l.acceleration_max, ACCELERATION_MAX)?;
+    validate_compensation(j)
+}
+
+fn validate_compensation(j: &JointParams) -> Result<(), String> {
+    let w = j.compensation;
+    require((0.0..=1.0).contains(&w), "servo_compensation", w, "in [0, 1] (0 = off, 1 = full)")?;
+    if w > 0.0 && j.servo.is_none() {
+        return Err(format!(
+            "servo_compensation = {w} needs a servo model, and this joint's parameter file has no [servo] \
+             table (make one with `admittance fidelity RECORDING --params-out FILE`)"
+        ));
+    }
+    if let Some(model) = &j.servo {
+        model.validate().map_err(|e| format!("servo model: {e}"))?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -355,6 +378,8 @@ pub(crate) mod tests {
         JointParams {
             gains: JointGains { inertia: 0.02, damping: 0.05, coulomb: 0.01, lever_arm: 0.1 },
             limits: Limits { position_min: -3.0, position_max: 3.0, velocity_max: 10.0, acceleration_max: 1e3 },
+            servo: None,
+            compensation: 0.0,
         }
     }
 
@@ -467,6 +492,23 @@ pub(crate) mod tests {
         let name = "x".repeat(100_000);
         let e = p.set(&[1], &name, ParamValue::Scalar(1.0)).unwrap_err();
         assert!(e.len() < 400, "{}", e.len());
+    }
+
+    #[test]
+    fn compensation_needs_a_servo_model_and_a_weight_in_0_1() {
+        let (ids, reach) = ([1], reach(1));
+        let mut p = params(1);
+        p.set(&ids, "servo_compensation", ParamValue::Scalar(1.0)).unwrap();
+        assert!(p.validate(&reach, 1000.0).unwrap_err().contains("[servo]"));
+        p.joints[0].servo = Some(ServoModel::first_order_lag(0.02));
+        assert_eq!(p.validate(&reach, 1000.0), Ok(()));
+        for bad in [1.5, -0.1, f64::NAN] {
+            p.set(&ids, "1.servo_compensation", ParamValue::Scalar(bad)).unwrap();
+            assert!(p.validate(&reach, 1000.0).unwrap_err().contains("servo_compensation"), "{bad}");
+        }
+        p.joints[0].compensation = 0.0;
+        p.joints[0].servo = Some(ServoModel { time_constant: -1.0, ..ServoModel::first_order_lag(0.02) });
+        assert!(p.validate(&reach, 1000.0).unwrap_err().contains("time_constant"));
     }
 
     #[test]
