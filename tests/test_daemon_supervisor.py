@@ -36,6 +36,10 @@ class FakeLoop:
         self.samples = []
         self.values = {"1.virtual_damping": 0.05}
         self.lifetime = None
+        self.request = None  # the loop's stop request (a fault its policy gives up on)
+        self.sensor_faults = []  # every set_sensor_faults call
+        self.bus = {"state": "up", "lost_for_s": None, "losses": 0, "reconnects": 0}
+        self.servos = [{"id": jid, "phase": "ok", "hardware_error": 0, "errors": 0, "recoveries": 0} for jid in ids]
 
     def force_sink(self):
         return SimpleNamespace(push=lambda t, f: self.samples.append((t, f)) or True)
@@ -58,7 +62,15 @@ class FakeLoop:
     def stats(self):
         return {"cycles": self.cycle, "overruns": 0, "rate_hz": 1000.0, "period_us": PCT, "latency_us": PCT,
                 "bus_errors": 0, "sensor_samples": len(self.samples), "sensor_stale_events": 0,
-                "rt": {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False}}
+                "rt": {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False},
+                "faults": {"servo_error": sum(s["errors"] for s in self.servos)}, "bus": dict(self.bus),
+                "servos": [dict(s) for s in self.servos]}
+
+    def stop_request(self):
+        return self.request
+
+    def set_sensor_faults(self, names):
+        self.sensor_faults.append(list(names))
 
     def warnings(self):
         return ["SCHED_FIFO refused"]
@@ -92,6 +104,12 @@ class FakeSensor:
     def __init__(self, events, sink, tare_ok=True):
         self.events, self.sink, self.tare_ok = events, sink, tare_ok
         self.error = None
+        self.hook = None
+        self.stale_after_s = 0.2
+        self.state, self.last_sample_ns, self.event_counts = "streaming", 0, {}
+
+    def set_event_hook(self, hook, repeat_s=5.0):
+        self.hook = hook
 
     def start(self):
         self.events.append("sensor.start")
@@ -105,7 +123,11 @@ class FakeSensor:
         self.events.append("sensor.stop")
 
     def stats(self):
-        return {"kind": "fake"}
+        import time
+
+        # A fresh sample at every look, unless the test silenced it (last_sample_ns set).
+        last = self.last_sample_ns or time.monotonic_ns()
+        return {"kind": "fake", "state": self.state, "last_sample_ns": last, "events": dict(self.event_counts)}
 
 
 class FakeNotifier:
@@ -442,3 +464,149 @@ def test_the_claim_comes_before_any_device_and_a_refused_claim_touches_none(tmp_
     with pytest.raises(DeviceError, match="cannot claim"):
         refused.supervisor.run()
     assert refused.events == [], "no bench, no servo check, no sensor: nothing was opened"
+
+
+# -- faults (docs/faults.md): told, marked, stopped on with their exit status ----------------------
+
+
+def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp_path):
+    """The loop gave a servo up: the daemon holds, applies its torque policy, writes the stats
+    (the cause, the status, the fault counts) and raises the FaultStop the CLI exits with."""
+    from admittance.errors import FaultStop
+
+    h = Harness(tmp_path, policy="torque_off")
+    make_loop = h.backends.make_loop
+
+    def failing(cfg, port):
+        loop = make_loop(cfg, port)
+        loop.servos[0].update(errors=1, hardware_error=0x10)
+        loop.request = {"cause": "unsafe_hardware_error", "joint": 1, "hardware_error": 0x10}
+        return loop
+
+    h.backends.make_loop = failing
+    with pytest.raises(FaultStop) as caught:
+        h.supervisor.run()
+    assert caught.value.exit_code == 69 and caught.value.cause == "unsafe_hardware_error"
+    assert "servo 1 reports electrical shock" in str(caught.value)
+    assert h.events[-6:] == ["STOPPING", "loop.stop:torque_off", "sensor.stop", "zenoh.close", "bench.stop",
+                             "release-claim"], "the same clean stop as a signal's"
+    stats = json.loads(h.stats_path.read_text())
+    assert stats["exit_status"] == 69 and stats["fault_stop"]["cause"] == "unsafe_hardware_error"
+    assert stats["faults"]["servo_error"] == 1 and "servo 1 reports" in stats["error"]
+    assert any("servo 1 shut down (electrical shock)" in line for line in h.logs), h.logs
+
+
+def test_a_bus_that_stays_lost_exits_75_and_a_torque_off_it_cannot_carry_does_not_change_that(tmp_path):
+    from admittance.errors import FaultStop
+
+    h = Harness(tmp_path, policy="torque_off")
+    make_loop = h.backends.make_loop
+
+    def lost(cfg, port):
+        loop = make_loop(cfg, port)
+        loop.bus.update(state="lost", lost_for_s=5.0, losses=1, loss_errno=5)
+        loop.request = {"cause": "bus_lost", "joint": None, "hardware_error": 0}
+
+        def stop(torque_policy="hold"):
+            loop.events.append(f"loop.stop:{torque_policy}")
+            raise DeviceError("torque off failed on '/dev/fake': serial I/O failed")
+
+        loop.stop = stop
+        return loop
+
+    h.backends.make_loop = lost
+    with pytest.raises(FaultStop) as caught:
+        h.supervisor.run()
+    assert caught.value.exit_code == 75 and "did not come back within 5 s" in str(caught.value)
+    assert any("the Dynamixel bus /dev/fake failed (Input/output error)" in line for line in h.logs), h.logs
+    assert any("torque off failed" in line for line in h.logs)
+    assert json.loads(h.stats_path.read_text())["exit_status"] == 75
+
+
+def test_sensor_events_are_told_rate_limited_and_mark_the_loops_cycles(tmp_path):
+    import time
+
+    h = Harness(tmp_path, stop_after=0.5)
+    make_sensor = h.backends.make_sensor
+
+    def unplugged(cfg, port, sink):
+        sensor = make_sensor(cfg, port, sink)
+        sensor.state = "reconnecting"
+
+        def start():
+            sensor.events.append("sensor.start")
+            for _ in range(50):  # a stream failing fast: told once, then counted
+                sensor.hook("disconnected", "optoforce sensor on /dev/fakesensor failed (EIO)")
+            sensor.last_sample_ns = time.monotonic_ns()
+
+        sensor.start = start
+        return sensor
+
+    h.backends.make_sensor = unplugged
+    h.supervisor.run()
+    told = [line for line in h.logs if "failed (EIO)" in line]
+    assert len(told) == 1 and told[0].startswith("warning: sensor: ")
+    assert ["sensor_lost"] in h.loop.sensor_faults
+    assert h.supervisor.sensor.stale_after_s == h.cfg.loop.stale_timeout_ms / 1000
+    stats = json.loads(h.stats_path.read_text())
+    assert stats["daemon"]["faults_told"]["sensor.disconnected"] == 50
+
+
+def test_a_sensor_silent_beyond_its_timeout_exits_75_and_holds_forever_without_one(tmp_path):
+    import time
+
+    from admittance.errors import FaultStop
+
+    def silent(h):
+        make_sensor = h.backends.make_sensor
+
+        def make(cfg, port, sink):
+            sensor = make_sensor(cfg, port, sink)
+            sensor.last_sample_ns = time.monotonic_ns()  # its last sample, never another
+            return sensor
+
+        h.backends.make_sensor = make
+
+    h = Harness(tmp_path, stop_after=0.6)
+    silent(h)
+    assert h.supervisor.run() == 0, "[faults].sensor_lost_timeout_s = 0: hold forever"
+    h = Harness(tmp_path)
+    h.cfg = config.load_config(_with_faults(tmp_path, {"sensor_lost_timeout_s": 0.3}))
+    h.supervisor = Supervisor(h.cfg, h.backends, h.supervisor.options, FakeNotifier(h.events))
+    silent(h)
+    with pytest.raises(FaultStop, match="no usable sample") as caught:
+        h.supervisor.run()
+    assert caught.value.exit_code == 75
+
+
+def _with_faults(tmp_path, faults):
+    import tomllib
+
+    path = tmp_path / "daemon.toml"
+    doc = tomllib.loads(path.read_text())
+    doc["faults"] = faults
+    path.write_text(tomli_w.dumps(doc))
+    return path
+
+
+def test_the_watchdog_stops_pinging_a_loop_that_cycles_on_a_lost_bus(tmp_path):
+    """The loop's heartbeat still advances, but the bus has been gone longer than the policy
+    allows: no WATCHDOG=1 from then on (systemd restarts a sick daemon), and the counts say so."""
+    from admittance.daemon.notify import Notifier
+
+    h = Harness(tmp_path, stop_after=1.0)
+    h.supervisor.notifier = Notifier({"NOTIFY_SOCKET": str(tmp_path / "absent"), "WATCHDOG_USEC": "100000"})
+    sent = []
+    h.supervisor.notifier.send = lambda *lines: sent.extend(lines) or True
+    make_loop = h.backends.make_loop
+
+    def lost(cfg, port):
+        loop = make_loop(cfg, port)
+        loop.bus.update(state="lost", lost_for_s=h.cfg.faults.bus_lost_timeout_s)
+        return loop
+
+    h.backends.make_loop = lost
+    h.supervisor.run()
+    assert "WATCHDOG=1" not in sent
+    watchdog = json.loads(h.stats_path.read_text())["daemon"]["watchdog"]
+    assert watchdog["pings"] == 0 and watchdog["unhealthy"] >= 3

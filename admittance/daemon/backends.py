@@ -53,8 +53,12 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
     bench, hand = _make_bench(cfg)
     bench.start()
     try:
-        sensor_port = bench.sensor_port or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
-        yield BenchPorts(bench.bus_port, sensor_port, hand.go)
+        # The stable links, as udev's by-id paths: a replugged pty comes back under another
+        # number, and the loop's and the reader's reopens must find it.
+        links = bench.links
+        pty_sensor = links["sensor"] or bench.sensor_port
+        sensor_port = pty_sensor or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
+        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go)
     finally:
         bench.stop()
 
@@ -132,10 +136,11 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
 
     warnings: list[str] = []
     with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
-                  reply_slack_ms=reply_slack_ms(port)) as bus:
+                  reply_slack_ms=reply_slack_ms(port), auto_recover=False) as bus:
         if bus.warning:
             warnings.append(bus.warning)
         for joint in cfg.joints:
+            recover_under_policy(bus, joint.id, cfg)
             info = bus.prepare(joint.id)
             if info.model.lower() != joint.model.lower():
                 raise DeviceError(f"servo {joint.id} on {port} is a {info.model}, but the configuration "
@@ -143,6 +148,29 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
             bus.write_raw(joint.id, "Goal Position", present_within_one_turn(bus, joint.id))
             bus.set_torque(joint.id, True)
     return warnings
+
+
+def recover_under_policy(bus: Any, servo_id: int, cfg: DaemonConfig) -> None:
+    """A servo that reports a hardware error at start is treated as in a run (docs/faults.md):
+    rebooted only where that is safe and the policy says so, else the start stops with exit 69
+    before torque goes on. (Protocol 1.0 has no REBOOT; ``prepare`` reports its alert.)"""
+    from admittance import _rtcore
+    from admittance.daemon.faults import causes
+    from admittance.errors import EXIT_UNAVAILABLE, FaultStop
+
+    if bus.protocol != 2 or bus.ping(servo_id) is None:
+        return  # prepare() says what is wrong
+    bits = bus.read_raw(servo_id, "Hardware Error Status", alert_ok=True)
+    if not bits:
+        return
+    if bits & _rtcore.UNSAFE_HARDWARE_ERRORS:
+        raise FaultStop(f"servo {servo_id} on {bus.port} reports {causes(bits)} at start: a reboot would clear the "
+                        "error, not its cause; check the servo before starting again", EXIT_UNAVAILABLE,
+                        "unsafe_hardware_error")
+    if cfg.faults.servo_error == "stop":
+        raise FaultStop(f"servo {servo_id} on {bus.port} reports {causes(bits)} at start and [faults].servo_error "
+                        "is \"stop\"", EXIT_UNAVAILABLE, "servo_error_policy")
+    bus.recover(servo_id)
 
 
 CLEAR_TURNS_TIMEOUT_S = 5.0

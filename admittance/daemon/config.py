@@ -146,6 +146,34 @@ class StopConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class FaultsConfig:
+    """What the daemon does about servo, bus and sensor faults (docs/faults.md has the table)."""
+
+    servo_error: str = key("str", "reboot", choices=("reboot", "stop"),
+                           doc="a servo that shut down on a hardware error: reboot it where safe (not overheating, "
+                               "encoder or electrical shock; not a second overload in the window) and turn torque "
+                               "on again at its present position, or stop (exit 69)")
+    torque_off: str = key("str", "reenable", choices=("reenable", "stop"),
+                          doc="a servo found with torque off and no error (a brown-out): torque on again at its "
+                              "present position, or stop (exit 69)")
+    bus_lost_timeout_s: float = key("float", 5.0, unit="s", lo=0.1, hi=600.0,
+                                    doc="the bus's port failed (unplugged), or a servo does not answer, for this "
+                                        "long: stop, exit 75 (systemd restarts the daemon)")
+    servo_silent_ms: float = key("float", 100.0, unit="ms", lo=5.0, hi=10_000.0,
+                                 doc="a servo that does not answer for this long is silent: its joint holds")
+    max_recoveries: int = key("int", 3, lo=0, hi=16,
+                              doc="reboots and re-enables allowed per servo within recovery_window_s; one more "
+                                  "stops (exit 69); 0 = never recover")
+    recovery_window_s: float = key("float", 60.0, unit="s", lo=1.0, hi=86_400.0,
+                                   doc="the window of max_recoveries, and in which a second overload stops")
+    check_period_ms: float = key("float", 100.0, unit="ms", lo=10.0, hi=10_000.0,
+                                 doc="one servo's Torque Enable is read this often, in turn (torque found off)")
+    sensor_lost_timeout_s: float = key("float", 0.0, unit="s", lo=0.0, hi=86_400.0,
+                                       doc="no usable force sample for this long: stop, exit 75; 0 = hold forever "
+                                           "(the reader keeps reopening the sensor)")
+
+
+@dataclass(frozen=True, kw_only=True)
 class ZenohConfig:
     prefix: str = key("str", "bench/arm1", doc="key-expression prefix of every key")
     listen: list = key("str_list", ["tcp/127.0.0.1:7447"], doc="endpoints to listen on; empty = zenoh defaults")
@@ -226,9 +254,10 @@ class DaemonConfig:
     source: Path  # the file it came from (relative paths are resolved beside it)
     ros2: Ros2Config = dataclasses.field(default_factory=Ros2Config)
     foxglove: FoxgloveConfig = dataclasses.field(default_factory=FoxgloveConfig)
+    faults: FaultsConfig = dataclasses.field(default_factory=FaultsConfig)
 
 
-TABLES = {"bus": BusConfig, "sensor": SensorConfig, "loop": LoopConfig, "stop": StopConfig,
+TABLES = {"bus": BusConfig, "sensor": SensorConfig, "loop": LoopConfig, "stop": StopConfig, "faults": FaultsConfig,
           "zenoh": ZenohConfig, "record": RecordConfig, "bench": BenchConfig, "ros2": Ros2Config,
           "foxglove": FoxgloveConfig}
 REQUIRED_TABLES = ("bus", "joints", "sensor")
@@ -375,6 +404,10 @@ def _check_cross(tables: dict, joints: tuple[JointConfig, ...], where: str) -> N
                            rate_hz=loop.rate_hz, where=joint_where, name=lambda k, w=joint_where: f"{w}.{'limits.' if k in LIMIT_KEYS else ''}{k}")
     check_loop_params(loop_values(tables), rate_hz=loop.rate_hz, where=where,
                       name=lambda k: f"{where}: [{LOOP_LIVE[k][0]}].{k}")
+    faults = tables["faults"]
+    if faults.servo_silent_ms >= 1000.0 * faults.bus_lost_timeout_s:
+        raise ConfigError(f"{where}: [faults].servo_silent_ms: must be below bus_lost_timeout_s "
+                          f"({1000.0 * faults.bus_lost_timeout_s:g} ms): a servo is silent before it is lost")
     if zen.state_rate_hz > loop.rate_hz:
         raise ConfigError(f"{where}: [zenoh].state_rate_hz: must not exceed [loop].rate_hz ({loop.rate_hz:g} Hz)")
     if zen.mode == "client" and not zen.connect:
@@ -573,6 +606,10 @@ def summary(cfg: DaemonConfig) -> str:
     lines.append(f"sensor: {s.kind} on {s.port or '-'}, axis {s.axis}, tare {s.tare_samples} samples")
     lines.append(f"loop: {cfg.loop.rate_hz:g} Hz, rt priority {cfg.loop.rt_priority}; "
                  f"stop: {cfg.stop.torque_policy}")
+    f = cfg.faults
+    sensor_lost = f"stop after {f.sensor_lost_timeout_s:g} s" if f.sensor_lost_timeout_s else "hold"
+    lines.append(f"faults: servo error {f.servo_error}, torque off {f.torque_off}, bus lost {f.bus_lost_timeout_s:g} s, "
+                 f"at most {f.max_recoveries} recoveries per {f.recovery_window_s:g} s, sensor lost {sensor_lost}")
     z = cfg.zenoh
     lines.append(f"zenoh: {z.prefix} ({z.encoding}), listen {z.listen or 'defaults'}, connect {z.connect}")
     lines += [f"warning: {w}" for w in endpoints.exposure_warnings(z)]

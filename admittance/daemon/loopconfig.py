@@ -38,7 +38,16 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
         "ramp_time_s": lp.ramp_time_s,
         "bias": list(s.bias),
         "joints": [joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints],
+        "faults": fault_policy(cfg),
     }
+
+
+def fault_policy(cfg: DaemonConfig) -> dict[str, Any]:
+    """The loop's part of [faults] (the sensor's timeout is the supervisor's)."""
+    f = cfg.faults
+    return {"servo_error": f.servo_error, "torque_off": f.torque_off, "bus_lost_timeout_s": f.bus_lost_timeout_s,
+            "servo_silent_ms": f.servo_silent_ms, "max_recoveries": f.max_recoveries,
+            "recovery_window_s": f.recovery_window_s, "check_period_ms": f.check_period_ms}
 
 
 def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:

@@ -45,6 +45,17 @@ def rendering_line(stats: dict[str, Any]) -> list[str]:
     return [f"render  |present − model| RMS  {joints}"]
 
 
+def fault_line(stats: dict[str, Any]) -> list[str]:
+    """The loop's mode and its fault events so far (docs/faults.md), when there is anything to say."""
+    counts = {kind: n for kind, n in (stats.get("faults") or {}).items() if n}
+    mode = stats.get("mode", "running")
+    if not counts and mode == "running":
+        return []
+    bus = stats.get("bus") or {}
+    lost = f"  bus lost for {bus['lost_for_s']:.1f} s" if bus.get("lost_for_s") else ""
+    return [f"faults  {mode}  " + "  ".join(f"{kind} {n}" for kind, n in sorted(counts.items())) + lost]
+
+
 def stats_lines(stats: dict[str, Any]) -> list[str]:
     rt = stats.get("rt", {})
     period, latency = stats.get("period_us", {}), stats.get("latency_us", {})
@@ -59,6 +70,7 @@ def stats_lines(stats: dict[str, Any]) -> list[str]:
         f"rt {rt.get('policy', '?')} prio {rt.get('priority', 0)} "
         f"mlock {'yes' if rt.get('memory_locked') else 'no'}",
         *rendering_line(stats),
+        *fault_line(stats),
     ]
 
 
@@ -109,8 +121,8 @@ class View:
         self.benches.setdefault(bench, {})[kind] = message
         if kind == "stats" and not self.tty:
             label = self._label(bench)
-            self.out.write("\n".join(label + line for line in [stats_lines(message)[0], *rendering_line(message)])
-                           + "\n")
+            lines = [stats_lines(message)[0], *rendering_line(message), *fault_line(message)]
+            self.out.write("\n".join(label + line for line in lines) + "\n")
 
     def _label(self, bench: str) -> str:
         return "" if bench == self.prefix else f"{bench}  "

@@ -5,8 +5,10 @@ except, the second needs libsystemd headers and a compiler. The protocol is one 
 datagram per message to ``$NOTIFY_SOCKET`` (a leading ``@`` names an abstract socket).
 
 The watchdog ping is not "the Python process is alive": it is sent only while the RT loop's
-heartbeat counter advances, so a stalled RT thread stops the pings and systemd restarts the
-service (man sd_watchdog_enabled(3): ping at half of ``$WATCHDOG_USEC``).
+heartbeat counter advances *and* the loop is healthy (its bus, servos and sensor within what
+the fault policy allows: ``faults.FaultWatch.health``), so a stalled RT thread, or one that
+cycles on a dead bus, stops the pings and systemd restarts the service (man
+sd_watchdog_enabled(3): ping at half of ``$WATCHDOG_USEC``).
 """
 
 from __future__ import annotations
@@ -68,7 +70,8 @@ def _watchdog_usec(env: Mapping[str, str]) -> int:
 
 
 class Watchdog:
-    """Pings WATCHDOG=1 every half period, but only when ``heartbeat()`` moved since the last ping.
+    """Pings WATCHDOG=1 every half period, but only when ``heartbeat()`` moved since the last ping
+    and ``healthy()`` says the loop is well.
 
     It has no thread of its own: the supervisor's main loop calls :meth:`poll` every tick, so
     the pings stop when either the RT loop or the supervisor stalls, and the loop object is
@@ -76,14 +79,16 @@ class Watchdog:
     """
 
     def __init__(self, notifier: Notifier, heartbeat: Callable[[], int],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, healthy: Callable[[], bool] = lambda: True) -> None:
         self._notifier = notifier
         self._heartbeat = heartbeat
+        self._healthy = healthy
         self._clock = clock
         self._last_beat: int | None = None
         self._next_check = clock()
         self.pings = 0
-        self.missed = 0
+        self.missed = 0  # checks where the loop had not advanced
+        self.unhealthy = 0  # checks where it advanced but was not healthy
 
     @property
     def enabled(self) -> bool:
@@ -104,6 +109,9 @@ class Watchdog:
         self._last_beat = beat
         if not advanced:
             self.missed += 1
+            return False
+        if not self._healthy():
+            self.unhealthy += 1
             return False
         if self._notifier.send("WATCHDOG=1"):
             self.pings += 1

@@ -39,6 +39,15 @@ record → identify → reload.
 
 Rows are appended as they are drained from the loop and flushed each batch, so a session cut
 short (power loss, SIGKILL) still leaves a readable dataset.
+
+Faults: a row needs the servo's measured angle, so while a fault keeps the servo from being
+read (the bus unplugged, a servo rebooting or browned out) there are no rows. Such a *gap*
+(rows further apart than ``gap_s``) ends the segment, the rows after it open a new one (an
+open-loop refit must not integrate across it), and the manifest lists it under ``[[gaps]]``
+(joint, ``t_start``, ``t_end``, the ``faults`` seen), also when the run ends inside it. The
+first row after a gap carries the gap's fault bits and ``held`` (gathered since the previous
+row), and ``session.mcap`` holds every cycle of the gap, marked. A piece shorter than
+``MIN_ROWS`` between two gaps is too short to fit and is dropped from the CSV (not from the MCAP).
 """
 
 from __future__ import annotations
@@ -50,7 +59,7 @@ from typing import Any, TextIO
 import numpy as np
 import tomli_w
 
-from admittance.daemon.telemetry import MODE_RUNNING
+from admittance.daemon.telemetry import MODE_RUNNING, fault_names
 from admittance.errors import ConfigError
 
 COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
@@ -60,6 +69,7 @@ TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_c
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
+DEFAULT_GAP_S = 0.25  # s: rows further apart than this are a gap (see the module doc)
 
 
 class Recorder:
@@ -71,11 +81,17 @@ class Recorder:
     """
 
     def __init__(self, folder: Path, joints: list[tuple[int, str]], *, measured_theta: bool, t0: float,
-                 segment_s: float = 10.0, joint_info: dict[int, dict] | None = None) -> None:
+                 segment_s: float = 10.0, joint_info: dict[int, dict] | None = None,
+                 gap_s: float = DEFAULT_GAP_S) -> None:
         self.folder = folder
         self.t0 = t0
         self.measured_theta = measured_theta
         self.segment_s = segment_s
+        self.gap_s = gap_s
+        # Per joint: the last written row's t, the last cycle's t (written or not); the gaps.
+        self._last_row_t: dict[int, float] = {}
+        self._last_cycle_t: dict[int, float] = {}
+        self.gaps: list[dict[str, Any]] = []
         self.models = dict(joints)
         # Per joint: the parameter file, plant and loop settings (the manifest's [[joints]]).
         self.joint_info = joint_info or {}
@@ -125,6 +141,8 @@ class Recorder:
         }
         if self.joint_info:
             doc["joints"] = [{"id": jid, **info} for jid, info in self.joint_info.items()]
+        if self.gaps:
+            doc["gaps"] = self.gaps
         tmp = self.folder / "manifest.toml.tmp"
         tmp.write_text(tomli_w.dumps(doc))
         tmp.replace(self.folder / "manifest.toml")  # readers never see half a manifest
@@ -173,25 +191,59 @@ class Recorder:
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
         rows, self._carry[joint_id] = recorded_rows(columns, measured_theta=self.measured_theta, t0=self.t0,
                                                     carry=self._carry.get(joint_id, (0, 0)))
+        if len(columns["t"]):
+            self._last_cycle_t[joint_id] = float(columns["t"][-1] - self.t0)
         t = rows["t"]
         if len(t) == 0:
             return 0
-        if t[0] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS:
-            self._files[joint_id].close()
-            self._open_segment(joint_id, float(t[0]))
+        previous = self._last_row_t.get(joint_id, t[0])
+        starts = np.flatnonzero(np.diff(np.concatenate([[previous], t])) > self.gap_s)  # rows after a gap
+        written = 0
+        for piece in np.split(np.arange(len(t)), starts):
+            if len(piece) == 0:
+                continue
+            if piece[0] in starts:
+                self._gap(joint_id, self._last_row_t[joint_id], float(t[piece[0]]), int(rows["fault"][piece[0]]))
+            elif t[piece[0]] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS:
+                self._next_segment(joint_id, float(t[piece[0]]))
+            written += self._write_rows(joint_id, {c: rows[c][piece] for c in COLUMNS})
+        return written
+
+    def _write_rows(self, joint_id: int, rows: dict[str, np.ndarray]) -> int:
         table = np.column_stack([rows[c] for c in COLUMNS])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
         self._segment_rows[joint_id] += len(table)
+        self._last_row_t[joint_id] = float(rows["t"][-1])
         return len(table)
+
+    def _gap(self, joint_id: int, t_start: float, t_end: float, fault: int) -> None:
+        """The servo went unread from ``t_start`` to ``t_end``: listed, and a new segment after it."""
+        self.gaps.append({"joint_id": joint_id, "t_start": t_start, "t_end": t_end, "faults": fault_names(fault)})
+        self._next_segment(joint_id, t_end)
+
+    def _next_segment(self, joint_id: int, t: float) -> None:
+        """Close the segment (dropping it when too short to fit: the MCAP keeps its cycles), open the next."""
+        self._files[joint_id].close()
+        if self._segment_rows[joint_id] < MIN_ROWS:
+            (self.folder / self._segments[joint_id].pop()).unlink()
+            self._entries[joint_id].pop()
+        self._open_segment(joint_id, t)
 
     def close(self) -> None:
         """Write the held-back cycles (with their own torque: nothing follows them), close the
-        files; a last segment too short to fit on is dropped (file and manifest entry)."""
+        files; a last segment too short to fit on is dropped (file and manifest entry). A run
+        that ended inside a gap lists it up to its last cycle."""
         for joint_id, pending in list(self._pending.items()):
             self._write(joint_id, pending)
         self._pending.clear()
+        for joint_id, last_cycle in self._last_cycle_t.items():
+            last_row = self._last_row_t.get(joint_id, 0.0)
+            if last_cycle - last_row > self.gap_s:
+                fault = self._carry.get(joint_id, (0, 0))[1]
+                self.gaps.append({"joint_id": joint_id, "t_start": last_row, "t_end": last_cycle,
+                                  "faults": fault_names(fault)})
         for joint_id, fh in self._files.items():
             fh.close()
             names = self._segments[joint_id]

@@ -24,6 +24,12 @@ The main thread then ticks at ``[zenoh].state_rate_hz``: it drains the loop's te
 once a second and relays the loop's warnings. SIGINT/SIGTERM only set an event; the stop
 itself (hold, then the torque policy) happens on the main thread, and exits 0.
 
+Faults (docs/faults.md): the loop recovers servos and the bus by itself, the sensor's reader
+its device; every ``FAULT_PERIOD_S`` the supervisor tells what changed, marks the sensor's
+faults on the loop's cycles and, when the policy gives up (the loop's stop request, a sensor
+gone too long), stops the same clean way and exits with the fault's status (69 or 75). The
+systemd watchdog pings only while the loop cycles *and* is healthy (``FaultWatch.health``).
+
 ``--stats-json`` is written on every way out: a clean stop, and an error too (with an
 ``error`` field, the exit status, and whatever the loop had counted), before the error goes on
 to the CLI's one line and non-zero status.
@@ -46,15 +52,17 @@ from typing import Any
 from admittance.daemon import endpoints, telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
 from admittance.daemon.ecosystem import Ecosystem
+from admittance.daemon.faults import FaultWatch
 from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
-from admittance.daemon.recording import Recorder
+from admittance.daemon.recording import DEFAULT_GAP_S, Recorder
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
-from admittance.errors import AdmittanceError, DeviceError
+from admittance.errors import AdmittanceError, DeviceError, FaultStop
 
 STATS_PERIOD_S = 1.0
+FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
 TARE_MIN_RATE_HZ = 30.0
 
 
@@ -125,6 +133,9 @@ class Supervisor:
         self._t0 = 0.0
         self._warned: set[str] = set()
         self.watchdog: Watchdog | None = None
+        self.faults = FaultWatch(cfg, self._event)
+        self.fault_stop: FaultStop | None = None
+        self._healthy = True
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -136,6 +147,8 @@ class Supervisor:
                 self._start(stack)
                 self._serve()
                 self._stop()
+            if self.fault_stop is not None:
+                raise self.fault_stop  # after the same clean stop: its exit status
         except BaseException as exc:
             self._write_stats(error=exc)
             raise
@@ -165,7 +178,7 @@ class Supervisor:
         self._start_mcap(stack)
         if self.interface is not None:
             self.interface.serve()
-        self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
+        self.watchdog = Watchdog(self.notifier, self.loop.heartbeat, healthy=lambda: self._healthy)
         status = self._status_line()
         self.notifier.ready(status)
         z = self.cfg.zenoh
@@ -183,6 +196,10 @@ class Supervisor:
         """Open the sensor's device; it streams into the closed gate until the loop runs."""
         self.notifier.status("starting: sensor")
         self.sensor = self.backends.make_sensor(self.cfg, port, sink)
+        # Its events (unplugged, back, stale, saturated) are told and marked by the fault watch;
+        # it calls a silence "stale" at the loop's own threshold.
+        self.sensor.set_event_hook(self.faults.sensor_event)
+        self.sensor.stale_after_s = self.cfg.loop.stale_timeout_ms / 1000.0
         self.sensor.start()
         stack.callback(self.sensor.stop)
 
@@ -215,8 +232,11 @@ class Supervisor:
         if folder is None:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
-        self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
-                                 t0=0.0, segment_s=self.cfg.record.segment_s, joint_info=self.joint_info())
+        lp = self.cfg.loop
+        # A gap: the servo unread for ten read periods (a retried read is never that late).
+        gap_s = max(DEFAULT_GAP_S, 10.0 * lp.sync_read_divisor / lp.rate_hz)
+        self.recorder = Recorder(folder, joints, measured_theta=lp.sync_read_divisor > 0, t0=0.0,
+                                 segment_s=self.cfg.record.segment_s, joint_info=self.joint_info(), gap_s=gap_s)
         stack.callback(self.recorder.close)
 
     def joint_info(self) -> dict[int, dict]:
@@ -265,7 +285,12 @@ class Supervisor:
         self.notifier.stopping(f"stopping: {self.cfg.stop.torque_policy}")
         self._drain()
         self.final_stats = self.loop.stats()
-        self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
+        try:
+            self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
+        except DeviceError as exc:
+            if self.fault_stop is None:
+                raise
+            self._event(f"{exc} (the fault's stop goes on)")  # a torque off the lost bus cannot carry
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
         self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint()}
@@ -284,11 +309,16 @@ class Supervisor:
     def _serve(self) -> None:
         period = 1.0 / self.cfg.zenoh.state_rate_hz
         deadline = None if self.options.duration is None else self._t0 + self.options.duration
-        next_tick = next_stats = time.monotonic()
+        next_tick = next_stats = next_faults = time.monotonic()
         while not self.stop_event.is_set():
             now = time.monotonic()
             if deadline is not None and now >= deadline:
                 break
+            if now >= next_faults:  # first: the watchdog's first ping already knows the health
+                self._watch_faults()
+                next_faults = now + FAULT_PERIOD_S
+                if self.fault_stop is not None:
+                    break
             self._tick()
             if now >= next_stats:
                 self._publish_stats()
@@ -306,19 +336,17 @@ class Supervisor:
             if latest is not None:
                 self.interface.publish_state(latest)
             self.interface.poll()
-        if latest is not None:
-            self._report_faults(latest)
         for warning in self.ecosystem.publish(latest):
             self._warn(warning)
-        if self.sensor.error:
-            self._warn(f"force sensor stopped: {self.sensor.error} (the joints hold)")
 
-    def _report_faults(self, state) -> None:
-        """One line per fault kind and joint, the first time it is seen (stats count every event)."""
-        for joint in state.joints:
-            for kind in telemetry.fault_names(joint.fault):
-                self._warn(f"fault on joint {joint.id}: {kind}; the joint holds at its last good state "
-                           "(stats: faults)")
+    def _watch_faults(self) -> None:
+        """Tell the faults since the last look, mark the sensor's, judge health and the stop."""
+        stats, sensor = self.loop.stats(), self.sensor.stats()
+        stop = self.faults.poll(stats, sensor, self.loop)
+        self._healthy = self.faults.health(stats, sensor, self.loop)
+        if stop is not None:
+            self.fault_stop = stop
+            self._event(f"stopping on a fault: {stop} (exit {stop.exit_code})")
 
     def _drain(self):
         """Drain the loop's telemetry into the recorder; return the latest State message."""
@@ -346,10 +374,15 @@ class Supervisor:
         self.ecosystem.record("stats", stats)
 
     def _warn(self, text: str) -> None:
+        """A warning told once for the whole run."""
         if text not in self._warned:
             self._warned.add(text)
-            self.options.log(f"warning: {text}")
-            self.ecosystem.record("event", f"warning: {text}")
+            self._event(text)
+
+    def _event(self, text: str) -> None:
+        """A warning each time it happens (the fault watch rate-limits its own)."""
+        self.options.log(f"warning: {text}")
+        self.ecosystem.record("event", f"warning: {text}")
 
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
@@ -402,7 +435,12 @@ class Supervisor:
             "query_errors": getattr(self.interface, "query_errors", 0),
             "recorded_rows": dict(self.recorder.rows) if self.recorder else {},
             "sensor": self.sensor.stats() if self.sensor is not None else {},
+            "faults_told": dict(self.faults.events.counts),
+            "watchdog": {"pings": getattr(self.watchdog, "pings", 0), "missed": getattr(self.watchdog, "missed", 0),
+                         "unhealthy": getattr(self.watchdog, "unhealthy", 0)},
         }
+        if self.fault_stop is not None:
+            stats["fault_stop"] = {"cause": self.fault_stop.cause, "exit_status": self.fault_stop.exit_code}
         if error is not None:
             stats.update(error_fields(error))
         try:

@@ -10,7 +10,8 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
-use rtloop::fault::{FaultKind, LoopMode};
+use rtloop::fault::{FaultKind, Faults, LoopMode};
+use rtloop::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
 use rtloop::histogram::Percentiles;
 use rtloop::params::{joint_value, LoopParams};
 use rtloop::sched::{Policy, RtRequest};
@@ -20,7 +21,7 @@ use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartEr
 use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
-const LOOP_KEYS: [&str; 19] = [
+const LOOP_KEYS: [&str; 20] = [
     "port",
     "baudrate",
     "protocol",
@@ -40,6 +41,17 @@ const LOOP_KEYS: [&str; 19] = [
     "telemetry_capacity",
     "start_timeout_ms",
     "torque_on_start",
+    "faults",
+];
+
+const FAULT_KEYS: [&str; 7] = [
+    "servo_error",
+    "torque_off",
+    "bus_lost_timeout_s",
+    "servo_silent_ms",
+    "max_recoveries",
+    "recovery_window_s",
+    "check_period_ms",
 ];
 
 const JOINT_KEYS: [&str; 20] = [
@@ -164,6 +176,43 @@ fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
     Ok(rt)
 }
 
+/// A duration in seconds (`scale` 1) or ms (`scale` 1e-3) as nanoseconds: finite and > 0.
+fn duration_ns(d: &Bound<'_, PyDict>, key: &str, scale: f64, slot: &mut u64) -> PyResult<()> {
+    let Some(value) = opt::<f64>(d, key, "config.faults")? else { return Ok(()) };
+    if !(value.is_finite() && value > 0.0) {
+        return Err(config_error(d.py(), format!("config.faults.{key}: must be a positive number, got {value}")));
+    }
+    *slot = (value * scale * 1e9).min(u64::MAX as f64) as u64;
+    Ok(())
+}
+
+/// The `faults` table: the servo and bus fault policy (docs/faults.md).
+fn fault_policy(d: &Bound<'_, PyDict>) -> PyResult<FaultPolicy> {
+    let py = d.py();
+    check_keys(d, &FAULT_KEYS, "config.faults")?;
+    let mut p = FaultPolicy::default();
+    if let Some(name) = opt::<String>(d, "servo_error", "config.faults")? {
+        p.servo_error = match name.as_str() {
+            "reboot" => OnServoError::Reboot,
+            "stop" => OnServoError::Stop,
+            _ => return Err(config_error(py, format!("config.faults.servo_error: {name:?} is not \"reboot\" or \"stop\""))),
+        };
+    }
+    if let Some(name) = opt::<String>(d, "torque_off", "config.faults")? {
+        p.torque_off = match name.as_str() {
+            "reenable" => OnTorqueOff::Reenable,
+            "stop" => OnTorqueOff::Stop,
+            _ => return Err(config_error(py, format!("config.faults.torque_off: {name:?} is not \"reenable\" or \"stop\""))),
+        };
+    }
+    duration_ns(d, "bus_lost_timeout_s", 1.0, &mut p.lost_timeout_ns)?;
+    duration_ns(d, "servo_silent_ms", 1e-3, &mut p.silent_after_ns)?;
+    duration_ns(d, "recovery_window_s", 1.0, &mut p.recovery_window_ns)?;
+    duration_ns(d, "check_period_ms", 1e-3, &mut p.check_period_ns)?;
+    set(d, "max_recoveries", "config.faults", &mut p.max_recoveries)?;
+    Ok(p)
+}
+
 fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let py = d.py();
     check_keys(d, &LOOP_KEYS, "config")?;
@@ -186,6 +235,9 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     set(d, "telemetry_capacity", "config", &mut c.telemetry_capacity)?;
     set(d, "start_timeout_ms", "config", &mut c.start_timeout_ms)?;
     set(d, "torque_on_start", "config", &mut c.torque_on_start)?;
+    if let Some(faults) = opt::<Bound<'_, PyDict>>(d, "faults", "config")? {
+        c.faults = fault_policy(&faults)?;
+    }
     let joints: Vec<Bound<'_, PyDict>> = opt(d, "joints", "config")?.unwrap_or_default();
     c.joints = joints.iter().enumerate().map(|(k, j)| joint_config(j, k, c.protocol)).collect::<PyResult<_>>()?;
     c.validate().map_err(|e| config_error(py, e))?;
@@ -383,7 +435,33 @@ impl PyAdmittanceLoop {
         rt.set_item("memory_locked", s.rt.memory_locked)?;
         rt.set_item("cpu", s.rt.cpu)?;
         d.set_item("rt", rt)?;
+        d.set_item("servos", self.servos_list(py)?)?;
+        d.set_item("bus", self.link_dict(py)?)?;
         Ok(d)
+    }
+
+    /// The loop's request to be stopped, None while it has none: `{"cause": name, "joint": id
+    /// or None, "hardware_error": bits}` (docs/faults.md maps each cause to an exit status).
+    fn stop_request<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(req) = self.inner.stop_request() else { return Ok(None) };
+        let d = PyDict::new(py);
+        d.set_item("cause", req.cause.name())?;
+        d.set_item("joint", req.joint.and_then(|k| self.inner.ids().get(k).copied()))?;
+        d.set_item("hardware_error", req.hardware_error)?;
+        Ok(Some(d))
+    }
+
+    /// Raises the sensor's faults (names of `FAULT_KINDS`: "sensor_lost", "sensor_saturated")
+    /// for the cycles from now on, so the records mark them; an empty list clears them.
+    fn set_sensor_faults(&self, names: Vec<String>) -> PyResult<()> {
+        let mut faults = Faults::NONE;
+        for name in &names {
+            let kind = FaultKind::ALL.iter().find(|k| k.name() == name && FaultKind::EXTERNAL.contains(**k));
+            let kind = kind.ok_or_else(|| pyo3::exceptions::PyValueError::new_err(format!("{name:?} is not a sensor fault kind")))?;
+            faults.insert(*kind);
+        }
+        self.inner.set_external_faults(faults);
+        Ok(())
     }
 
     /// What the loop could not get (SCHED_FIFO, mlockall, affinity, port setup), once each.
@@ -412,6 +490,48 @@ impl PyAdmittanceLoop {
     }
 }
 
+impl PyAdmittanceLoop {
+    /// Per joint: its servo's recovery (`phase`), last hardware error, silence and counts.
+    fn servos_list<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for (id, (phase, bits, silent, c)) in self.inner.ids().iter().zip(self.inner.servos()) {
+            let d = PyDict::new(py);
+            d.set_item("id", id)?;
+            d.set_item("phase", phase)?;
+            d.set_item("hardware_error", bits)?;
+            d.set_item("silent", silent)?;
+            for (name, n) in [
+                ("errors", c.errors),
+                ("tolerated", c.tolerated),
+                ("torque_offs", c.torque_offs),
+                ("reboots", c.reboots),
+                ("reenables", c.reenables),
+                ("recoveries", c.recoveries),
+                ("silences", c.silences),
+            ] {
+                d.set_item(name, n)?;
+            }
+            list.append(d)?;
+        }
+        Ok(list)
+    }
+
+    /// The bus's port: lost (for how long), losses, reconnects, reopen attempts and failures.
+    fn link_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let l = self.inner.link();
+        let d = PyDict::new(py);
+        d.set_item("state", if l.lost_for_ns.is_some() { "lost" } else { "up" })?;
+        d.set_item("lost_for_s", l.lost_for_ns.map(|ns| ns as f64 * 1e-9))?;
+        d.set_item("losses", l.losses)?;
+        d.set_item("loss_errno", l.loss_errno)?;
+        d.set_item("reconnects", l.reconnects)?;
+        d.set_item("reopen_attempts", l.reopen_attempts)?;
+        d.set_item("reopen_failures", l.reopen_failures)?;
+        d.set_item("last_error", (!l.last_error.is_empty()).then_some(l.last_error))?;
+        Ok(d)
+    }
+}
+
 fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     let fields: Vec<(&str, &str)> = RECORD_FIELDS.to_vec();
     py.import("numpy")?.call_method1("dtype", (fields,))
@@ -423,5 +543,9 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // The telemetry's `mode` codes and `fault` bits, by name: LOOP_MODES[mode], FAULT_KINDS[bit].
     m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
+    // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
+    // it never reboots for (the daemon's start-up check applies the same rule).
+    m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
+    m.add("UNSAFE_HARDWARE_ERRORS", UNSAFE_HARDWARE_ERRORS)?;
     Ok(())
 }

@@ -22,12 +22,40 @@ use dxl::{protocol1, protocol2, AnyDecoder, BulkEntry, DecodeError, EncodeError,
 use std::fmt;
 use std::io;
 
-/// Bytes out, bytes in with a deadline on CLOCK_MONOTONIC.
+/// Bytes out, bytes in with a deadline on CLOCK_MONOTONIC; and, for a device that can be
+/// unplugged, giving it up and getting it back.
 pub trait Transport: Send {
     fn write_all(&mut self, bytes: &[u8]) -> io::Result<()>;
     /// Reads what is available; if nothing is, waits until `deadline_ns` at most. `Ok(0)` means
     /// the deadline passed with nothing to read.
     fn read_until(&mut self, buf: &mut [u8], deadline_ns: u64) -> io::Result<usize>;
+    /// The device failed for good (`link_gone`): close it and start reopening it, without
+    /// blocking. A transport that cannot reopen does nothing.
+    fn disconnect(&mut self) {}
+    /// After `disconnect`: takes a reopened device if one is ready, without blocking; true once
+    /// the link is up again. A transport that cannot reopen never comes back.
+    fn reconnect(&mut self) -> bool {
+        false
+    }
+}
+
+/// An I/O error that says the device itself is gone (an unplugged adapter: EIO, ENXIO, ENODEV,
+/// a hang-up, end of file), not a late or garbled reply: nothing will pass through it again.
+pub fn link_gone(e: &io::Error) -> bool {
+    matches!(e.raw_os_error(), Some(libc::EIO | libc::ENXIO | libc::ENODEV | libc::EBADF | libc::EPIPE))
+        || matches!(e.kind(), io::ErrorKind::BrokenPipe | io::ErrorKind::UnexpectedEof | io::ErrorKind::NotConnected)
+}
+
+impl BusError {
+    /// The bus's device is gone (see `link_gone`).
+    pub fn link_gone(&self) -> bool {
+        matches!(self, BusError::Io(e) if link_gone(e))
+    }
+
+    /// The servo did not answer (as opposed to answering badly).
+    pub fn unanswered(&self) -> bool {
+        matches!(self, BusError::Timeout { .. } | BusError::Io(_))
+    }
 }
 
 /// Where the goal, the present position and Torque Enable live (the same for every joint: one
@@ -120,6 +148,10 @@ pub struct JointBus {
     present: Vec<i64>,
     answered: Vec<bool>,
     health: Vec<ServoHealth>,
+    /// The joints of this cycle's present-position read (a subset: see `read_present_of`).
+    read_ids: Vec<u8>,
+    read_entries: Vec<BulkEntry>,
+    read_joints: Vec<usize>,
 }
 
 /// Little-endian two's complement of `value` in `out` (1, 2 or 4 bytes).
@@ -157,11 +189,18 @@ impl JointBus {
             present: vec![-1; n],
             answered: vec![false; n],
             health: vec![ServoHealth::default(); n],
+            read_ids: Vec::with_capacity(n),
+            read_entries: Vec::with_capacity(n),
+            read_joints: Vec::with_capacity(n),
         }
     }
 
     pub fn ids(&self) -> &[u8] {
         &self.ids
+    }
+
+    pub fn protocol(&self) -> Protocol {
+        self.protocol
     }
 
     /// Per joint (in joint order), what its servo's status packets said.
@@ -197,20 +236,41 @@ impl JointBus {
 
     /// Reads every joint's present position before `deadline_ns`; ticks in joint order.
     pub fn read_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> Result<&[i64], BusError> {
+        self.read_present_of(t, deadline_ns, |_| true)?;
+        Ok(&self.present)
+    }
+
+    /// Reads the present position of the joints `include` selects (one SYNC_READ or BULK_READ;
+    /// a servo known to be silent is left out, so the read need not wait for its deadline).
+    /// Whatever happens, `answered()` then says which of them answered and `present()` holds
+    /// their ticks: a servo that does not answer costs the others nothing. `Ok` when every
+    /// selected servo answered, and when none was selected.
+    pub fn read_present_of(&mut self, t: &mut dyn Transport, deadline_ns: u64, include: impl Fn(usize) -> bool) -> Result<(), BusError> {
+        self.answered.fill(false);
+        self.read_ids.clear();
+        self.read_entries.clear();
+        self.read_joints.clear();
+        for (k, entry) in self.entries.iter().enumerate().filter(|(k, _)| include(*k)) {
+            self.read_ids.push(entry.id);
+            self.read_entries.push(*entry);
+            self.read_joints.push(k);
+        }
+        if self.read_ids.is_empty() {
+            return Ok(());
+        }
         self.discard_input(t)?;
         let n = match self.protocol {
-            Protocol::V1 => protocol1::encode_bulk_read(&mut self.packet, &self.entries),
+            Protocol::V1 => protocol1::encode_bulk_read(&mut self.packet, &self.read_entries),
             Protocol::V2 => protocol2::encode_sync_read(
                 &mut self.packet,
                 self.regs.present_address,
                 self.regs.present_size,
-                &self.ids,
+                &self.read_ids,
             ),
         }
         .map_err(BusError::Encode)?;
         t.write_all(&self.packet[..n]).map_err(BusError::Io)?;
-        self.answered.fill(false);
-        let mut pending = self.ids.len();
+        let mut pending = self.read_ids.len();
         let mut first_error = None;
         while pending > 0 {
             let got = t.read_until(&mut self.rx, deadline_ns).map_err(BusError::Io)?;
@@ -220,8 +280,9 @@ impl JointBus {
             self.decoder.push(&self.rx[..got]);
             while let Some(item) = self.decoder.next() {
                 note_status(&mut self.health, &self.ids, &item);
-                match accept(item, &self.ids, usize::from(self.regs.present_size)) {
-                    Ok(Some((k, tick))) if !self.answered[k] => {
+                match accept(item, &self.read_ids, usize::from(self.regs.present_size)) {
+                    Ok(Some((r, tick))) if !self.answered[self.read_joints[r]] => {
+                        let k = self.read_joints[r];
                         self.answered[k] = true;
                         self.present[k] = tick;
                         pending -= 1;
@@ -233,8 +294,56 @@ impl JointBus {
         }
         match first_error {
             Some(e) => Err(e),
-            None => Ok(&self.present),
+            None => Ok(()),
         }
+    }
+
+    /// Per joint: whether it answered the last present-position read.
+    pub fn answered(&self) -> &[bool] {
+        &self.answered
+    }
+
+    /// Per joint: its last present position read (−1 before the first).
+    pub fn present(&self) -> &[i64] {
+        &self.present
+    }
+
+    /// Joint `k`'s present position alone (a re-anchor after a recovery).
+    pub fn read_present_one(&mut self, t: &mut dyn Transport, k: usize, deadline_ns: u64) -> Result<i64, BusError> {
+        let tick = self.read_register(t, k, self.regs.present_address, self.regs.present_size, deadline_ns)?;
+        self.present[k] = tick;
+        Ok(tick)
+    }
+
+    /// REBOOT joint `k`'s servo (Protocol 2.0; 1.0 has none). Its status packet is read if it
+    /// comes before `deadline_ns`; the servo is silent afterwards anyway, so none is not an error.
+    pub fn reboot(&mut self, t: &mut dyn Transport, k: usize, deadline_ns: u64) -> Result<(), BusError> {
+        let id = *self.ids.get(k).ok_or(BusError::BadRequest { index: k, size: 0 })?;
+        if self.protocol != Protocol::V2 {
+            return Err(BusError::BadRequest { index: k, size: 0 });
+        }
+        self.discard_input(t)?;
+        let n = protocol2::encode_reboot(&mut self.packet, id).map_err(BusError::Encode)?;
+        t.write_all(&self.packet[..n]).map_err(BusError::Io)?;
+        match self.await_status(t, k, 0, deadline_ns) {
+            Ok(_) | Err(BusError::Timeout { .. }) => Ok(()),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Torque Enable of joint `k`'s servo alone (a WRITE, its status packet awaited).
+    pub fn write_torque(&mut self, t: &mut dyn Transport, k: usize, enable: bool, deadline_ns: u64) -> Result<(), BusError> {
+        let id = *self.ids.get(k).ok_or(BusError::BadRequest { index: k, size: 1 })?;
+        self.discard_input(t)?;
+        let value = [u8::from(enable)];
+        let address = self.regs.torque_enable_address;
+        let n = match self.protocol {
+            Protocol::V1 => protocol1::encode_write(&mut self.packet, id, address as u8, &value),
+            Protocol::V2 => protocol2::encode_write(&mut self.packet, id, address, &value),
+        }
+        .map_err(BusError::Encode)?;
+        t.write_all(&self.packet[..n]).map_err(BusError::Io)?;
+        self.await_status(t, k, 0, deadline_ns).map(drop)
     }
 
     /// Reads one item (`size` 1, 2 or 4 bytes at `address`) of joint `k`'s servo before
@@ -253,6 +362,12 @@ impl JointBus {
         }
         .map_err(BusError::Encode)?;
         t.write_all(&self.packet[..n]).map_err(BusError::Io)?;
+        self.await_status(t, k, usize::from(size), deadline_ns)
+    }
+
+    /// Waits for joint `k`'s status packet with at least `size` bytes of data; the value of
+    /// those bytes (0 when `size` is 0).
+    fn await_status(&mut self, t: &mut dyn Transport, k: usize, size: usize, deadline_ns: u64) -> Result<i64, BusError> {
         let mut first_error = None;
         loop {
             let got = t.read_until(&mut self.rx, deadline_ns).map_err(BusError::Io)?;
@@ -262,7 +377,7 @@ impl JointBus {
             self.decoder.push(&self.rx[..got]);
             while let Some(item) = self.decoder.next() {
                 note_status(&mut self.health, &self.ids, &item);
-                match accept(item, &self.ids[k..=k], usize::from(size)) {
+                match accept(item, &self.ids[k..=k], size) {
                     Ok(Some((_, value))) => return Ok(value),
                     Ok(None) => {}
                     // The servo answered and refused: no other reply will come.
@@ -330,17 +445,80 @@ pub(crate) mod memory {
     use std::collections::VecDeque;
     use std::sync::{Arc, Mutex};
 
+    /// Servos on a wire: present positions, one-byte registers, REBOOT and silence.
+    ///
+    /// A servo listed in `present` answers SYNC_READ/BULK_READ and single READs of its present
+    /// position, READs of Torque Enable (64, or 24 on Protocol 1.0: `torque`, default on) and
+    /// Hardware Error Status (70: `hardware`), WRITEs of Torque Enable, and REBOOT (which
+    /// clears its hardware error and turns torque off, then leaves it silent for
+    /// `reboot_silence` transactions). A servo in `silent` answers nothing. `items` overrides
+    /// any one-byte READ: (id, address, value).
     #[derive(Default)]
     pub struct Wire {
         pub written: Vec<Vec<u8>>,
         pub present: Vec<(u8, i64)>,
         pub replies: VecDeque<u8>,
+        /// Writes time out (a stalled adapter: the link stays).
         pub fail_writes: bool,
+        /// The adapter is unplugged: every write and read fails with EIO until it is back.
+        pub unplugged: bool,
+        pub disconnects: u64,
         pub protocol2: bool,
-        /// The error byte of every status packet.
+        /// The error byte of every status packet (besides the hardware error's alert).
         pub error: u8,
         /// One-byte items a READ answers: (id, address, value).
         pub items: Vec<(u8, u16, u8)>,
+        /// Torque Enable per id (absent: on).
+        pub torque: Vec<(u8, bool)>,
+        /// Hardware Error Status per id (absent: 0); non-zero sets the alert on its statuses.
+        pub hardware: Vec<(u8, u8)>,
+        pub silent: Vec<u8>,
+        /// Transactions a rebooted servo stays silent for.
+        pub reboot_silence: u32,
+        pub rebooting: Vec<(u8, u32)>,
+        pub reboots: Vec<u8>,
+    }
+
+    impl Wire {
+        fn value_of(list: &[(u8, u8)], id: u8, default: u8) -> u8 {
+            list.iter().find(|(i, _)| *i == id).map_or(default, |e| e.1)
+        }
+
+        fn set(list: &mut Vec<(u8, u8)>, id: u8, value: u8) {
+            list.retain(|(i, _)| *i != id);
+            list.push((id, value));
+        }
+
+        pub fn torque_of(&self, id: u8) -> bool {
+            self.torque.iter().find(|(i, _)| *i == id).is_none_or(|e| e.1)
+        }
+
+        pub fn set_torque(&mut self, id: u8, on: bool) {
+            self.torque.retain(|(i, _)| *i != id);
+            self.torque.push((id, on));
+        }
+
+        pub fn set_hardware(&mut self, id: u8, bits: u8) {
+            Self::set(&mut self.hardware, id, bits);
+        }
+
+        pub fn hardware_of(&self, id: u8) -> u8 {
+            Self::value_of(&self.hardware, id, 0)
+        }
+
+        fn answers(&mut self, id: u8) -> bool {
+            if self.silent.contains(&id) || !self.present.iter().any(|p| p.0 == id) {
+                return false;
+            }
+            if let Some(left) = self.rebooting.iter_mut().find(|r| r.0 == id) {
+                if left.1 > 0 {
+                    left.1 -= 1;
+                    return false;
+                }
+            }
+            self.rebooting.retain(|r| r.0 != id || r.1 > 0);
+            true
+        }
     }
 
     #[derive(Clone, Default)]
@@ -354,46 +532,111 @@ pub(crate) mod memory {
         pub fn written(&self) -> Vec<Vec<u8>> {
             self.0.lock().unwrap().written.clone()
         }
+        pub fn wire(&self) -> std::sync::MutexGuard<'_, Wire> {
+            self.0.lock().unwrap()
+        }
     }
 
     fn status(wire: &mut Wire, id: u8, data: &[u8]) {
         let mut buf = [0u8; 64];
+        let hardware = wire.hardware_of(id);
         let n = if wire.protocol2 {
-            protocol2::encode_status(&mut buf, id, wire.error, data).unwrap()
+            let alert = if hardware != 0 { 0x80 } else { 0 };
+            protocol2::encode_status(&mut buf, id, wire.error | alert, data).unwrap()
         } else {
-            protocol1::encode_status(&mut buf, id, wire.error, data).unwrap()
+            protocol1::encode_status(&mut buf, id, wire.error | (hardware & P1_HARDWARE_BITS), data).unwrap()
         };
         wire.replies.extend(&buf[..n]);
     }
 
     fn reply(wire: &mut Wire, request: &[u8]) {
-        let (id, instruction, params) =
-            if wire.protocol2 { (request[4], request[7], &request[8..]) } else { (request[2], request[4], &request[5..]) };
-        if instruction == 0x02 {
-            let address = if wire.protocol2 { u16::from_le_bytes([params[0], params[1]]) } else { u16::from(params[0]) };
-            let found = wire.items.iter().find(|(i, a, _)| *i == id && *a == address).map(|item| item.2);
-            if let Some(value) = found {
-                status(wire, id, &[value]);
+        // The parameters, without the checksum (P2: 2 bytes of CRC, P1: 1 byte).
+        let (id, instruction, params) = if wire.protocol2 {
+            (request[4], request[7], &request[8..request.len() - 2])
+        } else {
+            (request[2], request[4], &request[5..request.len() - 1])
+        };
+        let torque_address = if wire.protocol2 { 64 } else { 24 };
+        match instruction {
+            0x02 => {
+                let (address, length) = if wire.protocol2 {
+                    (u16::from_le_bytes([params[0], params[1]]), u16::from_le_bytes([params[2], params[3]]))
+                } else {
+                    (u16::from(params[0]), u16::from(params[1]))
+                };
+                let item = wire.items.iter().find(|(i, a, _)| *i == id && *a == address).map(|item| item.2);
+                if let Some(value) = item {
+                    status(wire, id, &[value]);
+                    return;
+                }
+                if !wire.answers(id) {
+                    return;
+                }
+                let tick = wire.present.iter().find(|p| p.0 == id).map_or(0, |p| p.1);
+                match (address, length) {
+                    (a, 1) if a == torque_address => {
+                        let on = u8::from(wire.torque_of(id));
+                        status(wire, id, &[on]);
+                    }
+                    (70, 1) if wire.protocol2 => {
+                        let bits = wire.hardware_of(id);
+                        status(wire, id, &[bits]);
+                    }
+                    (_, 4) => status(wire, id, &(tick as i32).to_le_bytes()),
+                    (_, 2) => status(wire, id, &(tick as u16).to_le_bytes()),
+                    _ => {}
+                }
             }
-            return;
-        }
-        if instruction != 0x82 && instruction != 0x92 {
-            return;
-        }
-        for (id, tick) in wire.present.clone() {
-            if wire.protocol2 {
-                status(wire, id, &(tick as i32).to_le_bytes());
-            } else {
-                status(wire, id, &(tick as u16).to_le_bytes());
+            0x03 if wire.answers(id) => {
+                let (address, value) =
+                    if wire.protocol2 { (u16::from_le_bytes([params[0], params[1]]), params[2]) } else { (u16::from(params[0]), params[1]) };
+                if address == torque_address {
+                    // A shut-down servo takes the write and stays off (P2: until a REBOOT).
+                    let on = value != 0 && wire.hardware_of(id) == 0;
+                    wire.set_torque(id, on);
+                }
+                status(wire, id, &[]);
             }
+            0x08 if wire.answers(id) => {
+                status(wire, id, &[]); // answered with the alert it clears
+                wire.set_hardware(id, 0);
+                wire.set_torque(id, false);
+                wire.reboots.push(id);
+                let silence = wire.reboot_silence;
+                wire.rebooting.retain(|r| r.0 != id);
+                wire.rebooting.push((id, silence));
+            }
+            0x82 | 0x92 => {
+                let listed: Vec<u8> = if instruction == 0x82 {
+                    params[4..].to_vec()
+                } else if wire.protocol2 {
+                    params.chunks(5).map(|c| c[0]).collect()
+                } else {
+                    params[1..].chunks(3).map(|c| c[1]).collect()
+                };
+                for (id, tick) in wire.present.clone() {
+                    if !listed.contains(&id) || !wire.answers(id) {
+                        continue;
+                    }
+                    if wire.protocol2 {
+                        status(wire, id, &(tick as i32).to_le_bytes());
+                    } else {
+                        status(wire, id, &(tick as u16).to_le_bytes());
+                    }
+                }
+            }
+            _ => {}
         }
     }
 
     impl Transport for MemoryTransport {
         fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
             let mut wire = self.0.lock().unwrap();
+            if wire.unplugged {
+                return Err(io::Error::from_raw_os_error(libc::EIO));
+            }
             if wire.fail_writes {
-                return Err(io::Error::new(io::ErrorKind::BrokenPipe, "unplugged"));
+                return Err(io::ErrorKind::TimedOut.into());
             }
             wire.written.push(bytes.to_vec());
             reply(&mut wire, bytes);
@@ -401,11 +644,22 @@ pub(crate) mod memory {
         }
         fn read_until(&mut self, buf: &mut [u8], _deadline_ns: u64) -> io::Result<usize> {
             let mut wire = self.0.lock().unwrap();
+            if wire.unplugged {
+                return Err(io::Error::from_raw_os_error(libc::EIO));
+            }
             let n = buf.len().min(wire.replies.len());
             for b in buf.iter_mut().take(n) {
                 *b = wire.replies.pop_front().unwrap();
             }
             Ok(n)
+        }
+
+        fn disconnect(&mut self) {
+            self.0.lock().unwrap().disconnects += 1;
+        }
+
+        fn reconnect(&mut self) -> bool {
+            !self.0.lock().unwrap().unplugged
         }
     }
 }

@@ -93,6 +93,15 @@ impl Compensation {
         self.held = true;
     }
 
+    /// The model was moved to where the horn is (a recovered servo): no lead to carry over,
+    /// and the next running cycle starts its lead from nothing, as after any hold.
+    pub fn reanchor(&mut self) {
+        self.lead = 0.0;
+        self.carry = 0.0;
+        self.alpha = 0.0;
+        self.held = true;
+    }
+
     /// The angle to send as the goal for a model at `theta` moving at `omega` with
     /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
     /// the last cycle is kept, so holding never moves the goal.

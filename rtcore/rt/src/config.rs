@@ -9,6 +9,7 @@ use crate::bus::Registers;
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
 use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
+use crate::recovery::FaultPolicy;
 use crate::sched::RtRequest;
 use dxl::Protocol;
 
@@ -73,6 +74,8 @@ pub struct LoopConfig {
     pub start_timeout_ms: f64,
     /// `start` sets each goal to the present position, then enables torque.
     pub torque_on_start: bool,
+    /// What the loop does about servo and bus faults (`recovery`).
+    pub faults: FaultPolicy,
 }
 
 impl Default for LoopConfig {
@@ -92,6 +95,7 @@ impl Default for LoopConfig {
             telemetry_capacity: 1 << 16,
             start_timeout_ms: 200.0,
             torque_on_start: true,
+            faults: FaultPolicy::default(),
         }
     }
 }
@@ -153,6 +157,7 @@ impl LoopConfig {
         if !(self.start_timeout_ms.is_finite() && self.start_timeout_ms > 0.0) {
             return Err(format!("start_timeout_ms must be > 0, got {}", self.start_timeout_ms));
         }
+        self.faults.validate()?;
         let ids = self.ids();
         for (k, j) in self.joints.iter().enumerate() {
             validate_joint(j, self.protocol).map_err(|e| format!("joints[{k}] (id {}): {e}", j.id))?;

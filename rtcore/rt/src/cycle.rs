@@ -18,13 +18,22 @@
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
-//! 7. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
+//! 7. `tend_servos`: at most one transaction the servos' recovery asks for (`recovery`: a
+//!    torque check, a Hardware Error Status read, a REBOOT, a re-anchor, torque on), with the
+//!    same deadline; a wait (a reboot's silence) spans cycles, never one.
+//! 8. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
 //!
-//! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
+//! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway. An
+//! error that says the port itself is gone (`bus::link_gone`: the adapter unplugged) makes the
+//! link *lost*: the transport reopens it off the loop thread, the cycles send nothing and hold
+//! every joint (`BusLost`) until it is back, and `recovery` asks for a stop if it is not back
+//! within the policy's timeout. A joint that its recovery holds (a servo shut down, silent, or
+//! being brought back) holds the same way: its model frozen at its last good state.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
 use crate::fault::{FaultKind, Faults, LoopMode};
+use crate::recovery::{Action, FaultPolicy, Recovery, StopRequest};
 use crate::filter::{deadband, LowPass, TareAverager};
 use crate::joint::{integrate, state_in_envelope, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
@@ -58,6 +67,8 @@ struct JointSlot {
     force: f64,
     torque: f64,
     present: i64,
+    /// The servo answered this cycle's read of the present positions.
+    read_now: bool,
     compensation: Compensation,
 }
 
@@ -91,8 +102,12 @@ pub struct Controller {
     bias: [f64; 6],
     bias_generation: u64,
     intake: ForceIntake,
-    /// Faults of the loop as a whole this cycle (none raised yet: the bus and sensor kinds go here).
+    /// Faults of the loop as a whole this cycle (the bus's, and the sensor's raised from outside).
     loop_faults: Faults,
+    /// Each servo's fault detection and recovery, and the loop's stop request.
+    recovery: Recovery,
+    /// CLOCK_MONOTONIC when the bus's port was lost; None while it is up.
+    link_lost_since: Option<u64>,
     /// The joints held this cycle by policy (stale force).
     holding: bool,
     params: triple_buffer::Output<LoopParams>,
@@ -129,12 +144,14 @@ impl Controller {
                 force: 0.0,
                 torque: 0.0,
                 present: -1,
+                read_now: false,
                 compensation: Compensation::new(jp.servo, jp.compensation),
             })
             .collect::<Vec<_>>();
         let mut lowpass = LowPass::default();
         lowpass.configure(p.sensor.lowpass_hz, h);
         parts.shared.publish_bias(&p.bias);
+        let recovery = Recovery::new(joints.len(), FaultPolicy::default(), parts.bus.protocol() == dxl::Protocol::V2, true);
         Controller {
             h,
             period_ns: (1e9 / parts.rate_hz).round() as u64,
@@ -149,6 +166,8 @@ impl Controller {
             bias_generation: p.bias_generation,
             intake: ForceIntake::new(parts.force_ring),
             loop_faults: Faults::NONE,
+            recovery,
+            link_lost_since: None,
             holding: false,
             params: parts.params,
             bus: parts.bus,
@@ -164,6 +183,18 @@ impl Controller {
 
     pub fn period_ns(&self) -> u64 {
         self.period_ns
+    }
+
+    /// The fault policy; `acts`: the loop drives the servos' torque (it turned it on at start),
+    /// so it may turn it on again after a fault (else it only detects and holds).
+    pub fn set_fault_policy(&mut self, policy: FaultPolicy, acts: bool) {
+        let can_reboot = self.bus.protocol() == dxl::Protocol::V2;
+        self.recovery = Recovery::new(self.joints.len(), policy, can_reboot, acts);
+    }
+
+    /// The loop's request to be stopped (a fault its policy does not recover from), if any.
+    pub fn stop_request(&self) -> Option<StopRequest> {
+        self.recovery.stop_request()
     }
 
     /// Bumpless start: the model starts where each servo is, so the first goal is no jump.
@@ -207,12 +238,89 @@ impl Controller {
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
         let steps = self.steps_due(deadline_ns);
+        let link_up = self.keep_link(t);
         self.step_joints(&force, intake.stale, steps);
-        let written = self.write_goals(t);
+        let written = link_up && self.write_goals(t, wake_ns);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
-        let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
+        let bus_deadline = deadline_ns + self.period_ns - self.period_ns / 10;
+        let read = written && self.read_present(t, bus_deadline, clock);
+        if written {
+            self.tend_servos(t, clock, bus_deadline);
+        }
+        self.recovery.judge(clock.now_ns(), self.link_lost_since);
         self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
+    }
+
+    /// Whether the bus's link is up; while it is lost, takes a reopened port if one is ready
+    /// (never blocks), and then has every servo's torque checked (a power loss resets them too).
+    fn keep_link(&mut self, t: &mut dyn Transport) -> bool {
+        if self.link_lost_since.is_none() {
+            return true;
+        }
+        if !t.reconnect() {
+            return false;
+        }
+        self.link_lost_since = None;
+        self.shared.link.lost_since_ns.store(0, Ordering::Relaxed);
+        LoopStats::add(&self.shared.link.reconnects, 1);
+        self.recovery.check_all_soon();
+        true
+    }
+
+    /// Counts a bus error; one that says the port is gone makes the link lost and hands the
+    /// port to the transport to reopen.
+    fn bus_error(&mut self, t: &mut dyn Transport, e: &BusError, now_ns: u64) {
+        LoopStats::add(&self.shared.stats.bus_errors, 1);
+        if e.link_gone() && self.link_lost_since.is_none() {
+            self.link_lost_since = Some(now_ns);
+            self.shared.link.lost_since_ns.store(now_ns.max(1), Ordering::Relaxed);
+            LoopStats::add(&self.shared.link.losses, 1);
+            let errno = if let BusError::Io(io) = e { io.raw_os_error().unwrap_or(0) } else { 0 };
+            self.shared.link.loss_errno.store(errno, Ordering::Relaxed);
+            t.disconnect();
+        }
+    }
+
+    /// Runs the one servo transaction the recovery asks for this cycle, if any.
+    fn tend_servos<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64) {
+        // Too little of the cycle left for a reply: next cycle (a cut-short wait would pass
+        // for a silent servo).
+        if clock.now_ns().saturating_add(self.period_ns / 4) >= deadline_ns {
+            return;
+        }
+        let Some((k, action)) = self.recovery.next_action(clock.now_ns()) else { return };
+        let bus = &mut self.bus;
+        let result = match action {
+            Action::ReadHardwareError => bus.read_hardware_error(t, k, deadline_ns).map(i64::from),
+            Action::ReadTorqueEnable => bus.read_torque_enable(t, k, deadline_ns).map(i64::from),
+            Action::Reboot => bus.reboot(t, k, deadline_ns).map(|()| 0),
+            Action::ReadPresent => bus.read_present_one(t, k, deadline_ns),
+            Action::EnableTorque => bus.write_torque(t, k, true, deadline_ns).map(|()| 0),
+        };
+        let now_ns = clock.now_ns();
+        let alert = self.bus.health()[k].alert(self.bus.protocol());
+        let answered = !matches!(&result, Err(e) if e.unanswered());
+        self.recovery.observe(k, answered, alert, now_ns);
+        if let (Action::ReadPresent, Ok(tick)) = (action, &result) {
+            self.reanchor(k, *tick);
+        }
+        if let Err(e) = &result {
+            self.bus_error(t, e, now_ns);
+        }
+        self.recovery.on_result(k, action, result.map_err(drop), now_ns);
+    }
+
+    /// The model of joint `k` starts again where its horn is: θ = the present tick's angle at
+    /// rest, the compensation's lead dropped, so the goal the next SyncWrite carries is the
+    /// present position itself (torque goes on only after that write: no jump).
+    fn reanchor(&mut self, k: usize, tick: i64) {
+        let slot = &mut self.joints[k];
+        slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+        slot.good = slot.state;
+        slot.present = tick;
+        slot.compensation.reanchor();
+        self.goals[k] = tick;
     }
 
     fn adopt_params(&mut self) {
@@ -295,13 +403,16 @@ impl Controller {
         steps
     }
 
-    fn step_joints(&mut self, force: &[f64; 6], hold: bool, steps: u64) {
-        self.holding = hold;
+    fn step_joints(&mut self, force: &[f64; 6], stale: bool, steps: u64) {
+        self.holding = stale;
         let h = self.h;
-        for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
+        let link_lost = self.link_lost_since.is_some();
+        for (k, (slot, goal)) in self.joints.iter_mut().zip(self.goals.iter_mut()).enumerate() {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
             slot.faults = Faults::NONE;
+            // The force is stale, the bus is gone, or the servo is being recovered: hold.
+            let hold = stale || link_lost || self.recovery.holds(k);
             let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
@@ -322,12 +433,14 @@ impl Controller {
         }
     }
 
-    fn write_goals(&mut self, t: &mut dyn Transport) -> bool {
-        let ok = self.bus.write_goals(t, &self.goals).is_ok();
-        if !ok {
-            LoopStats::add(&self.shared.stats.bus_errors, 1);
+    fn write_goals(&mut self, t: &mut dyn Transport, now_ns: u64) -> bool {
+        match self.bus.write_goals(t, &self.goals) {
+            Ok(()) => true,
+            Err(e) => {
+                self.bus_error(t, &e, now_ns);
+                false
+            }
         }
-        ok
     }
 
     /// The latency of the sample that this write used first; −1 when there is none.
@@ -350,31 +463,58 @@ impl Controller {
     }
 
     /// Reads the present positions when due, or once more the cycle after a due read failed;
-    /// true if this cycle read them. A silent servo so costs at most two reads per divisor.
-    fn read_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> bool {
+    /// true if this cycle read any. A silent servo so costs at most two reads per divisor, and
+    /// the others' positions still arrive. Every answer (or its absence), with its alert bit,
+    /// goes to the servos' recovery.
+    fn read_present<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, deadline_ns: u64, clock: &C) -> bool {
+        self.joints.iter_mut().for_each(|slot| slot.read_now = false);
         let due = self.sync_read_divisor > 0 && self.cycle.is_multiple_of(self.sync_read_divisor);
         let retry = std::mem::take(&mut self.read_retry);
         if !due && !retry {
             return false;
         }
         self.read_retry = due && self.sync_read_divisor > 1;
-        match self.bus.read_present(t, deadline_ns) {
-            Ok(ticks) => {
-                for (slot, &tick) in self.joints.iter_mut().zip(ticks) {
-                    slot.present = tick;
-                }
-                LoopStats::add(&self.shared.stats.sync_reads, 1);
-                self.read_retry = false;
-                true
+        let recovery = &self.recovery;
+        let result = self.bus.read_present_of(t, deadline_ns, |k| recovery.in_sync_read(k));
+        let now_ns = clock.now_ns();
+        let protocol = self.bus.protocol();
+        let mut any = false;
+        for (k, slot) in self.joints.iter_mut().enumerate() {
+            if !self.recovery.in_sync_read(k) {
+                continue;
             }
-            Err(_) => {
-                LoopStats::add(&self.shared.stats.bus_errors, 1);
-                false
+            let answered = self.bus.answered()[k];
+            self.recovery.observe(k, answered, self.bus.health()[k].alert(protocol), now_ns);
+            if answered {
+                slot.present = self.bus.present()[k];
+                slot.read_now = true;
+                any = true;
             }
         }
+        match result {
+            Ok(()) => {
+                if any {
+                    LoopStats::add(&self.shared.stats.sync_reads, 1);
+                }
+                self.read_retry = false;
+            }
+            Err(e) => self.bus_error(t, &e, now_ns),
+        }
+        any
     }
 
     fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool) {
+        self.loop_faults = self.shared.external_faults.get();
+        if self.link_lost_since.is_some() {
+            self.loop_faults.insert(FaultKind::BusLost);
+        }
+        for (k, slot) in self.joints.iter_mut().enumerate() {
+            slot.faults = slot.faults.union(self.recovery.faults(k));
+            if let (Some(view), Some(shared)) = (self.recovery.view(k), self.shared.servos.get(k)) {
+                shared.publish(&view);
+            }
+        }
+        self.shared.stop_request.store(StopRequest::encode(self.recovery.stop_request()), Ordering::Relaxed);
         let stats = &self.shared.stats;
         let active = self.joints.iter().fold(self.loop_faults, |all, slot| all.union(slot.faults));
         let mode = LoopMode::of(active, self.holding);
@@ -389,7 +529,7 @@ impl Controller {
                 theta: slot.state.theta,
                 omega: slot.state.omega,
                 goal_tick: goal,
-                present_tick: if read { slot.present } else { -1 },
+                present_tick: if read && slot.read_now { slot.present } else { -1 },
                 period_error_ns: period_error_ns as i64,
                 latency_ns,
                 fault: slot.faults.union(self.loop_faults).bits(),
@@ -404,8 +544,12 @@ impl Controller {
         LoopStats::add(&stats.cycles, 1);
     }
 
-    /// The stop policy's last traffic: Torque Enable = 0 on every joint.
+    /// The stop policy's last traffic: Torque Enable = 0 on every joint (a bus that is lost
+    /// first gets one chance to have come back).
     pub fn torque_off(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
+        if self.link_lost_since.is_some() && !t.reconnect() {
+            return Err(BusError::Io(std::io::ErrorKind::NotConnected.into()));
+        }
         self.bus.set_torque(t, false)
     }
 }
@@ -447,4 +591,8 @@ fn hold_at_good(slot: &mut JointSlot) {
 
 #[cfg(test)]
 #[path = "cycle_tests.rs"]
-mod tests;
+pub(crate) mod tests;
+
+#[cfg(test)]
+#[path = "cycle_fault_tests.rs"]
+mod fault_tests;

@@ -9,26 +9,26 @@ use crate::params::tests::params;
 use crate::sensor::ForceSample;
 use dxl::Protocol;
 
-const RATE: f64 = 1000.0;
-const PERIOD: u64 = 1_000_000;
+pub(crate) const RATE: f64 = 1000.0;
+pub(crate) const PERIOD: u64 = 1_000_000;
 
-struct Rig {
-    ctl: Controller,
-    bus: MemoryTransport,
-    clock: FakeClock,
-    force: rtrb::Producer<ForceSample>,
-    params: triple_buffer::Input<LoopParams>,
-    telemetry: rtrb::Consumer<Record>,
-    shared: Arc<Shared>,
+pub(crate) struct Rig {
+    pub(crate) ctl: Controller,
+    pub(crate) bus: MemoryTransport,
+    pub(crate) clock: FakeClock,
+    pub(crate) force: rtrb::Producer<ForceSample>,
+    pub(crate) params: triple_buffer::Input<LoopParams>,
+    pub(crate) telemetry: rtrb::Consumer<Record>,
+    pub(crate) shared: Arc<Shared>,
 }
 
-fn rig(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
+pub(crate) fn rig(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
     let ids: Vec<u8> = present.iter().map(|p| p.0).collect();
     let regs = Registers { goal_address: 116, goal_size: 4, present_address: 132, present_size: 4, torque_enable_address: 64 };
     let (force, force_ring) = rtrb::RingBuffer::new(64);
     let (telemetry_tx, telemetry) = rtrb::RingBuffer::new(1 << 16);
     let (params_in, params_out) = triple_buffer::triple_buffer(&initial);
-    let shared = Arc::new(Shared::default());
+    let shared = Arc::new(Shared::for_joints(ids.len()));
     let ticks = TickMap { zero_tick: 2048, direction: 1, ticks_per_rev: 4096.0, tick_min: 0, tick_max: 4095 };
     let ctl = Controller::new(ControllerParts {
         rate_hz: RATE,
@@ -41,12 +41,16 @@ fn rig(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
         telemetry: telemetry_tx,
         shared: shared.clone(),
     });
+    // These tests do not turn torque on: the loop only detects servo faults (cycle_fault_tests
+    // drives the recovery).
+    let mut ctl = ctl;
+    ctl.set_fault_policy(crate::recovery::FaultPolicy::default(), false);
     let bus = MemoryTransport::new(true, present);
     Rig { ctl, bus, clock: FakeClock::new(1_000_000_000, 0), force, params: params_in, telemetry, shared }
 }
 
 /// A rig whose controller already read the present positions and started its stale clock.
-fn started(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
+pub(crate) fn started(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
     let mut r = rig(initial, present);
     let mut bus = r.bus.clone();
     r.ctl.start_at_present(&mut bus, 0, false).unwrap();
@@ -56,7 +60,7 @@ fn started(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
 
 impl Rig {
     /// Pushes a fresh sample with `fx` and runs one cycle on the grid.
-    fn cycle_with(&mut self, fx: Option<f64>) -> Record {
+    pub(crate) fn cycle_with(&mut self, fx: Option<f64>) -> Record {
         let deadline = self.clock.now_ns() + PERIOD;
         let mut clock = self.clock.clone();
         clock.sleep_until(deadline);
@@ -78,7 +82,7 @@ impl Rig {
     }
 }
 
-fn free_joint() -> LoopParams {
+pub(crate) fn free_joint() -> LoopParams {
     let mut p = params(1);
     p.joints[0].gains = JointGains { inertia: 0.02, damping: 0.0, coulomb: 0.0, lever_arm: 0.1 };
     p.joints[0].limits = Limits { position_min: -1e3, position_max: 1e3, velocity_max: 1e3, acceleration_max: 1e6 };
@@ -418,7 +422,7 @@ fn a_fault_with_compensation_on_keeps_the_led_goal() {
 }
 
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
-mod counting {
+pub(crate) mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
     use std::cell::Cell;
 

@@ -13,10 +13,13 @@
 //! And [`LoopMode`]: what the loop as a whole is doing (running, holding by policy, or
 //! faulted), stored each cycle for `stats()["mode"]` and written into every record.
 //!
-//! The policy for every kind so far is *hold*: the joint keeps its last good state, velocity
+//! The policy of every kind starts with *hold*: the joint keeps its last good state, velocity
 //! zero, so its goal stays where it was. A fault is judged anew each cycle: when its cause is
-//! gone (a state that was restored, a new parameter set), the joint runs again and the mode
-//! goes back to running; the counter keeps the event.
+//! gone (a state that was restored, a new parameter set, a servo recovered, the bus back), the
+//! joint runs again and the mode goes back to running; the counter keeps the event. What else
+//! is done about a servo or bus fault (read the error, reboot, re-enable, reopen, or stop) is
+//! the recovery's business (`recovery`, `link`); the sensor kinds are raised from outside the
+//! loop by the supervisor, which watches the sensor's reader (`ExternalFaults`).
 use std::sync::atomic::{AtomicU64, AtomicU8, Ordering::Relaxed};
 
 /// One thing that can go wrong inside a cycle.
@@ -26,11 +29,36 @@ pub enum FaultKind {
     /// A joint's model state (θ, ω) was not finite or outside what any accepted set allows, or
     /// its ramped gains were not usable: the joint holds at its last good state.
     ModelStateInvalid = 0,
+    /// A servo's status packets carry the hardware alert, or its Hardware Error Status is not 0
+    /// (a shutdown: overload, voltage, overheating, encoder, electrical shock).
+    ServoError = 1,
+    /// A servo's Torque Enable reads 0 while the loop drives it, with no hardware error (torque
+    /// found off: a brown-out's reset, another client's write).
+    TorqueOff = 2,
+    /// A servo has not answered for `servo_silent_ms` (a brown-out, a cable, a reboot gone wrong).
+    ServoSilent = 3,
+    /// The bus's port failed (EIO, hang-up: the adapter unplugged); being reopened.
+    BusLost = 4,
+    /// The force sensor's device failed and its reader is reopening it (raised by the supervisor).
+    SensorLost = 5,
+    /// The force sensor reported saturated samples (raised by the supervisor).
+    SensorSaturated = 6,
 }
 
 impl FaultKind {
     /// Every kind, in bit order.
-    pub const ALL: [FaultKind; 1] = [FaultKind::ModelStateInvalid];
+    pub const ALL: [FaultKind; 7] = [
+        FaultKind::ModelStateInvalid,
+        FaultKind::ServoError,
+        FaultKind::TorqueOff,
+        FaultKind::ServoSilent,
+        FaultKind::BusLost,
+        FaultKind::SensorLost,
+        FaultKind::SensorSaturated,
+    ];
+
+    /// The kinds raised from outside the loop (`ExternalFaults`): the sensor's.
+    pub const EXTERNAL: Faults = Faults(FaultKind::SensorLost.bit() | FaultKind::SensorSaturated.bit());
 
     pub const fn bit(self) -> u64 {
         1 << (self as u8)
@@ -40,6 +68,12 @@ impl FaultKind {
     pub const fn name(self) -> &'static str {
         match self {
             FaultKind::ModelStateInvalid => "model_state_invalid",
+            FaultKind::ServoError => "servo_error",
+            FaultKind::TorqueOff => "torque_off",
+            FaultKind::ServoSilent => "servo_silent",
+            FaultKind::BusLost => "bus_lost",
+            FaultKind::SensorLost => "sensor_lost",
+            FaultKind::SensorSaturated => "sensor_saturated",
         }
     }
 }
@@ -69,6 +103,36 @@ impl Faults {
 
     pub fn union(self, other: Faults) -> Faults {
         Faults(self.0 | other.0)
+    }
+
+    pub fn intersection(self, other: Faults) -> Faults {
+        Faults(self.0 & other.0)
+    }
+
+    pub const fn from_bits(bits: u64) -> Faults {
+        Faults(bits)
+    }
+}
+
+impl From<FaultKind> for Faults {
+    fn from(kind: FaultKind) -> Faults {
+        Faults(kind.bit())
+    }
+}
+
+/// Faults raised from outside the loop (the supervisor, which watches the sensor's reader): one
+/// atomic the loop reads each cycle, so the records mark those cycles like any other fault.
+#[derive(Default)]
+pub struct ExternalFaults(AtomicU64);
+
+impl ExternalFaults {
+    /// Sets the external kinds active now; other kinds are ignored.
+    pub fn set(&self, faults: Faults) {
+        self.0.store(faults.intersection(FaultKind::EXTERNAL).bits(), Relaxed);
+    }
+
+    pub fn get(&self) -> Faults {
+        Faults(self.0.load(Relaxed))
     }
 }
 
@@ -194,6 +258,15 @@ mod tests {
         assert_eq!(c.mode(), LoopMode::Faulted);
         c.record(Faults::NONE, LoopMode::of(Faults::NONE, false));
         c.record(bad, LoopMode::Faulted);
-        assert_eq!(c.snapshot(), vec![("model_state_invalid", 2)]);
+        assert_eq!(c.snapshot()[0], ("model_state_invalid", 2));
+        assert!(c.snapshot()[1..].iter().all(|(_, n)| *n == 0));
+    }
+
+    #[test]
+    fn only_the_sensor_kinds_come_from_outside() {
+        let outside = ExternalFaults::default();
+        outside.set(Faults::from_bits(u64::MAX));
+        assert_eq!(outside.get(), FaultKind::EXTERNAL);
+        assert!(outside.get().contains(FaultKind::SensorLost) && !outside.get().contains(FaultKind::BusLost));
     }
 }

@@ -13,7 +13,9 @@ use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::{monotonic_ns, MonotonicClock};
 use crate::config::LoopConfig;
 use crate::cycle::{Controller, ControllerParts};
+use crate::fault::Faults;
 use crate::params::{LoopParams, ParamValue, Reach};
+use crate::recovery::{ServoCounts, StopRequest};
 use crate::port::SerialTransport;
 use crate::sched;
 use crate::sensor::ForceSample;
@@ -109,13 +111,13 @@ impl LoopHandle {
     /// Validates the configuration and builds every buffer the loop will use.
     pub fn new(config: LoopConfig) -> Result<LoopHandle, String> {
         config.validate()?;
-        let shared = Arc::new(Shared::default());
+        let shared = Arc::new(Shared::for_joints(config.joints.len()));
         let initial = config.initial_params();
         let (force_tx, force_rx) = rtrb::RingBuffer::new(config.force_capacity);
         let (telemetry_tx, telemetry_rx) = rtrb::RingBuffer::new(config.telemetry_capacity);
         let (params_in, params_out) = triple_buffer::triple_buffer(&initial);
         let ids = config.ids();
-        let controller = Controller::new(ControllerParts {
+        let mut controller = Controller::new(ControllerParts {
             rate_hz: config.rate_hz,
             joints: config.wiring(),
             initial: initial.clone(),
@@ -126,6 +128,7 @@ impl LoopHandle {
             telemetry: telemetry_tx,
             shared: shared.clone(),
         });
+        controller.set_fault_policy(config.faults, config.torque_on_start);
         Ok(LoopHandle {
             ids,
             reach: config.reach(),
@@ -150,7 +153,8 @@ impl LoopHandle {
         }
         // A write may wait one period for room; longer would make the next deadline late anyway.
         let write_timeout_ns = (1e9 / self.config.rate_hz) as u64;
-        let (transport, warnings) = SerialTransport::open(&self.config.port, self.config.baudrate, write_timeout_ns)
+        let link = self.shared.link.clone();
+        let (transport, warnings) = SerialTransport::open(&self.config.port, self.config.baudrate, write_timeout_ns, link)
             .map_err(|e| StartError::Port(format!("cannot open the Dynamixel bus: {e}")))?;
         warnings.into_iter().for_each(|w| self.shared.warn(w));
         self.start_with(Box::new(transport))
@@ -271,6 +275,50 @@ impl LoopHandle {
     pub fn running(&self) -> bool {
         self.shared.running.load(Ordering::Relaxed)
     }
+
+    /// The loop's request to be stopped: a fault its policy does not recover from.
+    pub fn stop_request(&self) -> Option<StopRequest> {
+        self.shared.stop_request()
+    }
+
+    /// Per joint: (phase of its recovery, hardware error bits, silent, counts).
+    pub fn servos(&self) -> Vec<(&'static str, u8, bool, ServoCounts)> {
+        self.shared.servos.iter().map(|s| s.snapshot()).collect()
+    }
+
+    /// The bus link: (lost for how long in ns or None, losses, reconnects, reopen attempts,
+    /// reopen failures, the last error).
+    pub fn link(&self) -> LinkSnapshot {
+        let l = &self.shared.link;
+        let since = l.lost_since_ns.load(Ordering::Relaxed);
+        LinkSnapshot {
+            lost_for_ns: (since != 0).then(|| monotonic_ns().saturating_sub(since)),
+            losses: l.losses.load(Ordering::Relaxed),
+            loss_errno: l.loss_errno.load(Ordering::Relaxed),
+            reconnects: l.reconnects.load(Ordering::Relaxed),
+            reopen_attempts: l.reopen_attempts.load(Ordering::Relaxed),
+            reopen_failures: l.reopen_failures.load(Ordering::Relaxed),
+            last_error: l.last_error(),
+        }
+    }
+
+    /// Raises the faults that only an outside observer sees (the sensor's: `FaultKind::EXTERNAL`)
+    /// for the cycles from now on; the records mark them.
+    pub fn set_external_faults(&self, faults: Faults) {
+        self.shared.external_faults.set(faults);
+    }
+}
+
+/// The bus link as `LoopHandle::link` reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LinkSnapshot {
+    pub lost_for_ns: Option<u64>,
+    pub losses: u64,
+    pub loss_errno: i32,
+    pub reconnects: u64,
+    pub reopen_attempts: u64,
+    pub reopen_failures: u64,
+    pub last_error: String,
 }
 
 impl Drop for LoopHandle {

@@ -39,6 +39,7 @@ pub mod config;
 pub mod cycle;
 pub mod handle;
 pub mod port;
+pub mod recovery;
 pub mod runner;
 pub mod shared;
 
