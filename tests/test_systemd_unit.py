@@ -74,6 +74,16 @@ def test_unit_has_the_required_settings():
     assert "CPUSchedulingPolicy" not in s  # it would make every thread real-time
 
 
+def test_a_fault_that_needs_a_person_is_not_restarted_and_one_a_restart_may_cure_is():
+    """docs/faults.md: exit 69 stays down, exit 75 (and any other failure) is restarted."""
+    from admittance.errors import EXIT_TEMPFAIL, EXIT_UNAVAILABLE
+
+    s = settings()
+    prevented = " ".join(s.get("RestartPreventExitStatus", [])).split()
+    assert str(EXIT_UNAVAILABLE) in prevented and str(EXIT_TEMPFAIL) not in prevented
+    assert s["Restart"] == ["on-failure"] and "SuccessExitStatus" not in s
+
+
 def test_udev_rule_sets_the_ftdi_latency_timer_to_1():
     rules = [line for line in RULE.read_text().splitlines() if line.strip() and not line.startswith("#")]
     assert len(rules) == 1
