@@ -1,0 +1,210 @@
+"""Fault injection against the real daemon (docs/faults.md): the mock bench's servo, bus and
+sensor faults, injected while `admittance run` drives its servo over pseudo-terminals.
+
+Each test checks the whole chain: the fault is detected (the state's fault bits, the stats'
+counters), told in one line, acted on (recovered, or stopped with the documented exit status
+and `--stats-json`), and the recording covers the whole run with the fault's rows marked and
+its gaps listed. Every wait is on the daemon's own state, stats or exit, never on wall time.
+The daemon runs on the bench's stable links, as on /dev/serial/by-id, so a replugged port is
+found again.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+
+from admittance import _rtcore
+from admittance.errors import EXIT_TEMPFAIL, EXIT_UNAVAILABLE
+
+from daemon_process import EXIT_TIMEOUT_S, START_TIMEOUT_S, read_recording, running_daemon, wait_alive, wait_for_state
+from test_hil_daemon import PREFIX, daemon_config
+
+STILL = "still:torque=0.05"  # a light steady push: the joint moves, so a jump would show
+
+
+def bit(kind: str) -> int:
+    return 1 << list(_rtcore.FAULT_KINDS).index(kind)
+
+
+@pytest.fixture
+def bench():
+    from admittance.mockbench.bench import BenchConfig, MockBench
+
+    with MockBench(BenchConfig(profile=STILL)) as b:
+        yield b
+
+
+def fault_config(tmp_path: Path, bench, faults: dict | None = None) -> tuple[Path, str]:
+    links = bench.links
+    path, endpoint = daemon_config(tmp_path, bus=links["bus"], sensor=links["sensor"])
+    if faults:
+        doc = tomllib.loads(path.read_text())
+        doc["faults"] = faults
+        path.write_text(tomli_w.dumps(doc))
+    return path, endpoint
+
+
+def run_args(tmp_path: Path) -> tuple[str, ...]:
+    return "--record", str(tmp_path / "rec"), "--stats-json", str(tmp_path / "stats.json")
+
+
+def wait_for_stats(client, condition: Callable[[dict], bool], what: str) -> dict:
+    """Watch ``<prefix>/stats`` (once a second) until a message satisfies ``condition``."""
+    sub = client.try_stream(PREFIX)
+    deadline = time.monotonic() + START_TIMEOUT_S
+    try:
+        while time.monotonic() < deadline:
+            for kind, message in sub.drain():
+                if kind == "stats" and condition(message):
+                    return message
+            time.sleep(0.02)
+    finally:
+        sub.close()
+    raise AssertionError(f"the daemon's stats never showed {what}")
+
+
+def servo(stats: dict) -> dict:
+    return stats["servos"][0]
+
+
+def inject(bench, command: str) -> None:
+    assert bench.command(command)["ok"], command
+
+
+def healthy(message: dict) -> bool:
+    return message["mode"] == "running" and all(j.get("fault", 0) == 0 for j in message["joints"])
+
+
+def told(stderr: str, text: str) -> int:
+    return sum(text in line for line in stderr.splitlines())
+
+
+def check_recording(tmp_path: Path, stats: dict, marked: list[str]) -> dict:
+    """The recording covers the run: every stretch without rows (longer than a retried read)
+    lies between listed gaps, it reaches the run's last cycles, and rows carry the faults'
+    bits. Returns the manifest."""
+    manifest = tomllib.loads((tmp_path / "rec" / "manifest.toml").read_text())
+    rec = read_recording(tmp_path / "rec")
+    gaps = manifest.get("gaps", [])
+    t = rec["t"]
+    slack = 0.05
+    for before, after in zip(t[:-1][np.diff(t) > 0.25], t[1:][np.diff(t) > 0.25]):
+        assert any(g["t_start"] <= before + slack for g in gaps if g["t_end"] >= before - slack) and \
+            any(g["t_end"] >= after - slack for g in gaps), f"rows stop at {before:.3f} s, resume at {after:.3f} s, " \
+                                                           f"and no gap says why: {gaps}"
+    ends_in_gap = any(g["t_end"] >= t[-1] for g in gaps)
+    assert ends_in_gap or stats["cycles"] - rec["cycle"][-1] < 200, "the rows reach the run's end"
+    assert rec["cycle"][0] < 500, "the rows start with the run"
+    faults = rec["fault"].astype(np.int64)
+    for kind in marked:
+        assert np.any(faults & bit(kind)) or any(kind in g["faults"] for g in gaps), f"no row or gap marked {kind}"
+    return manifest
+
+
+def test_servo_faults_are_recovered_told_once_and_marked(tmp_path, bench):
+    """An overload shutdown (rebooted), a torque found off (re-enabled) and a brown-out (silent,
+    then back with torque off: re-enabled), one after the other in one run that then ends 0."""
+    config, endpoint = fault_config(tmp_path, bench)
+    from admittance.daemon.zenoh_iface import Client
+
+    with running_daemon(config, *run_args(tmp_path)) as daemon:
+        wait_alive(endpoint, PREFIX)
+        with Client([endpoint]) as client:
+            wait_for_state(client, PREFIX, healthy, "a healthy loop")
+            inject(bench, "servo 1 hardware-error 0x20")
+            wait_for_state(client, PREFIX, lambda m: m["joints"][0].get("fault", 0) & bit("servo_error"),
+                           "the servo error")
+            wait_for_stats(client, lambda s: servo(s)["recoveries"] >= 1 and servo(s)["phase"] == "ok", "the reboot")
+            assert bench.bus.servo_state(1)["torque_enabled"] and bench.bus.servo_state(1)["hardware_error"] == 0
+            inject(bench, "servo 1 torque-off")
+            wait_for_stats(client, lambda s: servo(s)["torque_offs"] >= 1 and servo(s)["recoveries"] >= 2,
+                           "the re-enable")
+            inject(bench, "servo 1 brown-out 0.3")
+            stats = wait_for_stats(client, lambda s: servo(s)["silences"] >= 1 and servo(s)["recoveries"] >= 3
+                                   and servo(s)["phase"] == "ok", "the brown-out's recovery")
+            assert bench.bus.servo_state(1)["torque_enabled"]
+            wait_for_state(client, PREFIX, healthy, "the loop running again")
+    assert daemon.returncode == 0, daemon.stderr
+    assert told(daemon.stderr, "servo 1 shut down (overload); rebooting it") == 1, daemon.stderr
+    assert told(daemon.stderr, "servo 1 found with its torque off") == 1, daemon.stderr
+    assert told(daemon.stderr, "servo 1 does not answer") == 1, daemon.stderr
+    final = json.loads((tmp_path / "stats.json").read_text())
+    assert final["faults"]["servo_error"] >= 1 and final["faults"]["torque_off"] >= 1
+    assert final["faults"]["servo_silent"] >= 1 and servo(final)["reboots"] == 1
+    assert servo(stats)["errors"] == 1, "the overload, and only it, was a shutdown"
+    check_recording(tmp_path, final, ["servo_error", "torque_off", "servo_silent"])
+
+
+def test_an_unplugged_bus_and_sensor_are_reopened_on_replug_and_the_run_goes_on(tmp_path, bench):
+    config, endpoint = fault_config(tmp_path, bench)
+    from admittance.daemon.zenoh_iface import Client
+
+    with running_daemon(config, *run_args(tmp_path)) as daemon:
+        wait_alive(endpoint, PREFIX)
+        with Client([endpoint]) as client:
+            wait_for_state(client, PREFIX, healthy, "a healthy loop")
+            inject(bench, "bus unplug")  # the daemon's reads and writes fail with EIO
+            wait_for_stats(client, lambda s: s["bus"]["state"] == "lost" and s["faults"]["bus_lost"] >= 1,
+                           "the bus lost")
+            inject(bench, "bus replug")
+            wait_for_stats(client, lambda s: s["bus"]["state"] == "up" and s["bus"]["reconnects"] >= 1, "the reopen")
+            wait_for_state(client, PREFIX, healthy, "the loop running after the replug")
+            inject(bench, "sensor unplug")
+            wait_for_state(client, PREFIX, lambda m: m["joints"][0].get("fault", 0) & bit("sensor_lost"),
+                           "the sensor lost")
+            inject(bench, "sensor replug")
+            wait_for_state(client, PREFIX, healthy, "the loop running after the sensor's replug")
+    assert daemon.returncode == 0, daemon.stderr
+    # A pty's unplug is a hang-up; a USB adapter's is EIO: either is a loss, told once with it.
+    assert told(daemon.stderr, "failed (hung up); every joint holds while it is reopened") + \
+        told(daemon.stderr, "failed (Input/output error); every joint holds") == 1, daemon.stderr
+    assert told(daemon.stderr, "is back; checking every servo's torque") == 1, daemon.stderr
+    final = json.loads((tmp_path / "stats.json").read_text())
+    assert final["bus"]["losses"] == 1 and final["bus"]["reconnects"] == 1 and final["faults"]["sensor_lost"] >= 1
+    assert final["daemon"]["sensor"]["reconnects"] >= 1
+    manifest = check_recording(tmp_path, final, ["bus_lost", "sensor_lost"])
+    assert any("bus_lost" in g["faults"] for g in manifest["gaps"]), "the unplugged bus is a listed gap"
+
+
+STOPS = {
+    "unsafe-error": ("servo 1 hardware-error 0x10", {}, EXIT_UNAVAILABLE, "unsafe_hardware_error",
+                     "reports electrical shock"),
+    "torque-off-policy": ("servo 1 torque-off", {"torque_off": "stop"}, EXIT_UNAVAILABLE, "torque_off_policy",
+                          "[faults].torque_off is \"stop\""),
+    "bus-gone": ("bus unplug", {"bus_lost_timeout_s": 0.5}, EXIT_TEMPFAIL, "bus_lost", "did not come back within 0.5 s"),
+    "sensor-gone": ("sensor unplug", {"sensor_lost_timeout_s": 0.5}, EXIT_TEMPFAIL, "sensor_lost",
+                    "no usable sample"),
+}
+
+
+@pytest.mark.parametrize("case", list(STOPS))
+def test_a_fault_the_policy_gives_up_on_stops_cleanly_with_its_exit_status(tmp_path, bench, case):
+    command, faults, status, cause, reason = STOPS[case]
+    config, endpoint = fault_config(tmp_path, bench, faults)
+    from admittance.daemon.zenoh_iface import Client
+
+    with running_daemon(config, *run_args(tmp_path)) as daemon:
+        wait_alive(endpoint, PREFIX)
+        with Client([endpoint]) as client:
+            wait_for_state(client, PREFIX, healthy, "a healthy loop")
+        inject(bench, command)
+        try:
+            daemon.proc.wait(timeout=EXIT_TIMEOUT_S)  # it stops by itself
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the daemon did not stop on {command!r}")
+    assert daemon.returncode == status, daemon.stderr
+    last = daemon.stderr.strip().splitlines()[-1]
+    assert last.startswith("admittance run: error: ") and reason in last, daemon.stderr
+    assert "Traceback" not in daemon.stderr
+    final = json.loads((tmp_path / "stats.json").read_text())
+    assert final["exit_status"] == status and final["fault_stop"]["cause"] == cause
+    check_recording(tmp_path, final, [])
