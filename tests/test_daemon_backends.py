@@ -75,3 +75,48 @@ def test_the_saturation_policy_reaches_the_reader(tmp_path):
         cfg = _sensor_config(tmp_path, "mock", {"kind": "optoforce", "port": "/dev/null", "saturation": policy})
         reader = backends.make_sensor(cfg, "/dev/null", SampleBuffer())
         assert reader._converter.hold_saturated is (policy == "hold")
+
+
+class AlertingBus:
+    """A ServoBus stand-in for the start-up check: one servo reporting ``bits``."""
+
+    def __init__(self, bits: int, protocol: int = 2):
+        self.bits, self.protocol, self.port, self.recovered = bits, protocol, "/dev/fake", []
+
+    def ping(self, servo_id):
+        return object()
+
+    def read_raw(self, servo_id, name, alert_ok=False):
+        assert name == "Hardware Error Status" and alert_ok
+        return self.bits
+
+    def recover(self, servo_id):
+        self.recovered.append(servo_id)
+
+
+@pytest.mark.parametrize(("bits", "policy", "outcome"), [
+    (0x00, "reboot", "nothing"),
+    (0x20, "reboot", "rebooted"),  # an overload: safe to reboot
+    (0x01, "reboot", "rebooted"),
+    (0x10, "reboot", "unsafe_hardware_error"),  # electrical shock: never rebooted
+    (0x04, "reboot", "unsafe_hardware_error"),  # overheating
+    (0x20, "stop", "servo_error_policy"),
+])
+def test_a_servo_in_error_at_start_is_treated_by_the_policy_before_torque(tmp_path, bits, policy, outcome):
+    """docs/faults.md: rebooted where safe and allowed, else exit 69 before torque goes on."""
+    from admittance.errors import EXIT_UNAVAILABLE, FaultStop
+
+    doc = {"bus": {"port": "/dev/fake"}, "joints": [{"id": 1, "model": "MX-64"}],
+           "sensor": {"kind": "optoforce", "port": "/dev/null", "lever_arm": 0.1}, "faults": {"servo_error": policy}}
+    cfg = parse_config(doc, tmp_path / "daemon.toml")
+    bus = AlertingBus(bits)
+    if outcome in ("nothing", "rebooted"):
+        backends.recover_under_policy(bus, 1, cfg)
+        assert bus.recovered == ([1] if outcome == "rebooted" else [])
+    else:
+        with pytest.raises(FaultStop) as caught:
+            backends.recover_under_policy(bus, 1, cfg)
+        assert (caught.value.cause, caught.value.exit_code, bus.recovered) == (outcome, EXIT_UNAVAILABLE, [])
+    p1 = AlertingBus(0x10, protocol=1)
+    backends.recover_under_policy(p1, 1, cfg)  # Protocol 1.0: prepare() reports the alert instead
+    assert p1.recovered == []

@@ -43,6 +43,19 @@ def test_the_rendering_error_has_its_line_in_both_modes():
     assert "render" not in screen("p", STATE, STATS), "no line before the daemon reports one"
 
 
+def test_faults_have_their_line_in_both_modes_once_there_is_one():
+    """docs/faults.md: the mode, the counts of each fault kind seen, how long the bus is lost."""
+    quiet = {**STATS, "mode": "running", "faults": {"servo_error": 0, "bus_lost": 0}}
+    assert "faults" not in screen("p", STATE, quiet)
+    sick = {**STATS, "mode": "faulted", "faults": {"servo_error": 2, "bus_lost": 1, "torque_off": 0},
+            "bus": {"state": "lost", "lost_for_s": 1.25}}
+    line = next(line for line in screen("p", STATE, sick).splitlines() if line.startswith("faults"))
+    assert line == "faults  faulted  bus_lost 1  servo_error 2  bus lost for 1.2 s"
+    plain = io.StringIO()
+    View("p", plain, False).feed("stats", sick)
+    assert "faults  faulted  bus_lost 1  servo_error 2" in plain.getvalue()
+
+
 def test_tty_mode_redraws_and_plain_mode_prints_lines():
     tty, plain = io.StringIO(), io.StringIO()
     for out, is_tty in ((tty, True), (plain, False)):

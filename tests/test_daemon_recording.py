@@ -212,3 +212,31 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     (tmp_path / "reload.toml").write_text(tomli_w.dumps(doc))
     joint = config.load_config(tmp_path / "reload.toml").joints[0]  # virtual_* default to the refit
     assert joint.virtual_inertia == felt.params["motor_inertia"] and joint.servo_compensation == 0.0
+
+
+def test_a_fault_that_stops_the_reads_is_a_listed_gap_that_splits_the_trials(tmp_path):
+    """docs/faults.md: no rows while the servo is unread (the bus unplugged); the gap ends the
+    trial, is listed in the manifest with its faults, marks the first row after it, and a run
+    that ends inside a gap lists that one too."""
+    from admittance.daemon.telemetry import fault_names
+
+    lost = 1 << fault_names(0xFF).index("bus_lost")
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
+    before, during, after, end = batch(0.0, 200), batch(0.2, 400), batch(0.6, 200), batch(0.8, 400)
+    for unread in (during, end):
+        unread["theta_present"][:] = np.nan
+        unread["fault"][:] = lost
+    for part in (before, during, after, end):
+        rec.append(1, part)
+    rec.close()
+    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    assert [g["faults"] for g in manifest["gaps"]] == [["bus_lost"], ["bus_lost"]]
+    first, last = manifest["gaps"]
+    assert first["t_start"] == pytest.approx(0.199) and first["t_end"] == pytest.approx(0.6)
+    assert last["t_start"] == pytest.approx(0.799) and last["t_end"] == pytest.approx(1.199)
+    trials = load_dataset(tmp_path).trials
+    assert [t.n_samples for t in trials] == [200, 200], "one trial each side of the gap"
+    with (tmp_path / trials[1].name).open() as fh:
+        rows = fh.read().splitlines()
+    header = rows[0].split(",")
+    assert int(float(rows[1].split(",")[header.index("fault")])) & lost, "the first row after the gap is marked"

@@ -603,7 +603,9 @@ impl Recovery {
             if let Some(cause) = s.cause {
                 f.insert(cause);
             }
-            if s.alert {
+            // A tolerated error (torque stayed on: counted and told once) is not a fault of
+            // each cycle: the joint runs, so its rows and the loop's mode say running.
+            if s.alert && !(s.phase == Phase::Ok && s.tolerated != 0) {
                 f.insert(FaultKind::ServoError);
             }
             if s.silent {

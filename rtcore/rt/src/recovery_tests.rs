@@ -251,6 +251,8 @@ fn an_error_the_firmware_runs_on_with_is_counted_and_tolerated() {
     b.cycle(&mut servo);
     assert!(b.log[before..].iter().all(|(_, a)| *a == Action::ReadTorqueEnable));
     assert_eq!(b.phase(0), Phase::Ok);
+    // The joint runs on it: its cycles are not marked (the loop's mode stays running).
+    assert!(b.r.faults(0).is_empty(), "{:?}", b.r.faults(0));
 }
 
 #[test]
