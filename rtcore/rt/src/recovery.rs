@@ -488,10 +488,9 @@ impl Recovery {
         if bits & HW_OVERLOAD != 0 {
             s.last_overload_ns = Some(now_ns);
         }
+        // (An unsafe error never gets here: the diagnosis stops on it, torque on or off.)
         let refusal = if self.policy.servo_error == OnServoError::Stop {
             Some(StopCause::ServoErrorPolicy)
-        } else if bits & UNSAFE_HARDWARE_ERRORS != 0 {
-            Some(StopCause::UnsafeError)
         } else if repeated_overload {
             Some(StopCause::RepeatedOverload)
         } else {

@@ -161,6 +161,18 @@ fn errors_a_reboot_must_not_answer_stop_with_their_cause() {
 }
 
 #[test]
+fn an_unsafe_error_stops_even_when_the_firmware_kept_torque_on() {
+    // Overheating outside a customised Shutdown mask: torque still on, the motor still hot.
+    let mut b = Bench::new(1, policy());
+    let mut servo = |_: usize, action: Action| Some(if action == Action::ReadHardwareError { i64::from(HW_OVERHEATING) } else { 1 });
+    b.r.observe(0, true, true, b.t);
+    b.run(10, &mut servo);
+    let stop = b.r.stop_request().expect("an unsafe error is never run on");
+    assert_eq!((stop.cause, stop.hardware_error), (StopCause::UnsafeError, HW_OVERHEATING));
+    assert_eq!(b.r.view(0).unwrap().counts.tolerated, 0);
+}
+
+#[test]
 fn the_stop_policy_stops_on_any_shutdown() {
     let mut b = Bench::new(1, FaultPolicy { servo_error: OnServoError::Stop, ..policy() });
     b.r.observe(0, true, true, b.t);
