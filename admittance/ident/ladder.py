@@ -20,9 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from admittance.errors import ConfigError
-from admittance.ident.effects import score
 from admittance.ident.equation_error import fit_equation_error, initial_states
-from admittance.ident.fit import fit_output_error
+from admittance.ident.fit import fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, free_params, lumped_ratios, physical_params
 
 
@@ -112,7 +111,7 @@ def _fold(dataset, k, free, start, x0_all, friction, max_step, torque_scale):
     training = [i for i in range(len(dataset.trials)) if i != k]
     fit = _fit(dataset, training, free, start, x0_all, friction, max_step, torque_scale)
     held = Simulator([dataset.trials[k]], dataset.mode, friction, max_step, fit.tau_scale)
-    scored = score(held, fit, x0_all[[k]])
+    scored = fit_initial_states_multi(held, fit.vector, [x0_all[[k]]], tau_scale=fit.tau_scale)
     return scored, scored.residuals[0], fit
 
 
