@@ -42,6 +42,8 @@ LIBRARY_DEFAULTS = {
     "coulomb_asym": 0.0, "stribeck_torque": 0.0, "stribeck_velocity": 0.1, "load_coulomb": 0.0,
     "angle_offset": 0.0, "quadratic_drag": 0.0, "cogging_amplitude": 0.0, "cogging_period": 0.0,
     "cogging_phase": 0.0, "time_delay": 0.0, "torque_bias": 0.0, "torque_drift": 0.0, "torque_gain": 1.0,
+    "spring_stiffness": 0.0, "spring_neutral": 0.0, "friction_ripple_amplitude": 0.0,
+    "friction_ripple_period": 0.0, "friction_ripple_phase": 0.0,
 }
 # What an effect name sets, for the library effects (main parameter, companions).
 LIBRARY_MAIN = {
@@ -54,6 +56,8 @@ LIBRARY_MAIN = {
     "time_delay": ("time_delay", {}),
     "torque_bias": ("torque_bias", {}),
     "torque_gain": ("torque_gain", {}),
+    "spring": ("spring_stiffness", {"spring_neutral": 0.2}),
+    "friction_ripple": ("friction_ripple_amplitude", {"friction_ripple_period": 6.0, "friction_ripple_phase": 0.3}),
 }
 # Effects with no library name, each a physically motivated torque (the value is its size):
 UNNAMED = (
@@ -61,8 +65,8 @@ UNNAMED = (
     "dahl",  # presliding: friction builds up over this deflection (rad) instead of jumping
     "position_damping",  # N·m·s/rad at θ = 1 rad: damping growing as θ² (a grease pocket)
     "speed_ripple",  # N·m·s/rad: a ripple A·|ω|·sin(5.3·θ + 0.7) that grows with speed
-    "cable_spring",  # N·m/rad: a cable pulling back to θ = 0.2 rad
     "friction_warmup",  # fraction by which the Coulomb level falls over a trial (grease warming up)
+    "eccentric_encoder",  # rad: the encoder reads θ + e·sin(θ + 0.5) (a magnet off the axis)
 )
 
 
@@ -122,12 +126,13 @@ class _Plant:
         tau = self.applied(t)
         g = self.gravity * math.sin(theta - p["angle_offset"])
         cog = p["cogging_amplitude"] * math.sin(p["cogging_period"] * theta + p["cogging_phase"])
-        extra = -self.size * (theta - 0.2) if self.effect == "cable_spring" else 0.0
-        return tau - g - cog + extra, g - tau
+        spring = p["spring_stiffness"] * (theta - p["spring_neutral"])
+        return tau - g - cog - spring, g - tau
 
-    def level(self, t: float, omega: float, direction: float, load: float) -> float:
+    def level(self, t: float, theta: float, omega: float, direction: float, load: float) -> float:
         p = self.p
         level = p["coulomb"] + direction * p["coulomb_asym"] + p["load_coulomb"] * abs(load)
+        level += p["friction_ripple_amplitude"] * math.sin(p["friction_ripple_period"] * theta + p["friction_ripple_phase"])
         if p["stribeck_torque"]:
             level += p["stribeck_torque"] * math.exp(-((omega / p["stribeck_velocity"]) ** 2))
         if self.effect == "friction_warmup":
@@ -153,7 +158,7 @@ def _simulate_switching(plant: _Plant, t: np.ndarray, x0: tuple[float, float]) -
         if omega == 0.0:
             drive, load = plant.drive(t_now, theta)
             direction = math.copysign(1.0, drive) if drive else 0.0
-            if abs(drive) <= plant.level(t_now, 0.0, direction, load):
+            if abs(drive) <= plant.level(t_now, theta, 0.0, direction, load):
                 t_now = _stick(plant, t, out, t_now, theta)
                 continue
             sign = direction
@@ -167,7 +172,7 @@ def _simulate_switching(plant: _Plant, t: np.ndarray, x0: tuple[float, float]) -
 def _slide(plant: _Plant, t, out, t0, theta, omega, sign):
     def rhs(tk, y):
         drive, load = plant.drive(tk, y[0])
-        friction = sign * plant.level(tk, y[1], sign, load)
+        friction = sign * plant.level(tk, y[0], y[1], sign, load)
         return [y[1], (drive - plant.dissipation(y[0], y[1]) - friction) / plant.inertia]
 
     def reversal(tk, y):
@@ -193,7 +198,7 @@ def _stick(plant: _Plant, t, out, t0, theta) -> float:
     def margin(tk, _y):
         drive, load = plant.drive(tk, theta)
         direction = math.copysign(1.0, drive) if drive else 0.0
-        return abs(drive) - plant.level(tk, 0.0, direction, load)
+        return abs(drive) - plant.level(tk, theta, 0.0, direction, load)
 
     margin.terminal, margin.direction = True, 1
     sol = solve_ivp(lambda tk, y: [0.0], (t0, t[-1]), [0.0], events=margin, max_step=0.002, rtol=RTOL, atol=ATOL)
@@ -284,6 +289,8 @@ def generate(out_dir: str | Path, spec: OracleSpec) -> Path:
         plant = _Plant(params, inertia, gravity, tau_fn, spec.effect if spec.effect in UNNAMED else "", spec.size)
         simulate = _simulate_stateful if plant.effect in ("backlash", "dahl") else _simulate_switching
         theta = simulate(plant, t, (theta0, 0.0))
+        if spec.effect == "eccentric_encoder":  # the sensor, not the joint: applied to the reading
+            theta = theta + spec.size * np.sin(theta + 0.5)
         measured = _sensor(theta, spec, rng)
         cols = [t, measured]
         header = "t,theta"

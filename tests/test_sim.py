@@ -25,6 +25,9 @@ EFFECTS = {
     "tanh_k": {"tanh_k": 40.0},
     "torque_gain": {"torque_gain": 0.8},
     "torque_gain_and_bias": {"torque_gain": 1.25, "torque_bias": 0.006},
+    "spring": {"spring_stiffness": 0.05, "spring_neutral": 0.2},
+    "friction_ripple": {"friction_ripple_amplitude": 0.004, "friction_ripple_period": 6.0,
+                        "friction_ripple_phase": 0.3},
 }
 
 
@@ -47,6 +50,14 @@ def test_torque_gain_is_entry_16_and_defaults_to_one():
     """Contract 1's order: torque_gain was added after tanh_k, so older indices are unchanged."""
     assert sim.PARAM_NAMES.index("torque_gain") == 16 == sim.PARAM_NAMES.index("tanh_k") + 1
     assert sim.PARAM_DEFAULTS["torque_gain"] == 1.0
+
+
+def test_new_effects_are_appended_after_torque_gain_and_default_off():
+    """spring and friction_ripple were appended at the end: every older index is unchanged."""
+    new = ("spring_stiffness", "spring_neutral", "friction_ripple_amplitude", "friction_ripple_period",
+           "friction_ripple_phase")
+    assert sim.PARAM_NAMES[17:] == new
+    assert all(sim.PARAM_DEFAULTS[n] == 0.0 for n in new)
 
 
 def test_pack_fills_defaults_and_unpack_inverts():

@@ -23,7 +23,8 @@ that collapses the inertia onto its bound, or that makes a friction level negati
 direction is not a physical explanation, whatever it does to the error. The cogging period is
 held on its integer grid: a ripple periodic in the joint angle repeats a whole number of times
 per revolution, and a free period (6.26, 4.10, 3.21 per revolution…) is a curve fit to
-whatever the residual holds. Admission itself (cross-validated gain, significance, stability
+whatever the residual holds; a best period at either end of the grid is a fit running to a
+bound, and refused as such. Admission itself (cross-validated gain, significance, stability
 across folds) is in search.py.
 """
 
@@ -46,12 +47,18 @@ COGGING_PERIODS = tuple(range(2, 33))  # whole cycles/rev: 1 would be gravity it
 # freed (fitted free from the base model's optimum it runs to its bound: a pure breakaway level
 # is a nearby local optimum, while with the shape fixed the rest is nearly linear); a cogging
 # period never is (a whole number per revolution, see the module doc).
-SHAPE_PARAMS = {"stribeck": ("stribeck_velocity",), "cogging": ("cogging_period",)}
+SHAPE_PARAMS = {"stribeck": ("stribeck_velocity",), "cogging": ("cogging_period",),
+                "friction_ripple": ("friction_ripple_period",)}
+# Effects whose amplitude and phase are two linear columns (sin and cos) at each grid period.
+PERIODIC = {"cogging": ("cogging_amplitude", "cogging_phase", "cogging_period"),
+            "friction_ripple": ("friction_ripple_amplitude", "friction_ripple_phase", "friction_ripple_period")}
+SPRING_PROBE_NEUTRAL = 1.0  # rad: the second spring column (neutral 0 and 1 give k and k·neutral)
 FREED_SHAPES = ("stribeck_velocity",)
 SHAPE_STARTS = 3  # best variants (by explained fraction) refitted with their shape fixed
 OPTIONAL_PARAMS = ("torque_drift",)  # kept only when significant on their own
 RANK_RESOLUTION = 0.01  # explained fractions closer than this rank as equal
 BOUND_TOLERANCE = 1e-6  # relative: a value this close to a bound sits on it
+EXPLORE_ITERATIONS = 12  # LM iterations per start; only the best start is carried on to convergence
 INERTIA_FACTOR = 2.0  # an effect may not move the inertia by more than this factor
 
 
@@ -136,15 +143,20 @@ def variants(effect: str, torque_scale: float) -> list[Variant]:
                     (("stribeck_velocity", v),))
             for v in STRIBECK_VELOCITIES
         ]
-    if effect == "cogging":
+    if effect in PERIODIC:
+        amplitude, phase, period_name = PERIODIC[effect]
         out = []
         for period in COGGING_PERIODS:
-            sin_col = Column((("cogging_period", period), ("cogging_phase", 0.0)), "cogging_amplitude", torque_step)
-            cos_col = Column((("cogging_period", period), ("cogging_phase", math.pi / 2)), "cogging_amplitude",
-                             torque_step)
-            out.append(Variant(effect, f"period {period}/rev", (sin_col, cos_col), (("cogging_period", period),),
-                               params=("cogging_amplitude", "cogging_phase")))
+            sin_col = Column(((period_name, period), (phase, 0.0)), amplitude, torque_step)
+            cos_col = Column(((period_name, period), (phase, math.pi / 2)), amplitude, torque_step)
+            out.append(Variant(effect, f"period {period}/rev", (sin_col, cos_col), ((period_name, period),),
+                               params=(amplitude, phase)))
         return out
+    if effect == "spring":
+        step = 1e-2 * torque_scale
+        return [Variant(effect, "stiffness and neutral angle",
+                        (Column((("spring_neutral", 0.0),), "spring_stiffness", step),
+                         Column((("spring_neutral", SPRING_PROBE_NEUTRAL),), "spring_stiffness", step)))]
     steps = {
         "asymmetric_coulomb": ("coulomb_asym", torque_step),
         "load_dependent_coulomb": ("load_coulomb", 1e-2),
@@ -232,9 +244,17 @@ def _explained(jac: list[np.ndarray], extra: list[np.ndarray], residuals: list[n
 def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
     start = dict(variant.shape)
     plausible = True
-    if variant.effect == "cogging":
+    if variant.effect in PERIODIC:
+        amplitude, phase, _ = PERIODIC[variant.effect]
         a, b = coef
-        start.update(cogging_amplitude=float(math.hypot(a, b)), cogging_phase=float(math.atan2(b, a)))
+        start.update({amplitude: float(math.hypot(a, b)), phase: float(math.atan2(b, a))})
+    elif variant.effect == "spring":
+        # −k0·θ and −k1·(θ − N) add up to −(k0 + k1)·(θ − k1·N/(k0 + k1)).
+        k0, k1 = coef
+        stiffness = float(k0 + k1)
+        plausible = stiffness > 0
+        start.update(spring_stiffness=stiffness,
+                     spring_neutral=float(k1 * SPRING_PROBE_NEUTRAL / stiffness) if plausible else 0.0)
     else:
         defaults = default_vector()
         for col, value in zip(variant.columns, coef):
@@ -272,15 +292,24 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
         else:
             starts.append(("grown", grown(evidence.start, [evidence.effect])))
     best, label = _best_start(sim, current, evidence, starts, torque_scale)
+    if best is not None and best.iterations >= EXPLORE_ITERATIONS and done(best):
+        best = _finish(sim, best, torque_scale, evidence)
     if best is None or not done(best):
         fallback = [("fallback", s) for s in fallback_starts(evidence, current, scales)]
-        shape_values = {k: v for k, v in evidence.start.items() if k in shape}
-        linear = effect_start(whole_trials or sim.trials, sim.mode, evidence.effect, shape_values)
-        if linear is not None:
-            fallback.insert(0, ("equation error with the effect", linear))
+        # One equation-error start per grid shape the ranking liked (a ripple's best period by
+        # the linear test is not always the true one: 5/rev for a 6/rev friction ripple).
+        for variant in [evidence.start, *evidence.alternatives][:SHAPE_STARTS]:
+            shape_values = {k: v for k, v in variant.items() if k in shape}
+            linear = effect_start(whole_trials or sim.trials, sim.mode, evidence.effect, shape_values)
+            if linear is not None:
+                fallback.insert(0, ("equation error with the effect", linear))
+            if not shape:
+                break
         other, other_label = _best_start(sim, current, evidence, fallback, torque_scale)
         if other is not None and (best is None or other.rmse < best.rmse):
             best, label = other, other_label
+        if best.iterations >= EXPLORE_ITERATIONS:
+            best = _finish(sim, best, torque_scale, evidence)
     evidence.start_used = label
     freed = [n for n in shape if n in FREED_SHAPES]
     if freed:
@@ -299,10 +328,16 @@ def _best_start(sim, current, evidence, starts, torque_scale):
         for key, value in start.items():
             vector[INDEX[key]] = value
         fit = fit_output_error(sim, _clip_start(vector, free), free, current.x0, torque_scale=torque_scale,
-                               label=f"fit +{evidence.effect}")
+                               max_iter=EXPLORE_ITERATIONS, label=f"fit +{evidence.effect}")
         if best is None or fit.rmse < best.rmse:
             best, label = fit, name
     return best, label
+
+
+def _finish(sim: Simulator, fit: FitResult, torque_scale: float, evidence: Evidence) -> FitResult:
+    """Carry the best explored start on to convergence."""
+    return fit_output_error(sim, fit.vector, fit.free, fit.x0, torque_scale=torque_scale,
+                            label=f"fit +{evidence.effect}")
 
 
 def _free_for(current: FitResult, evidence: Evidence, held: Sequence[str]) -> tuple[str, ...]:
@@ -331,10 +366,12 @@ def fallback_starts(evidence: Evidence, current: FitResult, scales: dict[str, fl
     if effect == "quadratic_drag":
         return [{"quadratic_drag": 0.5 * damping / speed, "damping": 0.5 * damping},
                 {"quadratic_drag": 0.3 * level / speed**2, "coulomb": 0.7 * level}]
-    if effect == "cogging":
-        period = evidence.start.get("cogging_period", COGGING_PERIODS[0])
-        return [{"cogging_period": period, "cogging_amplitude": 0.2 * level, "cogging_phase": phase}
-                for phase in (0.0, math.pi)]
+    if effect in PERIODIC:
+        amplitude, phase_name, period_name = PERIODIC[effect]
+        period = evidence.start.get(period_name, COGGING_PERIODS[1])
+        return [{period_name: period, amplitude: 0.2 * level, phase_name: phase} for phase in (0.0, math.pi)]
+    if effect == "spring":
+        return [{"spring_stiffness": 0.1 * scales["gravity"], "spring_neutral": 0.0}]
     if effect == "time_delay":
         return [{"time_delay": 0.01}, {"time_delay": 0.03}]
     if effect == "torque_bias":
@@ -372,10 +409,18 @@ def physical_problems(evidence: Evidence, fit: FitResult, current: FitResult | N
         out.append("motor_inertia collapsed onto its bound")
     if evidence.effect == "asymmetric_coulomb" and abs(fit.value("coulomb_asym")) > fit.value("coulomb"):
         out.append("|coulomb_asym| above the Coulomb level: friction would push one way")
-    if evidence.effect == "cogging":
-        period = fit.value("cogging_period")
+    if evidence.effect == "friction_ripple" and fit.value("friction_ripple_amplitude") > fit.value("coulomb"):
+        out.append("friction ripple above the Coulomb level: friction would vanish or push at some angles")
+    if evidence.effect in PERIODIC:
+        period = fit.value(PERIODIC[evidence.effect][2])
         if abs(period - round(period)) > 1e-9:
-            out.append(f"cogging period {period:g}/rev is not a whole number per revolution")
+            out.append(f"{evidence.effect} period {period:g}/rev is not a whole number per revolution")
+        elif period <= COGGING_PERIODS[0] or period >= COGGING_PERIODS[-1]:
+            # The best period at an end of the searched grid is a fit running to a bound: the
+            # data want a slower or finer shape than the grid holds (2/rev stands in for an
+            # offset or a spring, the top of the grid for whatever is finer still).
+            out.append(f"{evidence.effect} period {period:g}/rev sits at the end of the searched grid "
+                       f"({COGGING_PERIODS[0]}–{COGGING_PERIODS[-1]}/rev)")
     return out
 
 

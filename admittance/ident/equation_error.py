@@ -167,6 +167,11 @@ def _effect_columns(effect: str, d: Derivatives, trial: TrialData, shape: dict, 
         return [("torque_bias", np.ones_like(d.theta), -np.inf)]
     if effect == "torque_gain":
         return [("torque_gain", -tau, 0.05)]
+    if effect == "spring":  # k·(θ − n) = k·θ − (k·n)
+        return [("spring_stiffness", d.theta, 0.0), ("spring_offset_torque", -np.ones_like(d.theta), -np.inf)]
+    if effect == "friction_ripple":
+        p = shape.get("friction_ripple_period", 3.0)
+        return [("ripple_sin", np.sin(p * d.theta) * sgn, -np.inf), ("ripple_cos", np.cos(p * d.theta) * sgn, -np.inf)]
     return []
 
 
@@ -212,6 +217,14 @@ def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dic
         a_, b_ = values.pop("cogging_sin"), values.pop("cogging_cos")
         values.update(cogging_amplitude=float(np.hypot(a_, b_)), cogging_phase=float(np.arctan2(b_, a_)),
                       cogging_period=float(shape.get("cogging_period", 2.0)))
+    if "ripple_sin" in values:
+        a_, b_ = values.pop("ripple_sin"), values.pop("ripple_cos")
+        values.update(friction_ripple_amplitude=float(np.hypot(a_, b_)), friction_ripple_phase=float(np.arctan2(b_, a_)),
+                      friction_ripple_period=float(shape.get("friction_ripple_period", 3.0)))
+    if "spring_offset_torque" in values:
+        torque = values.pop("spring_offset_torque")
+        stiffness = values["spring_stiffness"]
+        values["spring_neutral"] = float(torque / stiffness) if stiffness > 0 else 0.0
     if effect == "stribeck":
         values["stribeck_velocity"] = float(shape.get("stribeck_velocity", 0.1))
     out.update({k: float(v) for k, v in values.items()})

@@ -55,6 +55,9 @@ ABS_STEP = {
     "load_coulomb": 1e-3,
     "tanh_k": 1.0,
     "torque_gain": 1e-3,
+    "spring_neutral": 1e-3,
+    "friction_ripple_phase": 1e-2,
+    "friction_ripple_period": 1e-2,
 }
 
 Progress = Callable[[str], None]

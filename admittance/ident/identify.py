@@ -30,7 +30,8 @@ import numpy as np
 
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
-from admittance.ident.crossval import Folds, make_folds, small_oscillation_period
+from admittance.ident.base import fit_base, search_context, torque_scale_of
+from admittance.ident.crossval import Folds
 from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
@@ -47,7 +48,7 @@ from admittance.ident.model import (
 )
 from admittance.ident.paramfile import PARAM_DEFAULTS
 from admittance.ident.residual import analyse
-from admittance.ident.search import SearchContext, SearchOutcome, SearchSettings, nothing_left, search_effects
+from admittance.ident.search import SearchOutcome, SearchSettings, nothing_left, search_effects
 from admittance.ident.sensor import Sensor, sensor_for
 from admittance.ident.split import stratified_pick
 from admittance.ident.unexplained import describe_unexplained
@@ -55,12 +56,6 @@ from admittance.ident.unexplained import describe_unexplained
 # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM
 # iterations) and less accurate.
 FIT_MAX_STEP = 1e-3
-# Starts of the base fit besides the equation-error one: (Coulomb, damping) multipliers. The
-# equation error cannot see a term the base model lacks and puts it somewhere: on a quadratic
-# drag set it put drag into damping and left the Coulomb level ten times too low, a local
-# minimum the output-error LM never left (training error 10 mrad; from the truth, 4.8).
-FRICTION_GRID = ((3.0, 1.0), (10.0, 0.25), (0.3, 1.0), (3.0, 0.25))
-GRID_ITERATIONS = 12  # LM iterations per grid start before the best one is finished
 
 
 @dataclass
@@ -266,7 +261,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
     heldout, training = stratified_pick(trials)
     if not heldout:  # a single trial: score on it, and say so in the JSON (heldout == training)
         heldout = list(training)
-    torque_scale = _torque_scale(dataset)
+    torque_scale = torque_scale_of(dataset)
     with _timed(timings, "equation_error"):
         progress("equation-error start")
         sensor = sensor_for(trials, dataset.encoder_ticks)
@@ -276,7 +271,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
         sim_train, sim_held = sim_all.subset(training), sim_all.subset(heldout)
     with _timed(timings, "base_fit"):
         free = free_params(dataset.mode, [], dataset.has_torque)
-        base, base_starts = _base_fit(sim_train, start, free, [s[training] for s in starts_all], sensor,
+        base, base_starts = fit_base(sim_train, start, free, [s[training] for s in starts_all], sensor,
                                       torque_scale, progress)
     with _timed(timings, "effect_search"):
         search = _search(sim_train, base, sensor, torque_scale, settings, progress)
@@ -302,42 +297,6 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
                           remaining, residual, sensor, unexplained, base_starts, timings)
 
 
-def _torque_scale(dataset: Dataset) -> float:
-    """A typical torque of the problem (N·m; 1 in lumped sim units): sets finite-difference steps."""
-    if dataset.mode != "geometry":
-        return 1.0
-    scale = float(np.mean([tr.gravity_torque for tr in dataset.trials]))
-    return scale if scale > 0 else 1.0
-
-
-def _base_fit(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts: list[np.ndarray],
-              sensor: Sensor, torque_scale: float, progress) -> tuple[FitResult, list[dict]]:
-    """The base model from the equation-error start and, unless that leaves nothing but sensor
-    noise, from each start of :data:`FRICTION_GRID` (a few iterations each; the best is
-    finished). Returns the fit and what each start reached."""
-    x0 = fit_initial_states_multi(sim, start, x0_starts, tau_scale=sim.tau_scale, label="base fit").x0
-    fit = fit_output_error(sim, start, free, x0, torque_scale=torque_scale, progress=progress, label="base fit")
-    record = [{"start": "equation error", "rmse": fit.rmse}]
-    if nothing_left(sim, fit, sensor):
-        return fit, record
-    level = max(start[INDEX["coulomb"]], 0.02 * torque_scale)
-    best = fit
-    for f_mult, b_mult in FRICTION_GRID:
-        vector = start.copy()
-        vector[INDEX["coulomb"]] = level * f_mult
-        vector[INDEX["damping"]] = start[INDEX["damping"]] * b_mult
-        trial = fit_output_error(sim, vector, free, x0, torque_scale=torque_scale, max_iter=GRID_ITERATIONS,
-                                 progress=progress, label="base fit (friction grid)")
-        record.append({"start": f"coulomb ×{f_mult:g}, damping ×{b_mult:g}", "rmse": trial.rmse})
-        if trial.rmse < best.rmse * (1 - 1e-6):
-            best = trial
-    if best is not fit:
-        best = fit_output_error(sim, best.vector, free, best.x0, torque_scale=torque_scale, progress=progress,
-                                label="base fit")
-        record.append({"start": "best grid start, finished", "rmse": best.rmse})
-    return best, record
-
-
 def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale: float,
             settings: IdentifySettings, progress) -> SearchOutcome | None:
     """The effect search, cross-validated on the training trials (None when it cannot run)."""
@@ -345,37 +304,11 @@ def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale:
         return None
     if nothing_left(sim_train, base, sensor):
         return SearchOutcome([], base, [], [], None, stopped="nothing left: the residual is at the sensor's noise")
-    folds = make_folds(sim_train.trials, _period(sim_train, base))
-    if folds is None:
-        return SearchOutcome([], base, [], [], None, stopped="too few trials to cross-validate")
-    if folds.kind == "trials":
-        units, base_units = sim_train, base
-        x0_starts = initial_state_starts(folds.data)
-    else:
-        units = Simulator(folds.data, sim_train.mode, sim_train.friction, sim_train.max_step, base.tau_scale)
-        x0_base = _states_at_unit_starts(sim_train, base, folds)
-        progress("base fit on the time segments")
-        base_units = fit_output_error(units, base.vector, base.free, x0_base, torque_scale=torque_scale,
-                                      progress=progress, label="base fit (segments)")
-        x0_starts = [*initial_state_starts(folds.data), x0_base]
     search_settings = SearchSettings(settings.max_effects, settings.min_gain, settings.min_sigma)
-    ctx = SearchContext(units, folds, x0_starts, sensor, torque_scale, search_settings, progress, sim_train.trials)
-    return search_effects(ctx, base_units)
-
-
-def _period(sim: Simulator, fit: FitResult) -> float:
-    inertia = fit.vector[INDEX["motor_inertia"]]
-    if sim.mode == "lumped":
-        return small_oscillation_period([inertia], [1.0])
-    return small_oscillation_period([inertia + tr.load_inertia for tr in sim.trials],
-                                    [tr.gravity_torque for tr in sim.trials])
-
-
-def _states_at_unit_starts(sim: Simulator, fit: FitResult, folds: Folds) -> np.ndarray:
-    """Each segment's initial state from the whole-trial fit (where the fit says the joint was)."""
-    states = [o[0] for o in sim.with_tau_scale(fit.tau_scale).run(fit.vector[None, :], fit.x0[None, :, :],
-                                                                  velocity=True)]
-    return np.array([states[u.trial][u.start] for u in folds.units], dtype=float).reshape(-1, 2)
+    context = search_context(sim_train, base, sensor, torque_scale, search_settings, progress)
+    if context is None:
+        return SearchOutcome([], base, [], [], None, stopped="too few trials to cross-validate")
+    return search_effects(*context)
 
 
 def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | None, torque_scale: float,

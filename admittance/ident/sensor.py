@@ -200,6 +200,9 @@ def _continuous_verdict(residuals, at_rest, rmse: float) -> NoiseVerdict:
 
 
 MIN_REST_RUN = 40  # samples: a rest period shorter than this says little about the noise
+# Lag-1 correlation above which "noise" at rest is taken for motion: a correlation time of
+# 2/(1 − ρ) = 40 samples, a third of a second at 120 Hz (filtered motion capture stays well below).
+MAX_NOISE_CORRELATION = 0.95
 MIN_REST_SAMPLES = 200
 
 
@@ -222,7 +225,9 @@ def rest_noise(residuals: Sequence[np.ndarray], at_rest: Sequence[np.ndarray]) -
         return None
     var = sum(float(p @ p) for p in pieces) / sum(p.size for p in pieces)
     lag1 = sum(float(p[1:] @ p[:-1]) for p in pieces) / sum(float(p @ p) for p in pieces)
-    rho = min(max(lag1, 0.0), 0.99)
+    rho = max(lag1, 0.0)
+    if rho > MAX_NOISE_CORRELATION:  # that slow, it is the joint moving, not a sensor's noise
+        return None
     _, p_white = ljung_box([p[1:] - rho * p[:-1] for p in pieces])
     if p_white <= WHITE_P or var <= 0:
         return None

@@ -46,7 +46,7 @@ def tried(rounds: Sequence[Sequence[Evidence]]) -> list[dict]:
         for evidence in round_:
             if not evidence.accepted:
                 latest[evidence.effect] = evidence
-    return [{"effect": e.effect, "variant": e.variant, "reason": e.reason,
+    return [{"effect": e.effect, "variant": e.variant, "reason": e.reason, "stand_in": e.stand_in,
              "validation_gain": e.validation_gain, "significance_sigma": e.significance,
              "problems": e.problems} for e in latest.values()]
 
