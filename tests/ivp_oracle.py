@@ -81,6 +81,7 @@ class OracleSpec:
     effect: str = ""  # a library or an unnamed effect name ("" = clean)
     size: float = 0.0
     with_torque: bool = False
+    mixed: bool = False  # with_torque: every other trial a free swing (released from the side, no tau)
     # sensor
     noise: float = 0.002  # rad, Gaussian
     noise_correlation: float = 0.0  # AR(1)
@@ -240,6 +241,15 @@ def _simulate_stateful(plant: _Plant, t: np.ndarray, x0: tuple[float, float]) ->
     return sol.y[0]
 
 
+def simulate(params: dict, load_inertia: float, gravity: float, t: np.ndarray, x0: tuple[float, float],
+             tau=None) -> np.ndarray:
+    """θ at ``t`` of the library model (``params``: Contract 1 names, defaults filled in) under a
+    recorded torque ``tau`` (an array at ``t``, or None), by the switching integrator."""
+    p = {**LIBRARY_DEFAULTS, **params}
+    tau_fn = None if tau is None else (lambda tk: float(np.interp(tk, t, tau)))
+    return _simulate_switching(_Plant(p, load_inertia, gravity, tau_fn, "", 0.0), np.asarray(t, float), x0)
+
+
 def _hand_torque(t: np.ndarray, rng: np.random.Generator, gravity: float):
     freqs = rng.uniform(0.3, 1.2, 3)
     amps = rng.uniform(0.15, 0.3, 3) * gravity
@@ -283,9 +293,10 @@ def generate(out_dir: str | Path, spec: OracleSpec) -> Path:
         name = f"oracle_{i:02d}_{round(distance * 100):02d}cm_{direction}.csv"
         inertia, gravity = load_of(distance)
         t = np.arange(int(round(spec.duration * spec.rate)) + 1) / spec.rate
-        tau_fn = _hand_torque(t, rng, gravity) if spec.with_torque else None
+        driven = spec.with_torque and not (spec.mixed and i % 2)
+        tau_fn = _hand_torque(t, rng, gravity) if driven else None
         sign = 1.0 if direction == "cw" else -1.0
-        theta0 = 0.0 if spec.with_torque else sign * (spec.release + rng.uniform(-0.08, 0.08))
+        theta0 = 0.0 if driven else sign * (spec.release + rng.uniform(-0.08, 0.08))
         plant = _Plant(params, inertia, gravity, tau_fn, spec.effect if spec.effect in UNNAMED else "", spec.size)
         simulate = _simulate_stateful if plant.effect in ("backlash", "dahl") else _simulate_switching
         theta = simulate(plant, t, (theta0, 0.0))

@@ -49,7 +49,9 @@ def test_json_has_every_required_key(clean_result):
         assert key in j
     assert set(j["base"]) == {"motor_inertia", "damping", "coulomb"}
     assert j["heldout"] and not set(j["heldout"]) & set(j["training"])
-    assert set(j["validation"]) <= set(j["training"])
+    assert j["stand_ins"] == [] and j["unexplained"] is None  # clean: nothing left to explain
+    assert j["crossvalidation"]["stopped"].startswith("nothing left")
+    assert j["sensor"]["source"] == "none" and j["residual"]["nothing_left"]
     json.dumps(j)  # serialisable as is
 
 

@@ -186,3 +186,23 @@ def test_degenerate_batches():
     single = sim.make_trial([0.5])
     assert sim.simulate(single, BASE, 0.2, 0.1).tolist() == [0.2]
     assert sim.simulate_many([], sim.pack_params(BASE)[None, :], np.zeros((1, 0, 2))) == []
+
+
+@pytest.mark.parametrize("effect", ["base", "stribeck", "load_coulomb", "cogging", "spring", "friction_ripple",
+                                    "torque_gain_and_bias", "time_delay"])
+def test_rust_plant_converges_to_the_test_oracle(effect):
+    """A third reading of Contract 1 with another integrator (tests/ivp_oracle.py: solve_ivp
+    between stick events): the Rust plant approaches it at first order as the step shrinks."""
+    import ivp_oracle
+
+    params = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084,
+              **{k: v * (10.0 if k in ("coulomb_asym", "stribeck_torque", "cogging_amplitude", "torque_bias",
+                                       "friction_ripple_amplitude") else 1.0) for k, v in EFFECTS[effect].items()}}
+    t = np.arange(361) / 120
+    tau = 0.25 * np.sin(2.1 * t) * np.clip(t / 0.5, 0, 1) if "torque" in effect or effect == "time_delay" else None
+    x0 = (0.0, 0.0) if tau is not None else (1.4, 0.0)
+    truth = ivp_oracle.simulate(params, 0.004, 0.3, t, x0, tau)
+    trial = sim.make_trial(t, tau, load_inertia=0.004, gravity_torque=0.3)
+    errors = [np.sqrt(np.mean((sim.simulate(trial, params, *x0, max_step=h) - truth) ** 2)) for h in (1e-3, 1e-4)]
+    assert errors[0] < 1e-3  # 1 ms, the fit's step: well under the data's noise
+    assert errors[1] < 0.25 * errors[0]  # first order: 10× finer, ~10× closer

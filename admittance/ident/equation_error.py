@@ -175,7 +175,8 @@ def _effect_columns(effect: str, d: Derivatives, trial: TrialData, shape: dict, 
     return []
 
 
-def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dict | None = None) -> dict | None:
+def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dict | None = None,
+                 with_cost: bool = False):
     """Base parameters and ``effect``'s parameters (sim units) from one linear least squares
     with the effect's columns beside the base model's, or None when the data cannot carry it.
 
@@ -192,7 +193,7 @@ def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dic
         a, y, keep = _regression_rows(d, trial, mode, with_tau, return_keep=True)
         extra = _effect_columns(effect, d, trial, shape, mode)
         if not extra:
-            return None
+            return (None, np.inf) if with_cost else None
         cols = [c[keep] * (-1.0 if mode == "lumped" else 1.0) for _, c, _ in extra]
         if effect == "torque_gain":  # the gain multiplies τ, which sits in the target
             y = y - (d.tau[keep] if d.tau is not None else 0.0)
@@ -203,12 +204,13 @@ def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dic
     a = np.vstack(rows)
     y = np.concatenate(targets)
     if a.shape[0] < a.shape[1] * 3:
-        return None
+        return (None, np.inf) if with_cost else None
     n_base = a.shape[1] - len(names)
     scale = np.maximum(np.abs(a).max(axis=0), 1e-12)
     bounds = np.array([1e-9] + [0.0] * (n_base - 1) + [lo * s if np.isfinite(lo) else -np.inf
                                                         for lo, s in zip(lower, scale[n_base:])])
     sol = nonneg_lstsq(a / scale, y, bounds) / scale
+    cost = float(np.sum((a @ sol - y) ** 2))
     vec, _ = _to_sim_vector(sol[:n_base], mode, with_tau)
     out = {n: float(vec[INDEX[n]]) for n in ("motor_inertia", "damping", "coulomb")}
     gamma = sol[0] if mode == "lumped" else 1.0
@@ -228,4 +230,7 @@ def effect_start(trials: Sequence[TrialData], mode: str, effect: str, shape: dic
     if effect == "stribeck":
         values["stribeck_velocity"] = float(shape.get("stribeck_velocity", 0.1))
     out.update({k: float(v) for k, v in values.items()})
-    return out if all(np.isfinite(v) for v in out.values()) else None
+    good = all(np.isfinite(v) for v in out.values())
+    if with_cost:
+        return (out, cost) if good else (None, np.inf)
+    return out if good else None

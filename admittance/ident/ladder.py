@@ -82,7 +82,8 @@ def effect_ladder(dataset, rungs: Sequence[Sequence[str]], friction: str = "stic
         rung = tuple(rung)
         for n in range(1, len(rung) + 1):
             if rung[:n] not in models:
-                models[rung[:n]] = _add(ctx, models[rung[:n - 1]][0], rung[n - 1], start or {})
+                stand_ins = any(models[rung[:k]][1] is not None and models[rung[:k]][1].stand_in for k in range(1, n))
+                models[rung[:n]] = _add(ctx, models[rung[:n - 1]][0], rung[n - 1], start or {}, stand_ins)
         scored, evidence = models[rung]
         out.append(_rung(rung, scored, evidence, ctx, sim, base, dataset))
     return out
@@ -105,7 +106,7 @@ def _check_rungs(dataset, rungs, start: dict[str, float]) -> None:
             raise ConfigError(f"{', '.join(needs_torque)} needs trials with a measured torque")
 
 
-def _add(ctx, current: Scored, effect: str, start: dict[str, float]) -> tuple[Scored, Evidence]:
+def _add(ctx, current: Scored, effect: str, start: dict[str, float], stand_ins: bool) -> tuple[Scored, Evidence]:
     """``current`` plus ``effect``, refitted as identify refits it, and judged as identify judges it."""
     ranked = rank_candidates(ctx.sim, current.full, [effect], ctx.torque_scale)
     evidence = ranked[0] if ranked else Evidence(effect, params=EFFECTS[effect].params)
@@ -115,7 +116,7 @@ def _add(ctx, current: Scored, effect: str, start: dict[str, float]) -> tuple[Sc
         evidence.plausible = True
         evidence.variant = "start " + ", ".join(f"{k}={v:g}" for k, v in chosen.items())
     refit = refit_effect(ctx, current.full, evidence)
-    scored = assess(ctx, current, evidence, refit)
+    scored = assess(ctx, current, evidence, refit, stand_ins)
     return (scored if scored is not None else cross_validate(ctx, refit)), evidence
 
 
