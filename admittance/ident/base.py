@@ -32,7 +32,10 @@ GRID_ITERATIONS = 12  # LM iterations per grid start before the best one is fini
 def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts: list[np.ndarray],
              sensor: Sensor, torque_scale: float, progress=None) -> tuple[FitResult, list[dict]]:
     """The base model on ``sim``'s trials; returns the fit and what each start reached."""
-    x0 = fit_initial_states_multi(sim, start, x0_starts, tau_scale=sim.tau_scale, label="base fit").x0
+    # The starting states: the data's candidates scored under the equation-error model in one
+    # batch, each trial taking its best, then refined (the joint LM refits them anyway).
+    x0 = fit_initial_states_multi(sim, start, [best_start(sim, start, x0_starts)], tau_scale=sim.tau_scale,
+                                  label="base fit").x0
     fit = fit_output_error(sim, start, free, x0, torque_scale=torque_scale, progress=progress, label="base fit")
     record = [{"start": "equation error", "rmse": fit.rmse}]
     if nothing_left(sim, fit, sensor):
@@ -53,6 +56,16 @@ def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts
                                 label="base fit")
         record.append({"start": "best grid start, finished", "rmse": best.rmse})
     return best, record
+
+
+def best_start(sim: Simulator, vector: np.ndarray, starts: list[np.ndarray]) -> np.ndarray:
+    """Per trial, the start (of ``starts``, each (T, 2)) whose simulation under ``vector`` is
+    closest to the data: one batch, no fitting."""
+    rows = np.repeat(vector[None, :], len(starts), axis=0)
+    sims = sim.run(rows, np.stack(starts))
+    choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
+              for s, m in zip(sims, sim.measured)]
+    return np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
 
 
 def search_context(sim: Simulator, base: FitResult, sensor: Sensor, torque_scale: float, settings: SearchSettings,

@@ -30,7 +30,7 @@ import numpy as np
 
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
-from admittance.ident.base import fit_base, search_context, torque_scale_of
+from admittance.ident.base import best_start, fit_base, search_context, torque_scale_of
 from admittance.ident.crossval import Folds
 from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
@@ -277,12 +277,15 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
         search = _search(sim_train, base, sensor, torque_scale, settings, progress)
     with _timed(timings, "final_fit_and_scoring"):
         final = _final_fit(sim_train, base, search, torque_scale, progress)
+        # Each held-out trial's initial state: the data's candidate starts screened under the
+        # model in one batch, then fitted; the final model also from the base model's states.
         held_starts = [s[heldout] for s in starts_all]
-        before = fit_initial_states_multi(sim_held, base.vector, held_starts, tau_scale=base.tau_scale,
-                                          progress=progress, label="scoring")
+        held_base = sim_held.with_tau_scale(base.tau_scale)
+        before = fit_initial_states_multi(sim_held, base.vector, [best_start(held_base, base.vector, held_starts)],
+                                          tau_scale=base.tau_scale, progress=progress, label="scoring")
         after = before if final is base else fit_initial_states_multi(
-            sim_held, final.vector, [*held_starts, before.x0], tau_scale=final.tau_scale, progress=progress,
-            label="scoring")
+            sim_held, final.vector, [best_start(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
+                                     before.x0], tau_scale=final.tau_scale, progress=progress, label="scoring")
     with _timed(timings, "residual_analysis"):
         progress("residual analysis")
         residual = analyse(sim_train, final, sensor)
