@@ -225,19 +225,22 @@ def _simulate_stateful(plant: _Plant, t: np.ndarray, x0: tuple[float, float]) ->
         y0 = [x0[0], x0[1], 0.0]
     else:  # backlash: the load (θ) and the gear train (φ: armature, damping, friction) share a gap
         inertia_load = plant.inertia - p["motor_inertia"]
-        stiffness, contact_damping, eps = 200.0, 0.5, 2e-3
+        stiffness, contact_damping, eps, width = 200.0, 0.5, 2e-3, 2e-4
 
         def rhs(tk, y):
             theta, omega, phi, dphi = y
             gap = theta - phi
-            engaged = abs(gap) > size
-            coupling = (stiffness * (gap - math.copysign(size, gap)) + contact_damping * (omega - dphi)) if engaged else 0.0
+            # The dead zone ±size, its corners rounded over `width` (a smooth right-hand side
+            # keeps the stiff solver's steps long): penetration beyond the gap on either side.
+            inside = width * (np.logaddexp(0.0, (gap - size) / width) - np.logaddexp(0.0, (-gap - size) / width))
+            engaged = 1.0 - 1.0 / (1.0 + math.exp(min((abs(gap) - size) / width, 50.0)))
+            coupling = stiffness * inside + contact_damping * (omega - dphi) * engaged
             drive, _ = plant.drive(tk, theta)
             gear = coupling - p["damping"] * dphi - p["coulomb"] * math.tanh(dphi / eps)
             return [omega, (drive - coupling) / inertia_load, dphi, gear / p["motor_inertia"]]
 
         y0 = [x0[0], x0[1], x0[0] - size, x0[1]]
-    sol = solve_ivp(rhs, (t[0], t[-1]), y0, method="LSODA", t_eval=t, rtol=1e-8, atol=1e-10, max_step=0.002)
+    sol = solve_ivp(rhs, (t[0], t[-1]), y0, method="LSODA", t_eval=t, rtol=1e-8, atol=1e-10, max_step=0.02)
     return sol.y[0]
 
 

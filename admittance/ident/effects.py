@@ -271,7 +271,7 @@ def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
 
 
 def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float,
-                    scales: dict[str, float], done, whole_trials=None) -> FitResult:
+                    scales: dict[str, float], done, whole_trials=None, fallbacks: bool = True) -> FitResult | None:
     """Fit the current model plus ``evidence``'s parameters; keep the best of its starts.
 
     Starts: the linearised size (and twice it, or the next-best grid variants for a shape
@@ -280,7 +280,9 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
     noise (``done(fit)``). ``whole_trials`` (default: the simulator's) feed the equation error:
     time segments near rest are too short and too still for derivatives. A refit from the linearised size can stop half way, with the base
     parameters still compensating in a wrong basin (a quadratic drag on three long swings
-    stopped at 6 mrad that way, against 2 mrad from a start that moved damping into drag)."""
+    stopped at 6 mrad that way, against 2 mrad from a start that moved damping into drag).
+    ``fallbacks=False`` skips them (another candidate already leaves nothing but noise: this
+    one can at best tie, which its linearised refit shows); None when nothing was refitted."""
     sim = sim.with_tau_scale(current.tau_scale)
     shape = SHAPE_PARAMS.get(evidence.effect, ())
     starts: list[tuple[str, dict[str, float]]] = []
@@ -293,7 +295,7 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
     best, label = _best_start(sim, current, evidence, starts, torque_scale)
     if best is not None and best.iterations >= EXPLORE_ITERATIONS and done(best):
         best = _finish(sim, best, torque_scale, evidence)
-    if best is None or not done(best):
+    if fallbacks and (best is None or not done(best)):
         fallback = [("fallback", s) for s in fallback_starts(evidence, current, scales)]
         for linear in _equation_error_starts(whole_trials or sim.trials, sim.mode, evidence):
             fallback.insert(0, ("equation error with the effect", linear))
@@ -302,6 +304,8 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
             best, label = other, other_label
         if best.iterations >= EXPLORE_ITERATIONS:
             best = _finish(sim, best, torque_scale, evidence)
+    if best is None:
+        return None
     evidence.start_used = label
     freed = [n for n in shape if n in FREED_SHAPES]
     if freed:

@@ -224,7 +224,14 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
         candidates = candidate_effects(effects + removed, with_tau, ctx.sim.mode)
         ranking = rank_candidates(ctx.sim, current.full, candidates, ctx.torque_scale)
         rounds.append(ranking)
-        admissible = [(e, s) for e in ranking for s in [_judge(ctx, current, e, bool(stand_ins))] if s is not None]
+        admissible = []
+        at_floor: FitResult | None = None  # the first admissible refit that leaves only sensor noise
+        for evidence in ranking:
+            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor)
+            if scored is not None:
+                admissible.append((evidence, scored))
+                if at_floor is None and nothing_left(ctx.sim, scored.full, ctx.sensor):
+                    at_floor = scored.full
         if not admissible:
             stopped = "no candidate passed every test"
             break
@@ -259,22 +266,34 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
     return SearchOutcome(effects, current.full, rounds, steps, ctx.folds, removed, equivalents, stopped, stand_ins)
 
 
-def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: bool) -> Scored | None:
-    """Refit one candidate and put it through every test; its cross-validated model if it passes."""
+def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: bool,
+           at_floor: FitResult | None = None) -> Scored | None:
+    """Refit one candidate and put it through every test; its cross-validated model if it passes.
+
+    ``at_floor``: an earlier candidate of the round whose model leaves nothing but sensor noise.
+    This one can then at best tie with it: it gets only the starts its linear test suggests,
+    and it is not cross-validated when it fits the training data materially worse (by more
+    than a tenth of the noise variance), which would lose it any tie."""
     ctx.say(f"trying {evidence.effect} ({evidence.variant})")
-    return assess(ctx, current, evidence, refit_effect(ctx, current.full, evidence), stand_ins)
+    refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None)
+    if refit is None:
+        return _refuse(evidence, "not refitted: its linear test gave the wrong sign, and another candidate "
+                                 "already leaves nothing but sensor noise")
+    return assess(ctx, current, evidence, refit, stand_ins, at_floor)
 
 
-def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence) -> FitResult:
+def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fallbacks: bool = True) -> FitResult | None:
     """The current model plus ``evidence``'s effect, fitted on all units from its best start."""
     sim = ctx.sim
     refit = refit_candidate(sim, current, evidence, ctx.torque_scale, _scales(ctx, current),
-                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials)
+                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials, fallbacks)
+    if refit is None:
+        return None
     return without_weak_optional(sim, current, refit, evidence, ctx.settings.min_sigma, ctx.torque_scale)
 
 
 def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitResult,
-           stand_ins: bool = False) -> Scored | None:
+           stand_ins: bool = False, at_floor: FitResult | None = None) -> Scored | None:
     """The admission tests of the module doc on a refitted candidate (``refit``: the current
     model plus the effect, fitted on all units; ``stand_ins``: the current model carries some).
     Records everything on ``evidence``; returns the candidate's cross-validated model when it is
@@ -293,6 +312,11 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
                                  f"(needs {evidence.required_sigma:.1f} σ)")
     if evidence.training_gain <= settings.min_gain:
         return _refuse(evidence, f"training gain {100 * evidence.training_gain:.1f} % ≤ {100 * settings.min_gain:.0f} %")
+    if at_floor is not None:
+        floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
+        if refit.rmse**2 - at_floor.rmse**2 > REGIME_MATERIAL * floor**2:
+            return _refuse(evidence, "fits the training data materially worse than a candidate that leaves "
+                                     "nothing but sensor noise")
     scored = cross_validate(ctx, refit)
     gain = compare(ctx, current, scored)
     evidence.crossval = gain.as_dict()
