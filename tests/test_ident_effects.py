@@ -180,3 +180,29 @@ def test_large_torque_bias_is_not_lost_to_a_compensating_drift(tmp_path):
     assert value == pytest.approx(0.05, rel=0.05)
     assert j["params"]["torque_drift"] == 0.0
     assert j["rmse_after"] < 0.0025
+
+
+def test_physical_sense_refuses_bounds_free_periods_grid_ends_and_pushing_friction():
+    """effects.physical_problems: what no refit may do, whatever it does to the error."""
+    from admittance.ident.effects import Evidence, physical_problems
+    from admittance.ident.fit import FitResult
+    from admittance.ident.model import vector_from
+
+    def problems(effect, params, **values):
+        fit = FitResult(vector_from({"motor_inertia": 0.01, "coulomb": 0.05, **values}), 1.0, (), {},
+                        np.zeros((0, 2)), [], 0, 0, 0.0)
+        return physical_problems(Evidence(effect, params=params), fit)
+
+    cog = ("cogging_amplitude", "cogging_phase")
+    assert problems("cogging", cog, cogging_amplitude=0.01, cogging_period=8.0) == []
+    assert "whole number" in problems("cogging", cog, cogging_amplitude=0.01, cogging_period=6.26)[0]
+    assert "end of the searched grid" in problems("cogging", cog, cogging_amplitude=0.01, cogging_period=2.0)[0]
+    assert "end of the searched grid" in problems("cogging", cog, cogging_amplitude=0.01, cogging_period=32.0)[0]
+    assert "lower bound" in problems("cogging", cog, cogging_amplitude=0.0, cogging_period=8.0)[0]
+    ripple = ("friction_ripple_amplitude", "friction_ripple_phase")
+    assert "above the Coulomb level" in problems("friction_ripple", ripple, friction_ripple_amplitude=0.08,
+                                                 friction_ripple_period=6.0)[0]
+    assert "above the Coulomb level" in problems("asymmetric_coulomb", ("coulomb_asym",), coulomb_asym=-0.06)[0]
+    assert "upper bound" in problems("stribeck", ("stribeck_torque", "stribeck_velocity"), stribeck_torque=0.01,
+                                     stribeck_velocity=20.0)[0]
+    assert "collapsed" in problems("time_delay", ("time_delay",), time_delay=0.01, motor_inertia=1e-9)[-1]
