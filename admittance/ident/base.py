@@ -19,7 +19,7 @@ import numpy as np
 
 from admittance.ident.crossval import Folds, make_folds, small_oscillation_period
 from admittance.ident.equation_error import initial_state_starts
-from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, screen_starts
 from admittance.ident.model import INDEX, Simulator
 from admittance.ident.search import SearchContext, SearchSettings, nothing_left
 from admittance.ident.sensor import Sensor
@@ -34,7 +34,7 @@ def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts
     """The base model on ``sim``'s trials; returns the fit and what each start reached."""
     # The starting states: the data's candidates scored under the equation-error model in one
     # batch, each trial taking its best, then refined (the joint LM refits them anyway).
-    x0 = fit_initial_states_multi(sim, start, [best_start(sim, start, x0_starts)], tau_scale=sim.tau_scale,
+    x0 = fit_initial_states_multi(sim, start, [screen_starts(sim, start, x0_starts)], tau_scale=sim.tau_scale,
                                   label="base fit").x0
     fit = fit_output_error(sim, start, free, x0, torque_scale=torque_scale, progress=progress, label="base fit")
     record = [{"start": "equation error", "rmse": fit.rmse}]
@@ -56,16 +56,6 @@ def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts
                                 label="base fit")
         record.append({"start": "best grid start, finished", "rmse": best.rmse})
     return best, record
-
-
-def best_start(sim: Simulator, vector: np.ndarray, starts: list[np.ndarray]) -> np.ndarray:
-    """Per trial, the start (of ``starts``, each (T, 2)) whose simulation under ``vector`` is
-    closest to the data: one batch, no fitting."""
-    rows = np.repeat(vector[None, :], len(starts), axis=0)
-    sims = sim.run(rows, np.stack(starts))
-    choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
-              for s, m in zip(sims, sim.measured)]
-    return np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
 
 
 def search_context(sim: Simulator, base: FitResult, sensor: Sensor, torque_scale: float, settings: SearchSettings,

@@ -360,3 +360,12 @@ def fit_initial_states_multi(sim: Simulator, vector: np.ndarray, starts: Sequenc
         seconds=sum(f.seconds for f in fits),
         jacobian=[f.jacobian[k] for k, f in enumerate(best)] if all(f.jacobian for f in best) else [],
     )
+
+
+def screen_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarray]) -> np.ndarray:
+    """Per trial, the start (of ``starts``, each (T, 2)) whose simulation under ``vector`` is
+    closest to the data: one batch, no fitting."""
+    sims = sim.run(np.repeat(np.asarray(vector, float)[None, :], len(starts), axis=0), np.stack(starts))
+    choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
+              for s, m in zip(sims, sim.measured)]
+    return np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)

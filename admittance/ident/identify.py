@@ -30,12 +30,12 @@ import numpy as np
 
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
-from admittance.ident.base import best_start, fit_base, search_context, torque_scale_of
+from admittance.ident.base import fit_base, search_context, torque_scale_of
 from admittance.ident.crossval import Folds
 from admittance.ident.dataset import Dataset
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
-from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
 from admittance.ident.model import (
     EFFECTS,
     INDEX,
@@ -281,10 +281,10 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
         # model in one batch, then fitted; the final model also from the base model's states.
         held_starts = [s[heldout] for s in starts_all]
         held_base = sim_held.with_tau_scale(base.tau_scale)
-        before = fit_initial_states_multi(sim_held, base.vector, [best_start(held_base, base.vector, held_starts)],
+        before = fit_initial_states_multi(sim_held, base.vector, [screen_starts(held_base, base.vector, held_starts)],
                                           tau_scale=base.tau_scale, progress=progress, label="scoring")
         after = before if final is base else fit_initial_states_multi(
-            sim_held, final.vector, [best_start(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
+            sim_held, final.vector, [screen_starts(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
                                      before.x0], tau_scale=final.tau_scale, progress=progress, label="scoring")
     with _timed(timings, "residual_analysis"):
         progress("residual analysis")

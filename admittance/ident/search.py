@@ -286,7 +286,7 @@ def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fal
     """The current model plus ``evidence``'s effect, fitted on all units from its best start."""
     sim = ctx.sim
     refit = refit_candidate(sim, current, evidence, ctx.torque_scale, _scales(ctx, current),
-                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials, fallbacks)
+                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials, fallbacks, ctx.x0_starts)
     if refit is None:
         return None
     return without_weak_optional(sim, current, refit, evidence, ctx.settings.min_sigma, ctx.torque_scale)
