@@ -31,6 +31,8 @@ import numpy as np
 import tomli_w
 from scipy.integrate import solve_ivp
 
+from admittance.ident.synthetic import EFFECT_MAIN
+
 GRAVITY = 9.80665
 ROD = {"mass": 0.0402, "length": 0.456}
 BOB = {"mass": 0.1034}
@@ -45,20 +47,10 @@ LIBRARY_DEFAULTS = {
     "spring_stiffness": 0.0, "spring_neutral": 0.0, "friction_ripple_amplitude": 0.0,
     "friction_ripple_period": 0.0, "friction_ripple_phase": 0.0,
 }
-# What an effect name sets, for the library effects (main parameter, companions).
-LIBRARY_MAIN = {
-    "stribeck": ("stribeck_torque", {"stribeck_velocity": 0.15}),
-    "asymmetric_coulomb": ("coulomb_asym", {}),
-    "load_dependent_coulomb": ("load_coulomb", {}),
-    "angle_offset": ("angle_offset", {}),
-    "quadratic_drag": ("quadratic_drag", {}),
-    "cogging": ("cogging_amplitude", {"cogging_period": 8.0, "cogging_phase": 0.4}),
-    "time_delay": ("time_delay", {}),
-    "torque_bias": ("torque_bias", {}),
-    "torque_gain": ("torque_gain", {}),
-    "spring": ("spring_stiffness", {"spring_neutral": 0.2}),
-    "friction_ripple": ("friction_ripple_amplitude", {"friction_ripple_period": 6.0, "friction_ripple_phase": 0.3}),
-}
+# What an effect name sets (main parameter, companions): the same names as the synthetic
+# generator's, so the two sources of test data inject the same effects. (Names only: the physics
+# below is written independently.)
+LIBRARY_MAIN = EFFECT_MAIN
 # Effects with no library name, each a physically motivated torque (the value is its size):
 UNNAMED = (
     "backlash",  # rad of half-gap between the gear train (armature, friction) and the load

@@ -40,6 +40,7 @@ from typing import Sequence
 import numpy as np
 
 from admittance.ident.dataset import TrialData
+from admittance.ident.fit import autocorrelation_time
 from admittance.ident.split import stratum_order
 
 MAX_FOLDS = 5
@@ -170,7 +171,7 @@ def paired_gain(current: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
     total_c = sum(float(c @ c) for c in candidate)
     mean = (total_m - total_c) / n
     centred = [d - d.mean() for d in deltas if d.size]
-    tau = _autocorrelation_time(centred)
+    tau = autocorrelation_time(centred, max_lag=2000)
     variance = sum(float(d @ d) for d in centred) / n
     std_error = math.sqrt(max(variance, 0.0) * tau / n)
     low = mean - NormalDist().inv_cdf(CONFIDENCE) * std_error
@@ -193,23 +194,3 @@ def paired_gain(current: Sequence[np.ndarray], candidate: Sequence[np.ndarray], 
 
 def _gain(before: float, after: float) -> float:
     return float(1.0 - math.sqrt(max(after, 0.0) / before)) if before > 0 else 0.0
-
-
-def _autocorrelation_time(series: Sequence[np.ndarray], max_lag: int = 2000) -> float:
-    """1 + 2·Σρ_k of already-centred series, pooled, summed until ρ first drops below 0."""
-    num = np.zeros(max_lag + 1)
-    den = 0.0
-    for x in series:
-        lags = min(max_lag, x.size - 1)
-        if lags < 1:
-            continue
-        spec = np.fft.rfft(x, 2 * x.size)
-        acov = np.fft.irfft(spec * np.conj(spec))[: lags + 1]
-        num[: lags + 1] += acov
-        den += acov[0]
-    if den <= 0:
-        return 1.0
-    rho = num / den
-    negative = np.flatnonzero(rho[1:] < 0)
-    cut = negative[0] + 1 if negative.size else rho.size
-    return float(max(1.0, 1.0 + 2.0 * rho[1:cut].sum()))
