@@ -93,6 +93,7 @@ REGIME_RELATIVE = 0.25  # and the effect's value must differ by this fraction of
 # an encoder's eccentricity gained 18 %, the stand-ins on measured swings 26 times the noise
 # variance; right models a few per cent).
 REGIME_MATERIAL = 0.1
+REGIME_OBVIOUS = 1.0  # separate models that gain a whole noise variance disagree, whatever the statistic
 REGIME_STEP_FACTOR = 4  # regime fits simulate at a quarter of the fit's step (see _regimes)
 # Training fits closer than this fraction of the noise variance fit equally well.
 MATERIAL_FIT = 0.1
@@ -428,13 +429,17 @@ def regime_inconsistency(ctx: SearchContext, evidence: Evidence, fit: FitResult,
             shown = "; ".join(f"{n} {v[labels[0]][0]:.4g} ± {v[labels[0]][1]:.2g} vs {v[labels[1]][0]:.4g} ± "
                               f"{v[labels[1]][1]:.2g}" for n, v in record["params"].items() if n in record["effect"])
             return f"its value differs between the {labels[0]} and the {labels[1]} data ({shown})", records
-        if record["statistic"] > record["limit"] and record["gain_over_floor"] > REGIME_MATERIAL:
+        unstable = record["statistic"] > record["limit"] and record["gain_over_floor"] > REGIME_MATERIAL
+        # A model far from right leaves a residual so correlated that the statistic, counted in
+        # effective samples, loses its power; a gain of a whole noise variance is no noise.
+        if unstable or record["gain_over_floor"] > REGIME_OBVIOUS:
             moved = sorted(record["params"], key=lambda nm: _relative_move(record["params"][nm], labels),
                            reverse=True)[:2]
             shown = "; ".join(f"{nm} {record['params'][nm][labels[0]][0]:.4g} vs {record['params'][nm][labels[1]][0]:.4g}"
                               for nm in moved)
             return (f"the model with it is not one model on the {labels[0]} and the {labels[1]} data "
-                    f"(stability statistic {record['statistic']:.0f} > {record['limit']:.0f}: {shown})"), records
+                    f"(stability statistic {record['statistic']:.0f}, limit {record['limit']:.0f}; separate fits gain "
+                    f"{record['gain_over_floor']:.2g}× the noise variance: {shown})"), records
     return "", records
 
 
