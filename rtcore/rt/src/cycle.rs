@@ -334,4 +334,4 @@ impl Controller {
 
 #[cfg(test)]
 #[path = "cycle_tests.rs"]
-mod tests;
+pub(crate) mod tests;

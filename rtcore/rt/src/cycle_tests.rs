@@ -235,7 +235,8 @@ fn overruns_are_counted_and_skipped_on_the_grid() {
     let start = r.clock.now_ns();
     let mut clock = r.clock.clone();
     let mut n = 0;
-    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), || {
+    let bell = crate::doorbell::Doorbell::default();
+    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), &bell, crate::trigger::TriggerMode::Schedule, || {
         n += 1;
         if n == 5 {
             cost.set(2_500_000); // this cycle's write takes 2.5 periods
@@ -253,7 +254,7 @@ fn overruns_are_counted_and_skipped_on_the_grid() {
 }
 
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
-mod counting {
+pub(crate) mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
     use std::cell::Cell;
 

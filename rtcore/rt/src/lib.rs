@@ -13,6 +13,7 @@
 //! them, and the loop ramps the gains towards each new set.
 //!
 //! - [`clock`]: the clock trait, CLOCK_MONOTONIC, the absolute-deadline pacer.
+//! - [`doorbell`], [`trigger`]: a force sample's push wakes the loop; when a cycle starts.
 //! - [`sched`]: SCHED_FIFO, mlockall, affinity, and their fallback report.
 //! - [`histogram`]: fixed log-spaced timing histograms.
 //! - [`sensor`], [`filter`]: force samples in, tare, deadband, low-pass.
@@ -24,6 +25,7 @@
 //!   starting and steering a loop from another thread.
 pub mod bus;
 pub mod clock;
+pub mod doorbell;
 pub mod filter;
 pub mod histogram;
 pub mod joint;
@@ -37,7 +39,9 @@ pub mod handle;
 pub mod port;
 pub mod runner;
 pub mod shared;
+pub mod trigger;
 
 pub use config::{JointConfig, LoopConfig};
 pub use handle::{ForceSink, LoopHandle, StartError, StopPolicy};
 pub use params::ParamValue;
+pub use trigger::TriggerMode;
