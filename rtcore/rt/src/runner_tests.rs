@@ -355,3 +355,23 @@ fn a_stop_during_a_wait_ends_the_loop() {
     });
     assert_eq!(r.counter(&shared.stats.cycles), 2);
 }
+
+#[test]
+fn after_late_samples_a_jittery_sensor_is_caught_on_arrival_again_at_once() {
+    // ±30 % of a period around mid-window, and every 25th sample half a period late on top.
+    let arrivals = (0..1_100).map(|k| {
+        let late = if k % 25 == 24 { 500_000 } else { 0 };
+        (T0 + P + 450_000 + k * P + late).saturating_add_signed(jitter(k, 300_000))
+    });
+    let mut r = rig(arrivals);
+    let recs = r.run(LOCKED, 1_000);
+    assert_fixed_step(&recs);
+    assert_eq!(r.counter(&r.shared.stats.overruns), 0);
+    // A late sample that missed its window waits at most for the next opening (it came within
+    // the last tenth of the period); the sample after it is caught on arrival again, never used
+    // late at an opening (which would leave every following sample waiting in turn).
+    let lat = latencies(&recs);
+    assert!(lat.len() > 950, "{}", lat.len());
+    let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS).collect();
+    assert!(waited.len() <= 40 && waited.iter().all(|&l| l <= P / 10 + WRITE_NS), "{waited:?}");
+}

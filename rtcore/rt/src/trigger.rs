@@ -38,6 +38,8 @@ const WINDOW_TENTHS: u64 = 9;
 const SLEW_DIVISOR: i64 = 500;
 /// The phase lock corrects 1/GAIN_DIVISOR of the phase error per cycle (before the slew limit).
 const GAIN_DIVISOR: i64 = 8;
+/// The reported phase error is an average over about this many measurements.
+const PHASE_ERROR_SMOOTHING: i64 = 16;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TriggerMode {
@@ -97,7 +99,7 @@ pub struct Trigger {
     /// Where in the window the phase lock puts the arrivals: its middle.
     target_ns: i64,
     slew_ns: i64,
-    /// The last phase error the lock measured (arrival − target), for the statistics.
+    /// The phase error the lock measured (arrival − target), smoothed, for the statistics.
     pub phase_error_ns: i64,
 }
 
@@ -144,7 +146,7 @@ impl Trigger {
             let fallback = self.fallback_ns();
             return Step::Wait { until_ns: fallback, otherwise: Start { due_ns: fallback, cause: Cause::Fallback } };
         }
-        match self.fresher_expected_by(timing) {
+        match self.wait_for_successor(timing) {
             Some(until_ns) => Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Open } },
             None => Step::Run(Start { due_ns: open, cause: Cause::Open }),
         }
@@ -156,15 +158,18 @@ impl Trigger {
         Start { due_ns: timing.last_ns.max(self.open_ns()), cause: Cause::Arrival }
     }
 
-    /// With a sample waiting: if the next arrival is expected inside this window (a sensor
-    /// faster than the loop), the time to wait for it until; `None` to use the waiting one now.
-    fn fresher_expected_by(&self, timing: &ArrivalTiming) -> Option<u64> {
-        if timing.interval_ns == 0 {
-            return None;
+    /// With a sample waiting at the opening: if its successor is due inside this window, the
+    /// time to wait for it until (its due time plus a margin for jitter, at most the window's
+    /// end); `None` to use the waiting sample now. Until the sensor's period is known, it is
+    /// taken to be the loop's.
+    fn wait_for_successor(&self, timing: &ArrivalTiming) -> Option<u64> {
+        let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() };
+        let due = timing.last_ns.saturating_add(interval);
+        if due <= self.open_ns() || due > self.fallback_ns() {
+            return None; // overdue already, or after the window: waiting would only age the sample
         }
-        let margin = timing.interval_ns / 8 + 2 * timing.spread_ns;
-        let until = timing.last_ns.saturating_add(timing.interval_ns).saturating_add(margin);
-        (until > self.open_ns() && until <= self.fallback_ns()).then_some(until)
+        let margin = interval / 8 + 2 * timing.spread_ns;
+        Some(due.saturating_add(margin).min(self.fallback_ns()))
     }
 
     /// After the window's cycle: moves to the next window, nudged by the phase lock when this
@@ -185,7 +190,7 @@ impl Trigger {
         // next one; the other way round it would keep starting at the opening, on a sample
         // that waits longer and longer, until the grid had moved by half a period.
         let error = timing.last_ns as i64 - open as i64 - self.target_ns;
-        self.phase_error_ns = error;
+        self.phase_error_ns += (error - self.phase_error_ns) / PHASE_ERROR_SMOOTHING;
         let delta = (error / GAIN_DIVISOR).clamp(-self.slew_ns, self.slew_ns);
         self.pacer.shift(delta, open + period / 2);
     }
@@ -256,16 +261,23 @@ mod tests {
     }
 
     #[test]
-    fn a_waiting_sample_runs_at_once_unless_a_fresher_one_is_due_inside_the_window() {
+    fn a_waiting_sample_runs_at_once_unless_its_successor_is_due_inside_the_window() {
         let t = Trigger::new(TriggerMode::default(), 0, P);
         let now = Step::Run(Start { due_ns: P, cause: Cause::Open });
-        // Sensor at the loop's rate: its next arrival falls after the window.
+        let wait = |until_ns| Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Open } };
+        // Sensor at the loop's rate, its sample 1 % of a period old: the next falls after the
+        // window; the same while the period is not known (the loop's is assumed).
         assert_eq!(t.plan(true, &timing(P - 10_000, P)), now);
-        // Period unknown yet: use what is there.
         assert_eq!(t.plan(true, &timing(P - 10_000, 0)), now);
+        // Its sample 55 % old (it came after the last cycle had started): the successor is due
+        // 45 % into the window; wait for it, an eighth of a period of jitter more at most.
+        assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait(P + 450_000 + 125_000));
+        assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait(P + 450_000 + 125_000));
+        // ...however jittery the sensor: the margin stops at the window's end.
+        let jittery = ArrivalTiming { last_ns: P - 550_000, interval_ns: P, spread_ns: 400_000 };
+        assert_eq!(t.plan(true, &jittery), wait(P + 900_000));
         // A 4x faster sensor: wait for the next arrival, up to an eighth of its period late.
-        let until = P - 100_000 + 250_000 + 31_250;
-        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), Step::Wait { until_ns: until, otherwise: Start { due_ns: until, cause: Cause::Open } });
+        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 150_000 + 31_250));
         // Overdue already (the sensor is late against its own period): no wait.
         assert_eq!(t.plan(true, &timing(P - 900_000, 250_000)), now);
     }
@@ -278,7 +290,7 @@ mod tests {
         let open = t.open_ns();
         t.after_cycle(true, &timing(open - 50_000, P));
         assert_eq!(t.open_ns(), open + P - 2_000);
-        assert_eq!(t.phase_error_ns, -500_000);
+        assert_eq!(t.phase_error_ns, -500_000 / 16, "reported smoothed");
         // A small error is corrected by an eighth.
         let open = t.open_ns();
         t.after_cycle(true, &timing(open + 450_000 + 800, P));
