@@ -12,13 +12,14 @@
 //! The stamps still define the latency (contract `latency_us`); the push times define when a
 //! cycle can start and what the sensor's period is.
 //!
-//! Why batches count as one arrival: a reader that gets several frames in one read pushes them
-//! back to back with one stamp. For the trigger that is one arrival: the first push wakes the
-//! loop, the later ones are drained with it.
+//! Why bursts count as one arrival: a reader that gets several frames in one read pushes them
+//! back to back, and one that stalled pushes its backlog in a burst. For the trigger that is one
+//! arrival: the first push wakes the loop, the others are drained with it. Counted one by one,
+//! a burst would make the sensor look many times faster than it is.
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::*};
 
-/// A push closer than this to the previous arrival, with the same stamp, belongs to it.
-const BATCH_NS: u64 = 200_000;
+/// A push closer than this to the previous push belongs to the same arrival (a burst).
+const BURST_GAP_NS: u64 = 50_000;
 /// Intervals before the period estimate is trusted.
 const WARM_UP_INTERVALS: u32 = 8;
 /// EWMA weight of a new interval (1/8: a few periods to follow a rate change, smooth enough to
@@ -40,25 +41,30 @@ pub struct ArrivalTiming {
 /// state is behind the sink's mutex), publishes through the [`Doorbell`].
 #[derive(Debug, Default, Clone)]
 pub struct ArrivalEstimator {
-    last_stamp: Option<u64>,
+    /// Any push seen yet.
+    started: bool,
+    /// The newest push, and the first push of the newest arrival.
     last_push_ns: u64,
+    arrival_ns: u64,
     mean: f64,
     spread: f64,
     intervals: u32,
 }
 
 impl ArrivalEstimator {
-    /// Feeds one successful push; returns the new timing when the push starts a new arrival.
-    pub fn observe(&mut self, push_ns: u64, stamp_ns: u64) -> Option<ArrivalTiming> {
-        let since = push_ns.saturating_sub(self.last_push_ns);
-        if self.last_stamp == Some(stamp_ns) && since < BATCH_NS {
+    /// Feeds one successful push at `push_ns`; returns the new timing when it starts a new
+    /// arrival.
+    pub fn observe(&mut self, push_ns: u64) -> Option<ArrivalTiming> {
+        let in_burst = self.started && push_ns.saturating_sub(self.last_push_ns) < BURST_GAP_NS;
+        self.last_push_ns = push_ns;
+        if in_burst {
             return None;
         }
-        if self.last_stamp.is_some() && since > 0 {
-            self.add_interval(since as f64);
+        if self.started {
+            self.add_interval(push_ns.saturating_sub(self.arrival_ns) as f64);
         }
-        self.last_stamp = Some(stamp_ns);
-        self.last_push_ns = push_ns;
+        self.started = true;
+        self.arrival_ns = push_ns;
         Some(self.timing())
     }
 
@@ -78,7 +84,7 @@ impl ArrivalEstimator {
     pub fn timing(&self) -> ArrivalTiming {
         let known = self.intervals >= WARM_UP_INTERVALS;
         ArrivalTiming {
-            last_ns: self.last_push_ns,
+            last_ns: self.arrival_ns,
             interval_ns: if known { self.mean as u64 } else { 0 },
             spread_ns: if known { self.spread as u64 } else { 0 },
         }
@@ -180,14 +186,15 @@ mod tests {
     use std::sync::Arc;
 
     #[test]
-    fn a_batch_is_one_arrival_and_the_period_is_learned() {
+    fn a_burst_is_one_arrival_and_the_period_is_learned() {
         let mut est = ArrivalEstimator::default();
         for k in 0..20u64 {
             let t = 1_000_000 + k * 1_000_000;
-            assert!(est.observe(t, t - 5).is_some(), "arrival {k}");
-            // Two more frames of the same read, pushed right after with the same stamp.
-            assert_eq!(est.observe(t + 2_000, t - 5), None);
-            assert_eq!(est.observe(t + 4_000, t - 5), None);
+            assert!(est.observe(t).is_some(), "arrival {k}");
+            // More frames of the same read (or a backlog), each within 50 µs of the last.
+            for j in 1..=5 {
+                assert_eq!(est.observe(t + j * 40_000), None);
+            }
         }
         let timing = est.timing();
         assert_eq!(timing.last_ns, 20_000_000);
@@ -199,22 +206,14 @@ mod tests {
     fn the_period_is_unknown_until_warmed_up_and_a_pause_does_not_throw_it() {
         let mut est = ArrivalEstimator::default();
         for k in 0..WARM_UP_INTERVALS as u64 {
-            est.observe(k * 1_000, k);
+            est.observe(k * 100_000);
             assert_eq!(est.timing().interval_ns, 0);
         }
-        est.observe(8 * 1_000, 8);
-        assert_eq!(est.timing().interval_ns, 1_000);
+        est.observe(8 * 100_000);
+        assert_eq!(est.timing().interval_ns, 100_000);
         // A 1 s gap counts as at most 4 periods: the estimate moves by 1/8 of 3 periods.
-        est.observe(1_000_000_000, 9);
-        assert_eq!(est.timing().interval_ns, 1_375);
-    }
-
-    #[test]
-    fn the_same_stamp_much_later_is_a_new_arrival() {
-        // A reader that stamps badly (a constant) must still be seen arriving.
-        let mut est = ArrivalEstimator::default();
-        assert!(est.observe(1_000_000, 7).is_some());
-        assert!(est.observe(2_000_000, 7).is_some());
+        est.observe(1_000_000_000);
+        assert_eq!(est.timing().interval_ns, 137_500);
     }
 
     #[test]

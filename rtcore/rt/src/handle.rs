@@ -110,7 +110,7 @@ impl ForceSink {
         if state.ring.push(sample).is_err() {
             return false;
         }
-        if let Some(timing) = state.arrivals.observe(now_ns, sample.t_ns) {
+        if let Some(timing) = state.arrivals.observe(now_ns) {
             self.bell.publish(timing);
         }
         drop(state); // the wake-up syscall need not hold up other pushers

@@ -375,3 +375,27 @@ fn after_late_samples_a_jittery_sensor_is_caught_on_arrival_again_at_once() {
     let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS).collect();
     assert!(waited.len() <= 40 && waited.iter().all(|&l| l <= P / 10 + WRITE_NS), "{waited:?}");
 }
+
+#[test]
+fn a_backlog_pushed_in_a_burst_counts_as_one_arrival() {
+    // Mid-window arrivals; every 100th period the reader stalls for ten periods, then pushes the
+    // ten samples it owes 30 µs apart (each with its own stamp), from 80 % into a period on,
+    // across the window's end.
+    let arrivals = (0..1_100u64).map(|k| {
+        let (stall, j) = (k / 100 * 100 + 50, k % 100);
+        if (50..60).contains(&j) {
+            T0 + P + (stall + 9) * P + 800_000 + (j - 50) * 30_000
+        } else {
+            T0 + P + 450_000 + k * P
+        }
+    });
+    let mut r = rig(arrivals);
+    let recs = r.run(LOCKED, 1_000);
+    assert_fixed_step(&recs);
+    // Counted one by one, the burst would make the sensor look 30 µs fast: the next sample that
+    // came after its window's cycle would then look long overdue and be used at the opening,
+    // and so would every one after it, each waiting half a period, until the estimate recovered.
+    let lat = latencies(&recs);
+    let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > P / 10 + WRITE_NS).collect();
+    assert!(waited.is_empty(), "{waited:?} {:?}", r.starts());
+}
