@@ -32,6 +32,8 @@ def config(**overrides) -> dict:
     ({"protocol": 3}, "protocol"),
     ({"rt_policy": "rr"}, "rt_policy"),
     ({"lowpass_hz": 600.0}, "lowpass_hz"),
+    ({"trigger": "sometimes"}, "config.trigger"),
+    ({"phase_lock": "yes"}, "phase_lock"),
 ])
 def test_bad_configurations_name_the_key(overrides, message):
     with pytest.raises(ConfigError, match=message):

@@ -118,6 +118,25 @@ def test_stats_has_every_key_of_the_daemon_contract(bus):
     assert stats["rate_hz"] == RATE_HZ and stats["cycles"] >= 20 and stats["sensor_samples"] > 0
 
 
+@pytest.mark.parametrize("trigger", ["sample", "schedule"])
+def test_a_sample_starts_the_cycle_unless_the_loop_keeps_to_its_schedule(bus, trigger):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path, trigger=trigger))
+    loop.start()
+    run_with_force(loop, 0.5, 100)
+    loop.stop()
+    stats = loop.stats()
+    t = stats["trigger"]
+    assert t["mode"] == trigger and t["phase_lock"] == (trigger == "sample")
+    assert sum(t["starts"].values()) == stats["cycles"]
+    if trigger == "schedule":
+        assert t["starts"]["schedule"] == stats["cycles"]
+    else:
+        # The pushes (about one a millisecond; 500 Hz loop) wake the loop: cycles start on a
+        # sample's arrival, and the sensor's period is known.
+        assert t["starts"]["schedule"] == 0 and t["starts"]["arrival"] > 0
+        assert t["sensor_interval_us"] > 0
+
+
 def test_fifo_is_obtained_or_refused_with_a_warning(bus):
     loop = _rtcore.AdmittanceLoop(config(bus.port_path, rt_priority=10))
     loop.start()
