@@ -47,6 +47,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -353,6 +354,11 @@ def gc_pressure(stop: threading.Event) -> None:
         time.sleep(0.001)
 
 
+def die_with_parent() -> None:
+    """In a burner, before exec: SIGKILL when the bench dies, however it dies (PR_SET_PDEATHSIG)."""
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
+
+
 def free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -373,7 +379,8 @@ class DaemonLoad:
         self.endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
         self.monitor = open_session(make_config(listen=[self.endpoint]), "for the bench's subscriber")
         self.subscriber = self.monitor.declare_subscriber(f"{self.PREFIX}/**", zenoh.handlers.RingChannel(64))
-        self.burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+        self.burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=die_with_parent)
+                        for _ in range(2)]
         self._gc_stop = threading.Event()
         self._gc = threading.Thread(target=gc_pressure, args=(self._gc_stop,), daemon=True)
         self._gc.start()
