@@ -14,15 +14,18 @@
 //!   [`crate::sensor`] then holds the joints as before).
 //!
 //! Two refinements, both measured in bench/loop_timing.py:
-//! - *A sensor faster than the loop* leaves a sample waiting at nearly every opening. When the
-//!   next arrival is expected inside the window (from the measured arrival period and jitter),
-//!   the cycle waits for it instead, up to that expected time plus a margin: the sample a cycle
-//!   uses is then fresh, not up to one sensor period old.
-//! - *A sensor at the loop's rate* (or a divisor of it) arrives at a fixed phase of the grid.
-//!   If that phase fell in the last tenth of the period (after the window), every sample would
-//!   wait for the next opening. The phase lock nudges the grid, by at most period/500 per cycle,
-//!   until arrivals land mid-window. The cycle rate then stays within 0.2 % of `rate_hz`, and
-//!   equals it on average when the sensor shares the loop's clock.
+//! - *Waiting for a fresher sample.* A sample can be waiting at the opening because it came
+//!   after the previous cycle had started (a sensor faster than the loop always leaves one; a
+//!   sensor at the loop's rate does after one late sample). If its successor is due inside the
+//!   window (from the measured arrival period), the cycle waits for that one, up to its due time
+//!   plus a margin for jitter and at most to the window's end. Otherwise a fast sensor's samples
+//!   would be used up to one sensor period old, and after one late sample every following
+//!   sample would wait for the next opening in turn.
+//! - *The phase lock.* A sensor at the loop's rate (or a divisor of it) arrives at a fixed phase
+//!   of the grid. If that phase fell in the last tenth of the period (after the window), every
+//!   sample would wait for the next opening. The lock nudges the grid, by at most period/500 per
+//!   cycle, until arrivals land mid-window. The cycle rate then stays within 0.2 % of `rate_hz`,
+//!   and equals it on average when the sensor shares the loop's clock.
 //!
 //! Two cycles are never closer than a tenth of a period (a window's end to the next opening);
 //! a sensor faster than the loop never adds cycles: its extra samples are drained, the newest
