@@ -265,6 +265,7 @@ def rust_loop(port: str, rate_hz: int, n_joints: int, priority: int, trigger: st
               for i in range(1, n_joints + 1)]
     return _rtcore.AdmittanceLoop({"port": port, "rate_hz": rate_hz, "rt_priority": priority,
                                    "lock_memory": False, "sync_read_divisor": 0, "stale_timeout_ms": 1000.0,
+                                   "start_timeout_ms": 2000.0,
                                    "trigger": trigger, "phase_lock": phase_lock, "joints": joints})
 
 

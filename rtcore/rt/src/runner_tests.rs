@@ -369,11 +369,15 @@ fn after_late_samples_a_jittery_sensor_is_caught_on_arrival_again_at_once() {
     assert_eq!(r.counter(&r.shared.stats.overruns), 0);
     // A late sample that missed its window waits at most for the next opening (it came within
     // the last tenth of the period); the sample after it is caught on arrival again, never used
-    // late at an opening (which would leave every following sample waiting in turn).
+    // late at an opening (which would leave every following sample waiting in turn). Rarely,
+    // an early sample's successor comes later than the jitter margin: the early one is then
+    // used at the end of the wait, at most 1.5 periods after it arrived.
     let lat = latencies(&recs);
     assert!(lat.len() > 950, "{}", lat.len());
-    let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS).collect();
-    assert!(waited.len() <= 40 && waited.iter().all(|&l| l <= P / 10 + WRITE_NS), "{waited:?}");
+    let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > P / 10 + WRITE_NS).collect();
+    assert!(waited.len() <= 3 && waited.iter().all(|&l| l <= 3 * P / 2 + WRITE_NS), "{waited:?}");
+    let short: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS && l <= P / 10 + WRITE_NS).collect();
+    assert!(short.len() <= 40, "{short:?}");
 }
 
 #[test]

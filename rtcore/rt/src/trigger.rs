@@ -162,8 +162,8 @@ impl Trigger {
     }
 
     /// With a sample waiting at the opening: if its successor is due inside this window, the
-    /// time to wait for it until (its due time plus a margin for jitter, at most the window's
-    /// end); `None` to use the waiting sample now. Until the sensor's period is known, it is
+    /// time to wait for it until (its due time plus a margin for jitter of at most half a
+    /// period, and at most the window's end); `None` to use the waiting sample now. Until the sensor's period is known, it is
     /// taken to be the loop's.
     fn wait_for_successor(&self, timing: &ArrivalTiming) -> Option<u64> {
         let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() };
@@ -171,7 +171,9 @@ impl Trigger {
         if due <= self.open_ns() || due > self.fallback_ns() {
             return None; // overdue already, or after the window: waiting would only age the sample
         }
-        let margin = interval / 8 + 2 * timing.spread_ns;
+        // Jitter widens the margin, but never past half a period: when the successor does not
+        // come, the waiting sample is used at most 1.5 sensor periods after its arrival.
+        let margin = interval / 8 + (2 * timing.spread_ns).min(interval * 3 / 8);
         Some(due.saturating_add(margin).min(self.fallback_ns()))
     }
 
@@ -276,7 +278,9 @@ mod tests {
         // 45 % into the window; wait for it, an eighth of a period of jitter more at most.
         assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait(P + 450_000 + 125_000));
         assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait(P + 450_000 + 125_000));
-        // ...however jittery the sensor: the margin stops at the window's end.
+        // ...however jittery the sensor: half a period at most, and never past the window.
+        let jittery = ArrivalTiming { last_ns: P - 750_000, interval_ns: P, spread_ns: 400_000 };
+        assert_eq!(t.plan(true, &jittery), wait(P + 250_000 + 500_000));
         let jittery = ArrivalTiming { last_ns: P - 550_000, interval_ns: P, spread_ns: 400_000 };
         assert_eq!(t.plan(true, &jittery), wait(P + 900_000));
         // A 4x faster sensor: wait for the next arrival, up to an eighth of its period late.
