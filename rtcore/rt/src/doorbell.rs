@@ -220,19 +220,23 @@ mod tests {
     fn a_ring_wakes_a_waiting_thread_before_its_deadline() {
         let bell = Arc::new(Doorbell::default());
         let seq = bell.seq();
+        // A deadline far away (20 s): only the ring can end this wait before it.
+        let far = monotonic_ns() + 20_000_000_000;
         let waiter = {
             let bell = bell.clone();
             std::thread::spawn(move || {
-                // A deadline far away: only the ring can end this wait.
-                let far = monotonic_ns() + 60_000_000_000;
-                while bell.seq() == seq {
+                while bell.seq() == seq && monotonic_ns() < far {
                     bell.wait(seq, far);
                 }
+                monotonic_ns() < far
             })
         };
-        // The ring may come before or after the waiter arms; both orders must end the wait.
+        // Ring only once the waiter is armed, so the wake-up (not the re-check) must end it.
+        while !bell.armed.load(SeqCst) {
+            std::thread::yield_now();
+        }
         bell.ring();
-        waiter.join().unwrap();
+        assert!(waiter.join().unwrap(), "the ring did not wake the waiter");
         assert_eq!(bell.seq(), seq.wrapping_add(1));
     }
 
