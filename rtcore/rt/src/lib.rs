@@ -1,8 +1,9 @@
 //! The real-time admittance loop (Contract 5).
 //!
-//! A dedicated thread, optionally SCHED_FIFO with locked memory, wakes on absolute
-//! CLOCK_MONOTONIC deadlines and runs one cycle, top to bottom like ros2's
-//! admittance_controller, each step a named function of [`cycle::Controller`]:
+//! A dedicated thread, optionally SCHED_FIFO with locked memory, runs one cycle per period of
+//! a grid on CLOCK_MONOTONIC, started by a force sample's arrival (or at the end of the
+//! period's window, or on the plain schedule), top to bottom like ros2's admittance_controller,
+//! each step a named function of [`cycle::Controller`]:
 //! newest force sample → tare, deadband, low-pass → joint torque → one admittance step
 //! (`plant::admittance`) → state limits (anti-windup) → goal ticks → one SyncWrite → every
 //! `sync_read_divisor` cycles a read of the present positions.
