@@ -162,19 +162,26 @@ impl Trigger {
     }
 
     /// With a sample waiting at the opening: if its successor is due inside this window, the
-    /// time to wait for it until (its due time plus a margin for jitter of at most half a
-    /// period, and at most the window's end); `None` to use the waiting sample now. Until the sensor's period is known, it is
+    /// time to wait for a new arrival until: the window's end when more than one is due in it,
+    /// else the successor's due time plus a margin for jitter of at most half a period (and at
+    /// most the window's end); `None` to use the waiting sample now. Until the sensor's period is known, it is
     /// taken to be the loop's.
     fn wait_for_successor(&self, timing: &ArrivalTiming) -> Option<u64> {
         let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() };
         let due = timing.last_ns.saturating_add(interval);
-        if due <= self.open_ns() || due > self.fallback_ns() {
+        let fallback = self.fallback_ns();
+        if due <= self.open_ns() || due > fallback {
             return None; // overdue already, or after the window: waiting would only age the sample
         }
-        // Jitter widens the margin, but never past half a period: when the successor does not
-        // come, the waiting sample is used at most 1.5 sensor periods after its arrival.
+        if due.saturating_add(interval) <= fallback {
+            // More arrivals are due inside the window (a sensor faster than the loop): if the
+            // successor is late, the next one will do.
+            return Some(fallback);
+        }
+        // One arrival due: jitter widens the margin, but never past half a period, so when the
+        // successor does not come the waiting sample is used at most 1.5 sensor periods old.
         let margin = interval / 8 + (2 * timing.spread_ns).min(interval * 3 / 8);
-        Some(due.saturating_add(margin).min(self.fallback_ns()))
+        Some(due.saturating_add(margin).min(fallback))
     }
 
     /// After the window's cycle: moves to the next window, nudged by the phase lock when this
@@ -283,8 +290,10 @@ mod tests {
         assert_eq!(t.plan(true, &jittery), wait(P + 250_000 + 500_000));
         let jittery = ArrivalTiming { last_ns: P - 550_000, interval_ns: P, spread_ns: 400_000 };
         assert_eq!(t.plan(true, &jittery), wait(P + 900_000));
-        // A 4x faster sensor: wait for the next arrival, up to an eighth of its period late.
-        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 150_000 + 31_250));
+        // A 4x faster sensor: several arrivals are due in the window; wait for one, at most to
+        // the window's end. A 1.5x faster one has a single arrival due: its margin applies.
+        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 900_000));
+        assert_eq!(t.plan(true, &timing(P - 100_000, 666_000)), wait(P + 566_000 + 83_250));
         // Overdue already (the sensor is late against its own period): no wait.
         assert_eq!(t.plan(true, &timing(P - 900_000, 250_000)), now);
     }
