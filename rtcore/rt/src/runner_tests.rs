@@ -403,3 +403,17 @@ fn a_backlog_pushed_in_a_burst_counts_as_one_arrival() {
     let waited: Vec<u64> = lat.iter().copied().filter(|&l| l > P / 10 + WRITE_NS).collect();
     assert!(waited.is_empty(), "{waited:?} {:?}", r.starts());
 }
+
+#[test]
+fn a_faster_sensor_that_drops_samples_still_starts_every_cycle_on_a_fresh_one() {
+    // Four samples per period; every 9th never comes (a dropped frame, a reader hiccup).
+    let arrivals = (0..4_000u64).filter(|k| k % 9 != 4).map(|k| T0 + 10_000 + k * P / 4);
+    let mut r = rig(arrivals);
+    let recs = r.run(LOCKED, 900);
+    assert_fixed_step(&recs);
+    // When the sample a cycle waited for does not come, the next one, also due inside the
+    // window, starts it: no cycle falls back on the sample that was waiting at the opening.
+    let lat = latencies(&recs);
+    assert!(lat[10..].iter().all(|&l| l == WRITE_NS), "{:?}", lat.iter().filter(|&&l| l > WRITE_NS).collect::<Vec<_>>());
+    assert_eq!(r.starts().fallback, 0);
+}

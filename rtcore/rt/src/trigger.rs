@@ -167,20 +167,23 @@ impl Trigger {
     /// most the window's end); `None` to use the waiting sample now. Until the sensor's period is known, it is
     /// taken to be the loop's.
     fn wait_for_successor(&self, timing: &ArrivalTiming) -> Option<u64> {
-        let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() };
-        let due = timing.last_ns.saturating_add(interval);
+        let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() }.max(1);
+        // Jitter widens the margin, but never past half a period: when a sample does not come,
+        // the one waiting is used at most 1.5 sensor periods after it arrived.
+        let margin = interval / 8 + (2 * timing.spread_ns).min(interval * 3 / 8);
+        // The next arrival still to come: arrivals due more than the margin before the opening
+        // are counted as missed (a dropped frame, a stalled reader).
+        let overdue = self.open_ns().saturating_sub(timing.last_ns.saturating_add(margin));
+        let due = timing.last_ns.saturating_add((overdue.div_ceil(interval)).max(1).saturating_mul(interval));
         let fallback = self.fallback_ns();
-        if due <= self.open_ns() || due > fallback {
-            return None; // overdue already, or after the window: waiting would only age the sample
+        if due > fallback {
+            return None; // due after the window: waiting would only age the sample
         }
         if due.saturating_add(interval) <= fallback {
-            // More arrivals are due inside the window (a sensor faster than the loop): if the
-            // successor is late, the next one will do.
+            // More arrivals are due inside the window (a sensor faster than the loop): if this
+            // one is late, the next one will do.
             return Some(fallback);
         }
-        // One arrival due: jitter widens the margin, but never past half a period, so when the
-        // successor does not come the waiting sample is used at most 1.5 sensor periods old.
-        let margin = interval / 8 + (2 * timing.spread_ns).min(interval * 3 / 8);
         Some(due.saturating_add(margin).min(fallback))
     }
 
@@ -294,8 +297,16 @@ mod tests {
         // the window's end. A 1.5x faster one has a single arrival due: its margin applies.
         assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 900_000));
         assert_eq!(t.plan(true, &timing(P - 100_000, 666_000)), wait(P + 566_000 + 83_250));
-        // Overdue already (the sensor is late against its own period): no wait.
-        assert_eq!(t.plan(true, &timing(P - 900_000, 250_000)), now);
+        // Two samples missed (due 400 and 150 µs before the opening): the next is due 100 µs
+        // after it, more follow inside the window; wait for one, at most to the window's end.
+        assert_eq!(t.plan(true, &timing(P - 650_000, 250_000)), wait(P + 900_000));
+        // A sensor at the loop's rate, its sample due at the opening not there yet: it may be
+        // late by jitter, so wait a margin for it. Late by more than that (0.2 period), it is
+        // counted as missed, and the cycle waits for the one after it, due 0.8 period in.
+        assert_eq!(t.plan(true, &timing(0, P)), wait(P + 125_000));
+        let later = Trigger::new(TriggerMode::default(), 10 * P, P);
+        let missed = ArrivalTiming { last_ns: 11 * P - 1_200_000, interval_ns: P, spread_ns: 0 };
+        assert_eq!(later.plan(true, &missed), wait(11 * P + 900_000));
     }
 
     #[test]
