@@ -14,13 +14,12 @@
 //!   [`crate::sensor`] then holds the joints as before).
 //!
 //! Two refinements, both measured in bench/loop_timing.py:
-//! - *Waiting for a fresher sample.* A sample can be waiting at the opening because it came
+//! - *Waiting for a newer sample.* A sample can be waiting at the opening because it came
 //!   after the previous cycle had started (a sensor faster than the loop always leaves one; a
-//!   sensor at the loop's rate does after one late sample). If its successor is due inside the
-//!   window (from the measured arrival period), the cycle waits for that one, up to its due time
-//!   plus a margin for jitter and at most to the window's end. Otherwise a fast sensor's samples
-//!   would be used up to one sensor period old, and after one late sample every following
-//!   sample would wait for the next opening in turn.
+//!   sensor at the loop's rate does after one late sample). If a newer one is due inside the
+//!   window (from the measured arrival period), the cycle waits for an arrival, up to the
+//!   window's end. Otherwise a fast sensor's samples would be used up to one sensor period old,
+//!   and after one late sample every following sample would wait for the next opening in turn.
 //! - *The phase lock.* A sensor at the loop's rate (or a divisor of it) arrives at a fixed phase
 //!   of the grid. If that phase fell in the last tenth of the period (after the window), every
 //!   sample would wait for the next opening. The lock nudges the grid, by at most period/500 per
@@ -73,11 +72,11 @@ impl TriggerMode {
 pub enum Cause {
     /// The fixed grid (schedule mode).
     Schedule = 0,
-    /// A sample was already waiting when the window opened.
+    /// A sample was already waiting when the window opened, and none newer was due in it.
     Open = 1,
     /// A sample arrived inside the window.
     Arrival = 2,
-    /// No sample came: the window's end.
+    /// No (newer) sample came: the window's end.
     Fallback = 3,
 }
 
@@ -145,14 +144,13 @@ impl Trigger {
         if self.mode == TriggerMode::Schedule {
             return Step::Run(Start { due_ns: open, cause: Cause::Schedule });
         }
-        if !pending {
-            let fallback = self.fallback_ns();
-            return Step::Wait { until_ns: fallback, otherwise: Start { due_ns: fallback, cause: Cause::Fallback } };
+        if pending && !self.newer_sample_due(timing) {
+            return Step::Run(Start { due_ns: open, cause: Cause::Open });
         }
-        match self.wait_for_successor(timing) {
-            Some(until_ns) => Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Open } },
-            None => Step::Run(Start { due_ns: open, cause: Cause::Open }),
-        }
+        // Nothing waiting, or a newer sample due in the window (a late one still beats the
+        // sample that has been waiting): wait for an arrival up to the window's end.
+        let fallback = self.fallback_ns();
+        Step::Wait { until_ns: fallback, otherwise: Start { due_ns: fallback, cause: Cause::Fallback } }
     }
 
     /// The start of a cycle woken by an arrival: due when the sample was pushed (not before
@@ -161,30 +159,18 @@ impl Trigger {
         Start { due_ns: timing.last_ns.max(self.open_ns()), cause: Cause::Arrival }
     }
 
-    /// With a sample waiting at the opening: if its successor is due inside this window, the
-    /// time to wait for a new arrival until: the window's end when more than one is due in it,
-    /// else the successor's due time plus a margin for jitter of at most half a period (and at
-    /// most the window's end); `None` to use the waiting sample now. Until the sensor's period is known, it is
-    /// taken to be the loop's.
-    fn wait_for_successor(&self, timing: &ArrivalTiming) -> Option<u64> {
+    /// With a sample waiting at the opening: is a newer one due inside this window? Until the
+    /// sensor's period is known, it is taken to be the loop's.
+    fn newer_sample_due(&self, timing: &ArrivalTiming) -> bool {
         let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() }.max(1);
-        // Jitter widens the margin, but never past half a period: when a sample does not come,
-        // the one waiting is used at most 1.5 sensor periods after it arrived.
+        // A margin for jitter: an eighth of the period plus twice the measured jitter, at most
+        // half the period.
         let margin = interval / 8 + (2 * timing.spread_ns).min(interval * 3 / 8);
         // The next arrival still to come: arrivals due more than the margin before the opening
         // are counted as missed (a dropped frame, a stalled reader).
         let overdue = self.open_ns().saturating_sub(timing.last_ns.saturating_add(margin));
         let due = timing.last_ns.saturating_add((overdue.div_ceil(interval)).max(1).saturating_mul(interval));
-        let fallback = self.fallback_ns();
-        if due > fallback {
-            return None; // due after the window: waiting would only age the sample
-        }
-        if due.saturating_add(interval) <= fallback {
-            // More arrivals are due inside the window (a sensor faster than the loop): if this
-            // one is late, the next one will do.
-            return Some(fallback);
-        }
-        Some(due.saturating_add(margin).min(fallback))
+        due <= self.fallback_ns()
     }
 
     /// After the window's cycle: moves to the next window, nudged by the phase lock when this
@@ -276,37 +262,32 @@ mod tests {
     }
 
     #[test]
-    fn a_waiting_sample_runs_at_once_unless_its_successor_is_due_inside_the_window() {
+    fn a_waiting_sample_runs_at_once_unless_a_newer_one_is_due_inside_the_window() {
         let t = Trigger::new(TriggerMode::default(), 0, P);
         let now = Step::Run(Start { due_ns: P, cause: Cause::Open });
-        let wait = |until_ns| Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Open } };
+        let end = P + 900_000;
+        let wait = Step::Wait { until_ns: end, otherwise: Start { due_ns: end, cause: Cause::Fallback } };
         // Sensor at the loop's rate, its sample 1 % of a period old: the next falls after the
         // window; the same while the period is not known (the loop's is assumed).
         assert_eq!(t.plan(true, &timing(P - 10_000, P)), now);
         assert_eq!(t.plan(true, &timing(P - 10_000, 0)), now);
-        // Its sample 55 % old (it came after the last cycle had started): the successor is due
-        // 45 % into the window; wait for it, an eighth of a period of jitter more at most.
-        assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait(P + 450_000 + 125_000));
-        assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait(P + 450_000 + 125_000));
-        // ...however jittery the sensor: half a period at most, and never past the window.
-        let jittery = ArrivalTiming { last_ns: P - 750_000, interval_ns: P, spread_ns: 400_000 };
-        assert_eq!(t.plan(true, &jittery), wait(P + 250_000 + 500_000));
-        let jittery = ArrivalTiming { last_ns: P - 550_000, interval_ns: P, spread_ns: 400_000 };
-        assert_eq!(t.plan(true, &jittery), wait(P + 900_000));
-        // A 4x faster sensor: several arrivals are due in the window; wait for one, at most to
-        // the window's end. A 1.5x faster one has a single arrival due: its margin applies.
-        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 900_000));
-        assert_eq!(t.plan(true, &timing(P - 100_000, 666_000)), wait(P + 566_000 + 83_250));
-        // Two samples missed (due 400 and 150 µs before the opening): the next is due 100 µs
-        // after it, more follow inside the window; wait for one, at most to the window's end.
-        assert_eq!(t.plan(true, &timing(P - 650_000, 250_000)), wait(P + 900_000));
-        // A sensor at the loop's rate, its sample due at the opening not there yet: it may be
-        // late by jitter, so wait a margin for it. Late by more than that (0.2 period), it is
-        // counted as missed, and the cycle waits for the one after it, due 0.8 period in.
-        assert_eq!(t.plan(true, &timing(0, P)), wait(P + 125_000));
+        // Its sample 55 % old (it came after the last cycle had started): the next is due 45 %
+        // into the window; wait for an arrival.
+        assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait);
+        assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait);
+        // A 4x faster sensor: the next is due 150 µs in.
+        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait);
+        // Two samples missed (due 400 and 150 µs before the opening): the next is due 100 µs in.
+        assert_eq!(t.plan(true, &timing(P - 650_000, 250_000)), wait);
+        // A sensor at the loop's rate, its sample due at the opening not there yet (late by less
+        // than the jitter margin): wait for it.
+        assert_eq!(t.plan(true, &timing(0, P)), wait);
+        // Its sample due 0.2 period before the opening missed (by more than the margin): the one
+        // after it is due 0.8 period in; wait for that.
         let later = Trigger::new(TriggerMode::default(), 10 * P, P);
         let missed = ArrivalTiming { last_ns: 11 * P - 1_200_000, interval_ns: P, spread_ns: 0 };
-        assert_eq!(later.plan(true, &missed), wait(11 * P + 900_000));
+        let end = 11 * P + 900_000;
+        assert_eq!(later.plan(true, &missed), Step::Wait { until_ns: end, otherwise: Start { due_ns: end, cause: Cause::Fallback } });
     }
 
     #[test]
