@@ -33,7 +33,7 @@ Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cy
 arrival → the end of the first SyncWrite that used it), the cycle's own cost (wake-up → end of
 its SyncWrite), and ratios of one run. A last section shows the phase lock at work on a sensor
 paced at the loop's own rate. The machine is shared and noisy: read the ratios, not the
-absolutes. ``--help`` lists the options; the default run takes about five minutes.
+absolutes. ``--help`` lists the options; the default run takes about eight minutes.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ from admittance import _rtcore
 
 RATES_HZ = (250, 500, 1000, 2000)
 JOINT_COUNTS = (1, 6, 12)
-POINT_S = 1.0
+POINT_S = 2.0
 FORCE_N = 2.0
 INERTIA, DAMPING, COULOMB, LEVER = 0.02, 0.05, 0.01, 0.1
 GOAL_ADDRESS, GOAL_SIZE = 116, 4
