@@ -417,3 +417,18 @@ fn a_faster_sensor_that_drops_samples_still_starts_every_cycle_on_a_fresh_one() 
     assert!(lat[10..].iter().all(|&l| l == WRITE_NS), "{:?}", lat.iter().filter(|&&l| l > WRITE_NS).collect::<Vec<_>>());
     assert_eq!(r.starts().fallback, 0);
 }
+
+#[test]
+fn a_stalled_faster_sensor_costs_the_waiting_sample_two_of_its_periods_not_the_window() {
+    // Four samples per period; every 50 periods the reader stalls for three periods.
+    let arrivals = (0..4_000u64).filter(|k| !(188..200).contains(&(k % 200))).map(|k| T0 + 10_000 + k * P / 4);
+    let mut r = rig(arrivals);
+    let recs = r.run(LOCKED, 900);
+    assert_fixed_step(&recs);
+    // The sample waiting when the stall began is used 2 sensor periods + the jitter margin
+    // after it came (wait through the due arrival and one more); waiting out the whole window
+    // would have cost it up to 0.9 period more.
+    let lat = latencies(&recs);
+    let stalled: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS).collect();
+    assert!(!stalled.is_empty() && stalled.iter().all(|&l| l <= 2 * P / 4 + P / 8 + WRITE_NS), "{stalled:?}");
+}

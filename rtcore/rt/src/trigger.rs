@@ -17,9 +17,10 @@
 //! - *Waiting for a newer sample.* A sample can be waiting at the opening because it came
 //!   after the previous cycle had started (a sensor faster than the loop always leaves one; a
 //!   sensor at the loop's rate does after one late sample). If a newer one is due inside the
-//!   window (from the measured arrival period), the cycle waits for an arrival, up to the
-//!   window's end. Otherwise a fast sensor's samples would be used up to one sensor period old,
-//!   and after one late sample every following sample would wait for the next opening in turn.
+//!   window (from the measured arrival period), the cycle waits for an arrival: through that
+//!   one and one more missed arrival, at most to the window's end. Otherwise a fast sensor's
+//!   samples would be used up to one sensor period old, and after one late sample every
+//!   following sample would wait for the next opening in turn.
 //! - *The phase lock.* A sensor at the loop's rate (or a divisor of it) arrives at a fixed phase
 //!   of the grid. If that phase fell in the last tenth of the period (after the window), every
 //!   sample would wait for the next opening. The lock nudges the grid, by at most period/500 per
@@ -144,13 +145,16 @@ impl Trigger {
         if self.mode == TriggerMode::Schedule {
             return Step::Run(Start { due_ns: open, cause: Cause::Schedule });
         }
-        if pending && !self.newer_sample_due(timing) {
-            return Step::Run(Start { due_ns: open, cause: Cause::Open });
-        }
-        // Nothing waiting, or a newer sample due in the window (a late one still beats the
-        // sample that has been waiting): wait for an arrival up to the window's end.
         let fallback = self.fallback_ns();
-        Step::Wait { until_ns: fallback, otherwise: Start { due_ns: fallback, cause: Cause::Fallback } }
+        let until_ns = if pending {
+            match self.newer_sample_due(timing) {
+                Some(until_ns) => until_ns,
+                None => return Step::Run(Start { due_ns: open, cause: Cause::Open }),
+            }
+        } else {
+            fallback
+        };
+        Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Fallback } }
     }
 
     /// The start of a cycle woken by an arrival: due when the sample was pushed (not before
@@ -159,9 +163,10 @@ impl Trigger {
         Start { due_ns: timing.last_ns.max(self.open_ns()), cause: Cause::Arrival }
     }
 
-    /// With a sample waiting at the opening: is a newer one due inside this window? Until the
-    /// sensor's period is known, it is taken to be the loop's.
-    fn newer_sample_due(&self, timing: &ArrivalTiming) -> bool {
+    /// With a sample waiting at the opening: if a newer one is due inside this window, how long
+    /// to wait for an arrival; `None` to use the waiting sample now. Until the sensor's period
+    /// is known, it is taken to be the loop's.
+    fn newer_sample_due(&self, timing: &ArrivalTiming) -> Option<u64> {
         let interval = if timing.interval_ns > 0 { timing.interval_ns } else { self.pacer.period_ns() }.max(1);
         // A margin for jitter: an eighth of the period plus twice the measured jitter, at most
         // half the period.
@@ -170,7 +175,11 @@ impl Trigger {
         // are counted as missed (a dropped frame, a stalled reader).
         let overdue = self.open_ns().saturating_sub(timing.last_ns.saturating_add(margin));
         let due = timing.last_ns.saturating_add((overdue.div_ceil(interval)).max(1).saturating_mul(interval));
-        due <= self.fallback_ns()
+        let fallback = self.fallback_ns();
+        // Wait through one more missed arrival (the one after may come), then give the waiting
+        // sample up: a stalled sensor costs it at most two periods and the margin, not the
+        // whole window.
+        (due <= fallback).then(|| due.saturating_add(interval).saturating_add(margin).min(fallback))
     }
 
     /// After the window's cycle: moves to the next window, nudged by the phase lock when this
@@ -265,23 +274,23 @@ mod tests {
     fn a_waiting_sample_runs_at_once_unless_a_newer_one_is_due_inside_the_window() {
         let t = Trigger::new(TriggerMode::default(), 0, P);
         let now = Step::Run(Start { due_ns: P, cause: Cause::Open });
-        let end = P + 900_000;
-        let wait = Step::Wait { until_ns: end, otherwise: Start { due_ns: end, cause: Cause::Fallback } };
+        let wait = |until_ns| Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Fallback } };
         // Sensor at the loop's rate, its sample 1 % of a period old: the next falls after the
         // window; the same while the period is not known (the loop's is assumed).
         assert_eq!(t.plan(true, &timing(P - 10_000, P)), now);
         assert_eq!(t.plan(true, &timing(P - 10_000, 0)), now);
         // Its sample 55 % old (it came after the last cycle had started): the next is due 45 %
-        // into the window; wait for an arrival.
-        assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait);
-        assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait);
-        // A 4x faster sensor: the next is due 150 µs in.
-        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait);
+        // into the window; wait for an arrival, up to the window's end.
+        assert_eq!(t.plan(true, &timing(P - 550_000, P)), wait(P + 900_000));
+        assert_eq!(t.plan(true, &timing(P - 550_000, 0)), wait(P + 900_000));
+        // A 4x faster sensor: the next is due 150 µs in; wait through it and one more (and the
+        // margin, 31 µs): the waiting sample is given up 2.125 sensor periods after it came.
+        assert_eq!(t.plan(true, &timing(P - 100_000, 250_000)), wait(P + 400_000 + 31_250));
         // Two samples missed (due 400 and 150 µs before the opening): the next is due 100 µs in.
-        assert_eq!(t.plan(true, &timing(P - 650_000, 250_000)), wait);
+        assert_eq!(t.plan(true, &timing(P - 650_000, 250_000)), wait(P + 350_000 + 31_250));
         // A sensor at the loop's rate, its sample due at the opening not there yet (late by less
         // than the jitter margin): wait for it.
-        assert_eq!(t.plan(true, &timing(0, P)), wait);
+        assert_eq!(t.plan(true, &timing(0, P)), wait(P + 900_000));
         // Its sample due 0.2 period before the opening missed (by more than the margin): the one
         // after it is due 0.8 period in; wait for that.
         let later = Trigger::new(TriggerMode::default(), 10 * P, P);
