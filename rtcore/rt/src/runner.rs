@@ -32,17 +32,17 @@ pub fn run<C: Clock>(
         if missed > 0 {
             LoopStats::add(&shared.stats.overruns, missed);
         }
-        let Some(start) = await_start(&mut trigger, clock, shared, bell) else { break };
+        let Some(start) = await_start(&trigger, clock, shared, bell) else { break };
         let drained_before = drained(shared);
         ctl.run_cycle(t, clock, start.due_ns);
         let timing = bell.timing();
-        trigger.after_cycle(start.cause, drained(shared) != drained_before, &timing);
+        trigger.after_cycle(drained(shared) != drained_before, &timing);
         shared.trigger.record(start.cause, &trigger, &timing);
     }
 }
 
 /// Sleeps until the window opens, then until the cycle may start; `None` when stopped.
-fn await_start<C: Clock>(trigger: &mut Trigger, clock: &mut C, shared: &Shared, bell: &Doorbell) -> Option<Start> {
+fn await_start<C: Clock>(trigger: &Trigger, clock: &mut C, shared: &Shared, bell: &Doorbell) -> Option<Start> {
     clock.sleep_until(trigger.open_ns());
     // Read the count before judging what waits, so a push from now on changes it and is seen.
     let seq = bell.seq();

@@ -20,10 +20,7 @@
 //!   window (from the measured arrival period), the cycle waits for an arrival: through that
 //!   one and one more missed arrival, at most to the window's end. Otherwise a fast sensor's
 //!   samples would be used up to one sensor period old, and after one late sample every
-//!   following sample would wait for the next opening in turn. Waiting is a bet on the
-//!   reader: while more than 2 % of these waits end without a sample (a reader that keeps
-//!   stalling on the GIL or the garbage collector), the waiting sample is used at the opening,
-//!   as on the schedule, until declined waits have aged that record.
+//!   following sample would wait for the next opening in turn.
 //! - *The phase lock.* A sensor at the loop's rate (or a divisor of it) arrives at a fixed phase
 //!   of the grid. If that phase fell in the last tenth of the period (after the window), every
 //!   sample would wait for the next opening. The lock nudges the grid, by at most period/500 per
@@ -46,12 +43,6 @@ const SLEW_DIVISOR: i64 = 500;
 const GAIN_DIVISOR: i64 = 8;
 /// The reported phase error is an average over about this many measurements.
 const PHASE_ERROR_SMOOTHING: i64 = 16;
-/// Waits for a newer sample are judged over about this many of them...
-const BET_MEMORY: f64 = 64.0;
-/// ...and stop while more than this share of them ends without one (a stalling reader)...
-const BET_MISS_LIMIT: f64 = 0.02;
-/// ...until about this many declined waits have aged the record below the limit again.
-const BET_RETRY: f64 = 256.0;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TriggerMode {
@@ -113,10 +104,6 @@ pub struct Trigger {
     slew_ns: i64,
     /// The phase error the lock measured (arrival − target), smoothed, for the statistics.
     pub phase_error_ns: i64,
-    /// Moving share of the waits for a newer sample that ended without one.
-    pub bet_misses: f64,
-    /// This window's cycle waits for a newer sample: `after_cycle` records how that ended.
-    betting: bool,
 }
 
 impl Trigger {
@@ -132,8 +119,6 @@ impl Trigger {
             slew_ns: (pacer.period_ns() as i64 / SLEW_DIVISOR).max(1),
             pacer,
             phase_error_ns: 0,
-            bet_misses: 0.0,
-            betting: false,
         }
     }
 
@@ -155,7 +140,7 @@ impl Trigger {
     }
 
     /// The decision at the window's opening, given whether a sample is waiting in the ring.
-    pub fn plan(&mut self, pending: bool, timing: &ArrivalTiming) -> Step {
+    pub fn plan(&self, pending: bool, timing: &ArrivalTiming) -> Step {
         let open = self.open_ns();
         if self.mode == TriggerMode::Schedule {
             return Step::Run(Start { due_ns: open, cause: Cause::Schedule });
@@ -163,16 +148,7 @@ impl Trigger {
         let fallback = self.fallback_ns();
         let until_ns = if pending {
             match self.newer_sample_due(timing) {
-                // Waiting is a bet on the reader; while it keeps losing (the reader stalls), use
-                // the waiting sample at once, as the schedule would.
-                Some(until_ns) if self.bet_misses <= BET_MISS_LIMIT => {
-                    self.betting = true;
-                    until_ns
-                }
-                Some(_) => {
-                    self.bet_misses -= self.bet_misses / BET_RETRY;
-                    return Step::Run(Start { due_ns: open, cause: Cause::Open });
-                }
+                Some(until_ns) => until_ns,
                 None => return Step::Run(Start { due_ns: open, cause: Cause::Open }),
             }
         } else {
@@ -206,14 +182,9 @@ impl Trigger {
         (due <= fallback).then(|| due.saturating_add(interval).saturating_add(margin).min(fallback))
     }
 
-    /// After the window's cycle (started by `cause`): records how a wait for a newer sample
-    /// ended, moves to the next window, nudged by the phase lock when this cycle used a new
-    /// sample from a sensor no faster than the loop.
-    pub fn after_cycle(&mut self, cause: Cause, used_new_sample: bool, timing: &ArrivalTiming) {
-        if std::mem::take(&mut self.betting) {
-            let missed = if cause == Cause::Arrival { 0.0 } else { 1.0 };
-            self.bet_misses += (missed - self.bet_misses) / BET_MEMORY;
-        }
+    /// After the window's cycle: moves to the next window, nudged by the phase lock when this
+    /// cycle used a new sample from a sensor no faster than the loop.
+    pub fn after_cycle(&mut self, used_new_sample: bool, timing: &ArrivalTiming) {
         let open = self.open_ns();
         let period = self.pacer.period_ns();
         self.pacer.advance();
@@ -241,9 +212,6 @@ pub struct TriggerStats {
     starts: [AtomicU64; 4],
     phase_error_ns: AtomicI64,
     sensor_interval_ns: AtomicU64,
-    sensor_jitter_ns: AtomicU64,
-    /// `Trigger::bet_misses` in millionths.
-    bet_misses_ppm: AtomicU64,
 }
 
 /// A copy of [`TriggerStats`].
@@ -255,9 +223,6 @@ pub struct TriggerSnapshot {
     pub fallback: u64,
     pub phase_error_us: f64,
     pub sensor_interval_us: f64,
-    pub sensor_jitter_us: f64,
-    /// The moving share of waits for a newer sample that ended without one.
-    pub wait_misses: f64,
 }
 
 impl TriggerStats {
@@ -265,8 +230,6 @@ impl TriggerStats {
         self.starts[cause as usize].fetch_add(1, Relaxed);
         self.phase_error_ns.store(trigger.phase_error_ns, Relaxed);
         self.sensor_interval_ns.store(timing.interval_ns, Relaxed);
-        self.sensor_jitter_ns.store(timing.spread_ns, Relaxed);
-        self.bet_misses_ppm.store((trigger.bet_misses * 1e6) as u64, Relaxed);
     }
 
     pub fn snapshot(&self) -> TriggerSnapshot {
@@ -278,8 +241,6 @@ impl TriggerStats {
             fallback: n(Cause::Fallback),
             phase_error_us: self.phase_error_ns.load(Relaxed) as f64 / 1e3,
             sensor_interval_us: self.sensor_interval_ns.load(Relaxed) as f64 / 1e3,
-            sensor_jitter_us: self.sensor_jitter_ns.load(Relaxed) as f64 / 1e3,
-            wait_misses: self.bet_misses_ppm.load(Relaxed) as f64 / 1e6,
         }
     }
 }
@@ -296,14 +257,14 @@ mod tests {
 
     #[test]
     fn schedule_mode_runs_at_each_opening() {
-        let mut t = Trigger::new(TriggerMode::Schedule, 0, P);
+        let t = Trigger::new(TriggerMode::Schedule, 0, P);
         assert_eq!(t.plan(true, &timing(0, 0)), Step::Run(Start { due_ns: P, cause: Cause::Schedule }));
         assert_eq!(t.fallback_ns(), P, "a zero-width window");
     }
 
     #[test]
     fn with_nothing_waiting_the_cycle_waits_for_a_sample_until_the_windows_end() {
-        let mut t = Trigger::new(TriggerMode::default(), 0, P);
+        let t = Trigger::new(TriggerMode::default(), 0, P);
         let end = P + 900_000;
         assert_eq!(t.plan(false, &timing(0, 0)), Step::Wait { until_ns: end, otherwise: Start { due_ns: end, cause: Cause::Fallback } });
         assert_eq!(t.arrival_start(&timing(P + 300, P)), Start { due_ns: P + 300, cause: Cause::Arrival });
@@ -311,7 +272,7 @@ mod tests {
 
     #[test]
     fn a_waiting_sample_runs_at_once_unless_a_newer_one_is_due_inside_the_window() {
-        let mut t = Trigger::new(TriggerMode::default(), 0, P);
+        let t = Trigger::new(TriggerMode::default(), 0, P);
         let now = Step::Run(Start { due_ns: P, cause: Cause::Open });
         let wait = |until_ns| Step::Wait { until_ns, otherwise: Start { due_ns: until_ns, cause: Cause::Fallback } };
         // Sensor at the loop's rate, its sample 1 % of a period old: the next falls after the
@@ -332,29 +293,10 @@ mod tests {
         assert_eq!(t.plan(true, &timing(0, P)), wait(P + 900_000));
         // Its sample due 0.2 period before the opening missed (by more than the margin): the one
         // after it is due 0.8 period in; wait for that.
-        let mut later = Trigger::new(TriggerMode::default(), 10 * P, P);
+        let later = Trigger::new(TriggerMode::default(), 10 * P, P);
         let missed = ArrivalTiming { last_ns: 11 * P - 1_200_000, interval_ns: P, spread_ns: 0 };
         let end = 11 * P + 900_000;
         assert_eq!(later.plan(true, &missed), Step::Wait { until_ns: end, otherwise: Start { due_ns: end, cause: Cause::Fallback } });
-    }
-
-    #[test]
-    fn waits_for_a_newer_sample_stop_while_they_keep_missing_and_resume_later() {
-        let mut t = Trigger::new(TriggerMode::default(), 0, P);
-        let faster = |open: u64| timing(open - 100_000, 250_000);
-        let mut outcome = |t: &mut Trigger, cause| {
-            let open = t.open_ns();
-            let step = t.plan(true, &faster(open));
-            t.after_cycle(cause, true, &faster(open));
-            matches!(step, Step::Wait { .. })
-        };
-        // Waits that end with a sample keep the bet open; two misses in a row close it.
-        assert!((0..100).all(|_| outcome(&mut t, Cause::Arrival)));
-        assert!(outcome(&mut t, Cause::Fallback) && outcome(&mut t, Cause::Fallback));
-        assert!(!outcome(&mut t, Cause::Fallback), "a third wait after two misses");
-        // Declined, the waits age the record: after about a hundred of them it bets again.
-        let declined = (0..1_000).take_while(|_| !outcome(&mut t, Cause::Open)).count();
-        assert!((80..=160).contains(&declined), "{declined}");
     }
 
     #[test]
@@ -363,18 +305,18 @@ mod tests {
         // A sample that arrived after the previous window (at 95 % of the period) and waited
         // for this opening: the grid moves earlier, onto it, by the most it may in one cycle.
         let open = t.open_ns();
-        t.after_cycle(Cause::Arrival, true, &timing(open - 50_000, P));
+        t.after_cycle(true, &timing(open - 50_000, P));
         assert_eq!(t.open_ns(), open + P - 2_000);
         assert_eq!(t.phase_error_ns, -500_000 / 16, "reported smoothed");
         // A small error is corrected by an eighth.
         let open = t.open_ns();
-        t.after_cycle(Cause::Arrival, true, &timing(open + 450_000 + 800, P));
+        t.after_cycle(true, &timing(open + 450_000 + 800, P));
         assert_eq!(t.open_ns(), open + P + 100);
         // No new sample, no lock off, a faster sensor: the grid keeps its period.
         for (used, mode, interval) in [(false, TriggerMode::default(), P), (true, TriggerMode::Sample { phase_lock: false }, P), (true, TriggerMode::default(), P / 4)] {
             let mut t = Trigger::new(mode, 0, P);
             let open = t.open_ns();
-            t.after_cycle(Cause::Arrival, used, &timing(open + 10, interval));
+            t.after_cycle(used, &timing(open + 10, interval));
             assert_eq!(t.open_ns(), open + P);
         }
     }
