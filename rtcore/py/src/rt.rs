@@ -402,6 +402,7 @@ fn trigger_dict<'py>(py: Python<'py>, inner: &LoopHandle) -> PyResult<Bound<'py,
     starts.set_item("fallback", s.fallback)?;
     d.set_item("starts", starts)?;
     d.set_item("sensor_interval_us", s.sensor_interval_us)?;
+    d.set_item("sensor_jitter_us", s.sensor_jitter_us)?;
     d.set_item("phase_error_us", s.phase_error_us)?;
     Ok(d)
 }

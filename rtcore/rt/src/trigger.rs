@@ -212,6 +212,7 @@ pub struct TriggerStats {
     starts: [AtomicU64; 4],
     phase_error_ns: AtomicI64,
     sensor_interval_ns: AtomicU64,
+    sensor_jitter_ns: AtomicU64,
 }
 
 /// A copy of [`TriggerStats`].
@@ -223,6 +224,7 @@ pub struct TriggerSnapshot {
     pub fallback: u64,
     pub phase_error_us: f64,
     pub sensor_interval_us: f64,
+    pub sensor_jitter_us: f64,
 }
 
 impl TriggerStats {
@@ -230,6 +232,7 @@ impl TriggerStats {
         self.starts[cause as usize].fetch_add(1, Relaxed);
         self.phase_error_ns.store(trigger.phase_error_ns, Relaxed);
         self.sensor_interval_ns.store(timing.interval_ns, Relaxed);
+        self.sensor_jitter_ns.store(timing.spread_ns, Relaxed);
     }
 
     pub fn snapshot(&self) -> TriggerSnapshot {
@@ -241,6 +244,7 @@ impl TriggerStats {
             fallback: n(Cause::Fallback),
             phase_error_us: self.phase_error_ns.load(Relaxed) as f64 / 1e3,
             sensor_interval_us: self.sensor_interval_ns.load(Relaxed) as f64 / 1e3,
+            sensor_jitter_us: self.sensor_jitter_ns.load(Relaxed) as f64 / 1e3,
         }
     }
 }
