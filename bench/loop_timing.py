@@ -216,7 +216,7 @@ class PythonLoop:
         out = np.zeros(len(rows) * n, _rtcore.AdmittanceLoop.telemetry_dtype())
         for k, (cycle, wake, force, state, ticks, period_error, latency) in enumerate(rows):
             r = out[k * n:(k + 1) * n]
-            r["cycle"], r["t_ns"], r["id"], r["force"] = cycle, wake, self.ids, force
+            r["cycle"], r["t_ns"], r["deadline_ns"], r["id"], r["force"] = cycle, wake, wake - period_error, self.ids, force
             r["torque"], r["period_error_ns"], r["latency_ns"] = force * LEVER, period_error, latency
             r["theta"], r["omega"] = [s[0] for s in state], [s[1] for s in state]
             r["goal_tick"], r["present_tick"] = ticks, -1
@@ -260,8 +260,8 @@ def mock_bus(n_joints: int):
 
 def rust_loop(port: str, rate_hz: int, n_joints: int, priority: int, trigger: str, phase_lock: bool = True):
     joints = [{"id": i, "virtual_inertia": INERTIA, "virtual_damping": DAMPING, "virtual_coulomb": COULOMB,
-               "lever_arm": LEVER, "limits": {"position_min": -1e3, "position_max": 1e3,
-                                              "velocity_max": 1e3, "acceleration_max": 1e6}}
+               # The goal range's angles (the default) and the envelope's speed bounds.
+               "lever_arm": LEVER, "limits": {"velocity_max": 100.0, "acceleration_max": 1e5}}
               for i in range(1, n_joints + 1)]
     return _rtcore.AdmittanceLoop({"port": port, "rate_hz": rate_hz, "rt_priority": priority,
                                    "lock_memory": False, "sync_read_divisor": 0, "stale_timeout_ms": 1000.0,
@@ -533,15 +533,15 @@ class PacedSensor:
         self._thread.join()
 
 
-def grid_opening(loop, window_ns: int, period_ns: int) -> int:
-    """A window opening of the running loop's grid, from its telemetry (due = wake − period error)."""
+def grid_opening(loop) -> int:
+    """A window opening of the running loop's grid, from its telemetry: a cycle's deadline (the
+    model's time, the grid point itself while no sensor has moved the grid)."""
     deadline = time.monotonic() + 5.0
     rows = loop.drain_telemetry()
     while len(rows) == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
         rows = loop.drain_telemetry()
-    due = int(rows["t_ns"][-1]) - int(rows["period_error_ns"][-1])
-    return due - window_ns
+    return int(rows["deadline_ns"][-1])
 
 
 def paced_run(port: str, rate: int, trigger: str, phase_lock: bool, phase: float, point_s: float) -> dict:
@@ -550,8 +550,7 @@ def paced_run(port: str, rate: int, trigger: str, phase_lock: bool, phase: float
     loop = rust_loop(port, rate, 1, 50, trigger, phase_lock)
     loop.start()
     time.sleep(0.05)  # a few cycles on the schedule (no sensor yet) give the grid
-    window = period * 9 // 10 if trigger == "sample" else 0
-    opening = grid_opening(loop, window, period)
+    opening = grid_opening(loop)
     first = opening + int(phase * period) + period * ((time.monotonic_ns() - opening) // period + 2)
     sensor = PacedSensor(loop.force_sink(), first, period)
     time.sleep(point_s)
@@ -591,11 +590,15 @@ def run_phase_lock(rate: int, point_s: float) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--load", choices=("bench", "daemon", "both", "none"), default="both",
-                        help="which load the loops run under (none: only the phase-lock section)")
-    parser.add_argument("--rates", type=int, nargs="+", default=list(RATES_HZ))
-    parser.add_argument("--joints", type=int, nargs="+", default=list(JOINT_COUNTS))
-    parser.add_argument("--point-s", type=float, default=POINT_S, help="seconds per loop and point")
-    parser.add_argument("--no-phase-lock-section", action="store_true")
+                        help="which load the loops run under (none: only the phase-lock section; default both)")
+    parser.add_argument("--rates", type=int, nargs="+", default=list(RATES_HZ), metavar="HZ",
+                        help=f"loop rates, Hz (default {' '.join(map(str, RATES_HZ))})")
+    parser.add_argument("--joints", type=int, nargs="+", default=list(JOINT_COUNTS), metavar="N",
+                        help=f"joint counts (default {' '.join(map(str, JOINT_COUNTS))})")
+    parser.add_argument("--point-s", type=float, default=POINT_S, metavar="S",
+                        help=f"seconds per loop and point (default {POINT_S})")
+    parser.add_argument("--no-phase-lock-section", action="store_true",
+                        help="skip the last section (a sensor paced at the loop's rate)")
     args = parser.parse_args()
     print(__doc__.split("\n\n")[0])
     print(f"command: {' '.join(sys.argv)}")

@@ -72,29 +72,35 @@ def analyse(sim: Simulator, fit: FitResult) -> dict:
     """The residual verdict of ``fit`` on the trials of ``sim`` (those it was fitted on)."""
     sim = sim.with_tau_scale(fit.tau_scale)
     states = _simulate_states(sim, fit)
-    residual = np.concatenate(fit.residuals)
     speed = np.concatenate([np.abs(s[:, 1]) for s in states])
     angle = np.concatenate([s[:, 0] for s in states])
     since = np.concatenate([tr.t - tr.t[0] for tr in sim.trials])
+    return verdict(fit.residuals, {"speed": speed, "angle": angle, "time": since})
+
+
+def verdict(residuals: Sequence[np.ndarray], by: dict[str, np.ndarray]) -> dict:
+    """Whiteness, distance from the noise floor and the worst bin of a residual (one array per
+    trial); ``by`` gives, per sample of the concatenated residual, the speed (rad/s), angle (rad)
+    and time since the trial's start (s) to bin it by."""
+    residual = np.concatenate(residuals)
     rmse = float(np.sqrt(np.mean(residual**2)))
-    noise = noise_estimate(fit.residuals)
-    q, p = ljung_box(fit.residuals)
-    bins = {"speed": binned_rms(speed, residual), "angle": binned_rms(angle, residual),
-            "time": binned_rms(since, residual)}
+    noise = noise_estimate(residuals)
+    q, p = ljung_box(residuals)
+    bins = {name: binned_rms(values, residual) for name, values in by.items()}
     worst = _worst_bin(bins, rmse)
-    verdict = {
+    out = {
         "rmse": rmse,
         "noise_estimate": noise,
         "rmse_over_noise": rmse / noise if noise > 0 else float("inf"),
         "ljung_box_q": q,
         "ljung_box_p": p,
         "white": bool(p > WHITE_P),
-        "autocorrelation_time": autocorrelation_time(fit.residuals),
+        "autocorrelation_time": autocorrelation_time(residuals),
         "bins": bins,
         "largest": worst,
     }
-    verdict["summary"] = summary(verdict)
-    return verdict
+    out["summary"] = summary(out)
+    return out
 
 
 def _simulate_states(sim: Simulator, fit: FitResult) -> list[np.ndarray]:

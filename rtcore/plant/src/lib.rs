@@ -9,6 +9,8 @@
 //! - `trial`: a trial's inputs and its simulation at the sample times.
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
+//! - `servo`: how a position servo's horn follows its goal (fitted by `fidelity`, inverted by
+//!   the RT loop's compensation).
 //!
 //! ```
 //! use plant::{step, FrictionLaw, Load, Params, State};
@@ -29,6 +31,7 @@ pub mod error;
 pub mod friction;
 pub mod model;
 pub mod params;
+pub mod servo;
 pub mod trial;
 
 pub use batch::{Batch, Output};

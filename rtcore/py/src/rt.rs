@@ -9,6 +9,8 @@ use dxl::Protocol;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
+use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
+use rtloop::fault::{FaultKind, LoopMode};
 use rtloop::histogram::Percentiles;
 use rtloop::params::{joint_value, LoopParams};
 use rtloop::sched::{Policy, RtRequest};
@@ -42,7 +44,7 @@ const LOOP_KEYS: [&str; 21] = [
     "phase_lock",
 ];
 
-const JOINT_KEYS: [&str; 18] = [
+const JOINT_KEYS: [&str; 20] = [
     "id",
     "model",
     "goal_address",
@@ -61,6 +63,8 @@ const JOINT_KEYS: [&str; 18] = [
     "axis",
     "lever_arm",
     "limits",
+    "servo",
+    "servo_compensation",
 ];
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
@@ -127,7 +131,24 @@ fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult
         set(&limits, "velocity_max", &where_, &mut l.velocity_max)?;
         set(&limits, "acceleration_max", &where_, &mut l.acceleration_max)?;
     }
+    if let Some(servo) = opt::<Bound<'_, PyDict>>(d, "servo", &where_)? {
+        j.servo = Some(servo_model(&servo, &format!("{where_}.servo"))?);
+    }
+    // On by default when the joint has a servo model.
+    j.compensation = if j.servo.is_some() { 1.0 } else { 0.0 };
+    set(d, "servo_compensation", &where_, &mut j.compensation)?;
     Ok(j)
+}
+
+/// A `[servo]` table: every one of `SERVO_PARAM_NAMES`, numbers.
+fn servo_model(d: &Bound<'_, PyDict>, where_: &str) -> PyResult<ServoModel> {
+    check_keys(d, &SERVO_PARAM_NAMES, where_)?;
+    let mut values = [0.0; SERVO_PARAM_NAMES.len()];
+    for (value, name) in values.iter_mut().zip(SERVO_PARAM_NAMES) {
+        *value = opt(d, name, where_)?
+            .ok_or_else(|| config_error(d.py(), format!("{where_}: \"{name}\" is required")))?;
+    }
+    ServoModel::from_slice(&values).map_err(|e| config_error(d.py(), format!("{where_}: {e}")))
 }
 
 fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
@@ -214,14 +235,24 @@ fn params_dict<'py>(py: Python<'py>, p: &LoopParams, ids: &[u8]) -> PyResult<Bou
     Ok(d)
 }
 
-/// A set_params value: a number, or a list of 6 numbers (bias).
+/// At most `n` characters of `text`, marked when cut: a reason never echoes a megabyte of input.
+fn truncated(text: &str, n: usize) -> String {
+    match text.char_indices().nth(n) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_string(),
+    }
+}
+
+/// A set_params value: a number, or a list of 6 numbers (bias). A Python int too large for a
+/// float (OverflowError) is refused here like any other bad value.
 fn param_value(name: &str, v: &Bound<'_, PyAny>) -> Result<ParamValue, String> {
     if let Ok(x) = v.extract::<f64>() {
         return Ok(ParamValue::Scalar(x));
     }
-    v.extract::<[f64; 6]>()
-        .map(ParamValue::Vector)
-        .map_err(|_| format!("'{name}' must be a number (or, for bias, 6 numbers), got {v}"))
+    v.extract::<[f64; 6]>().map(ParamValue::Vector).map_err(|_| {
+        let shown = v.str().map(|s| truncated(&s.to_string_lossy(), 40)).unwrap_or_default();
+        format!("'{}' must be a number (or, for bias, 6 numbers), got {shown}", truncated(name, 40))
+    })
 }
 
 fn start_error(py: Python<'_>, e: StartError) -> PyErr {
@@ -297,7 +328,8 @@ impl PyAdmittanceLoop {
         let mut parsed = Vec::with_capacity(changes.len());
         for (name, value) in changes.iter() {
             let Ok(name) = name.extract::<String>() else {
-                return Ok((false, format!("parameter names must be strings, got {name}")));
+                let shown = name.str().map(|s| truncated(&s.to_string_lossy(), 40)).unwrap_or_default();
+                return Ok((false, format!("parameter names must be strings, got {shown}")));
             };
             match param_value(&name, &value) {
                 Ok(v) => parsed.push((name, v)),
@@ -338,7 +370,8 @@ impl PyAdmittanceLoop {
         telemetry_dtype(py)
     }
 
-    /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads).
+    /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads,
+    /// faults: events per fault kind, and mode: "running", "holding" or "faulted").
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.stats();
         let d = PyDict::new(py);
@@ -353,6 +386,12 @@ impl PyAdmittanceLoop {
         d.set_item("sensor_stale_events", s.sensor_stale_events)?;
         d.set_item("telemetry_drops", s.telemetry_drops)?;
         d.set_item("sync_reads", s.sync_reads)?;
+        let faults = PyDict::new(py);
+        for (name, events) in &s.faults {
+            faults.set_item(*name, *events)?;
+        }
+        d.set_item("faults", faults)?;
+        d.set_item("mode", s.mode.name())?;
         let rt = PyDict::new(py);
         rt.set_item("policy", s.rt.policy)?;
         rt.set_item("priority", s.rt.priority)?;
@@ -415,5 +454,8 @@ fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyAdmittanceLoop>()?;
     m.add_class::<PyForceSink>()?;
+    // The telemetry's `mode` codes and `fault` bits, by name: LOOP_MODES[mode], FAULT_KINDS[bit].
+    m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
+    m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     Ok(())
 }

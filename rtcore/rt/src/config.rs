@@ -8,7 +8,7 @@
 use crate::bus::Registers;
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
-use crate::params::{JointGains, JointParams, Limits, LoopParams, SensorParams};
+use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
 use crate::sched::RtRequest;
 use crate::trigger::TriggerMode;
 use dxl::Protocol;
@@ -24,6 +24,10 @@ pub struct JointConfig {
     pub axis: usize,
     pub gains: JointGains,
     pub limits: Limits,
+    /// The servo's tracking dynamics (the parameter file's `[servo]`), if identified.
+    pub servo: Option<plant::servo::ServoModel>,
+    /// Weight of the servo compensation in [0, 1]; needs `servo`.
+    pub compensation: f64,
 }
 
 impl JointConfig {
@@ -43,6 +47,8 @@ impl JointConfig {
             axis: 0,
             gains: JointGains { inertia: 0.01467, damping: 0.03471, coulomb: 0.08426, lever_arm: 0.1 },
             limits: Limits { position_min, position_max, velocity_max: std::f64::consts::TAU, acceleration_max: 200.0 },
+            servo: None,
+            compensation: 0.0,
         }
     }
 }
@@ -99,9 +105,25 @@ impl LoopConfig {
         self.joints.iter().map(|j| j.id).collect()
     }
 
+    /// Each joint's id and the angles its goal range reaches, in joint order (what the
+    /// position limits are checked against).
+    pub fn reach(&self) -> Vec<Reach> {
+        self.joints
+            .iter()
+            .map(|j| {
+                let (theta_min, theta_max) = j.ticks.theta_range();
+                Reach { id: j.id, theta_min, theta_max }
+            })
+            .collect()
+    }
+
     pub fn initial_params(&self) -> LoopParams {
         LoopParams {
-            joints: self.joints.iter().map(|j| JointParams { gains: j.gains, limits: j.limits }).collect(),
+            joints: self
+                .joints
+                .iter()
+                .map(|j| JointParams { gains: j.gains, limits: j.limits, servo: j.servo, compensation: j.compensation })
+                .collect(),
             sensor: self.sensor,
             ramp_time_s: self.ramp_time_s,
             bias: self.bias,
@@ -149,7 +171,7 @@ impl LoopConfig {
                 ));
             }
         }
-        self.initial_params().validate(&ids, self.rate_hz)
+        self.initial_params().validate(&self.reach(), self.rate_hz)
     }
 }
 

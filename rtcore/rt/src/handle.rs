@@ -14,7 +14,7 @@ use crate::clock::{monotonic_ns, MonotonicClock};
 use crate::config::LoopConfig;
 use crate::cycle::{Controller, ControllerParts};
 use crate::doorbell::{ArrivalEstimator, Doorbell};
-use crate::params::{LoopParams, ParamValue};
+use crate::params::{LoopParams, ParamValue, Reach};
 use crate::port::SerialTransport;
 use crate::sched;
 use crate::sensor::ForceSample;
@@ -129,6 +129,7 @@ type Running = JoinHandle<(Controller, Box<dyn Transport>)>;
 pub struct LoopHandle {
     config: LoopConfig,
     ids: Vec<u8>,
+    reach: Vec<Reach>,
     shared: Arc<Shared>,
     params: Mutex<ParamsWriter>,
     sink: ForceSink,
@@ -162,6 +163,7 @@ impl LoopHandle {
         });
         Ok(LoopHandle {
             ids,
+            reach: config.reach(),
             shared,
             params: Mutex::new(ParamsWriter { input: params_in, current: initial }),
             sink: ForceSink::new(force_tx, bell.clone()),
@@ -255,7 +257,7 @@ impl LoopHandle {
         for (name, value) in changes {
             candidate.set(&self.ids, name, *value)?;
         }
-        candidate.validate(&self.ids, self.config.rate_hz)?;
+        candidate.validate(&self.reach, self.config.rate_hz)?;
         if candidate.bias_generation != writer.current.bias_generation {
             // Visible in params() at once, even before (or without) a running loop adopting it.
             self.shared.publish_bias(&candidate.bias);

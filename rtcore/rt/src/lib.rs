@@ -19,14 +19,18 @@
 //! - [`histogram`]: fixed log-spaced timing histograms.
 //! - [`sensor`], [`filter`]: force samples in, tare, deadband, low-pass.
 //! - [`params`]: named parameters, validation, all-or-nothing sets.
+//! - [`fault`]: the fault kinds, their bits and counters, and the loop's mode.
 //! - [`joint`]: one joint's torque, limited integration and goal tick.
+//! - [`compensation`]: the servo model inverted: the goal that makes the horn follow the model.
 //! - [`bus`]: SyncWrite / SyncRead against a `Transport`.
 //! - [`telemetry`]: the per-cycle record and the shared statistics.
 //! - [`cycle`]: one cycle; [`runner`]: the paced loop; [`config`], [`handle`]: building,
 //!   starting and steering a loop from another thread.
 pub mod bus;
 pub mod clock;
+pub mod compensation;
 pub mod doorbell;
+pub mod fault;
 pub mod filter;
 pub mod histogram;
 pub mod joint;

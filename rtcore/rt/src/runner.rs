@@ -34,7 +34,9 @@ pub fn run<C: Clock>(
         }
         let Some(start) = await_start(&trigger, clock, shared, bell) else { break };
         let drained_before = drained(shared);
-        ctl.run_cycle(t, clock, start.due_ns);
+        // The model counts its steps against the (phase-locked) grid point, never the start: a
+        // start anywhere in the window is still one step.
+        ctl.run_cycle(t, clock, trigger.open_ns(), start.due_ns);
         let timing = bell.timing();
         trigger.after_cycle(drained(shared) != drained_before, &timing);
         shared.trigger.record(start.cause, &trigger, &timing);

@@ -432,3 +432,30 @@ fn a_stalled_faster_sensor_costs_the_waiting_sample_two_of_its_periods_not_the_w
     let stalled: Vec<u64> = lat.iter().copied().filter(|&l| l > WRITE_NS).collect();
     assert!(!stalled.is_empty() && stalled.iter().all(|&l| l <= 2 * P / 4 + P / 8 + WRITE_NS), "{stalled:?}");
 }
+
+#[test]
+fn a_sensor_on_another_clock_drags_the_grid_and_the_model_keeps_whole_steps_within_half_a_period() {
+    // A sensor at the loop's rate by its own clock, 0.15 % slow or fast against the host's: the
+    // phase lock follows it, so the grid drifts by two periods over 1300 cycles. The model's
+    // time (whole steps, `deadline_ns`) stays within half a period of the grid: a cycle of two
+    // steps when the stretched grid has run half a period ahead, of none when it fell behind.
+    for (interval, repeats, doubles) in [(P + 1_500, 0, 2), (P - 1_500, 2, 0)] {
+        let mut r = rig(every(T0 + P + 450_000, interval, 1_400));
+        let recs = r.run(LOCKED, 1_300);
+        assert_eq!(r.starts().arrival, 1_300, "every cycle on its sample's arrival");
+        assert!(recs.windows(2).all(|w| (w[1].deadline_ns - w[0].deadline_ns) % P == 0), "whole steps");
+        let steps: Vec<u64> = recs.windows(2).map(|w| (w[1].deadline_ns - w[0].deadline_ns) / P).collect();
+        assert_eq!((steps.iter().filter(|&&s| s == 0).count(), steps.iter().filter(|&&s| s == 2).count()), (repeats, doubles));
+        // The grid point of each cycle: its start (the arrival) less the lock's mid-window phase,
+        // which trails a drifting sensor by 12 µs (the drift per cycle over the lock's gain of 1/8).
+        let worst = recs.iter().map(|rec| (rec.deadline_ns as i64 - (rec.t_ns as i64 - 450_000)).abs()).max().unwrap();
+        assert!(worst <= (P / 2 + 15_000) as i64, "{worst} ns from the grid");
+        // θ is the model's after as many steps as its time says: a·h²·n(n+1)/2.
+        let (h, a) = (P as f64 / 1e9, FX * 0.1 / 0.02);
+        for rec in &recs {
+            let n = ((rec.deadline_ns - recs[0].deadline_ns) / P + 1) as f64;
+            let theta = a * h * h * n * (n + 1.0) / 2.0;
+            assert!((rec.theta - theta).abs() < 1e-9 * theta.max(1.0), "θ {} vs {theta} after {n} steps", rec.theta);
+        }
+    }
+}

@@ -201,7 +201,8 @@ impl Trigger {
         // that waits longer and longer, until the grid had moved by half a period.
         let error = timing.last_ns as i64 - open as i64 - self.target_ns;
         self.phase_error_ns += (error - self.phase_error_ns) / PHASE_ERROR_SMOOTHING;
-        let delta = (error / GAIN_DIVISOR).clamp(-self.slew_ns, self.slew_ns);
+        // max/min, not clamp: the RT thread never calls what can panic (slew_ns ≥ 1 anyway).
+        let delta = (error / GAIN_DIVISOR).max(-self.slew_ns).min(self.slew_ns);
         self.pacer.shift(delta, open + period / 2);
     }
 }
