@@ -6,6 +6,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 CARGO_MANIFEST := rtcore/Cargo.toml
+# The extension is abi3 (admittance/_rtcore.abi3.so); a version-specific build left over from
+# before would be imported first and shadow every rebuild, so it goes.
+STALE_EXT := admittance/_rtcore.cpython-*.so
 
 .PHONY: setup ext run test test-rust test-python test-thorough bench clean
 
@@ -15,11 +18,13 @@ $(STAMP): pyproject.toml $(shell find rtcore -name '*.rs' -o -name 'Cargo.toml' 
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip maturin
 	$(BIN)/pip install --quiet $$($(BIN)/python -c "import tomllib;p=tomllib.load(open('pyproject.toml','rb'))['project'];print(' '.join(repr(d) for d in p['dependencies']+p['optional-dependencies']['test']))" | tr -d "'")
+	rm -f $(STALE_EXT)
 	$(BIN)/maturin develop --release --quiet
 	touch $(STAMP)
 
-# Rebuild only the extension, in place (admittance/_rtcore*.so), without touching the venv.
+# Rebuild only the extension, in place (admittance/_rtcore.abi3.so), without touching the venv.
 ext:
+	rm -f $(STALE_EXT)
 	$(BIN)/maturin develop --release --skip-install --quiet
 
 run: setup

@@ -20,8 +20,10 @@ from admittance.errors import AdmittanceError
 SUBCOMMAND_MODULES = (
     "admittance.daemon.cli",  # run, monitor, set, tare
     "admittance.mockbench.cli",  # mock-bench
+    "admittance.bringup.cli",  # setup
     "admittance.ident.cli",  # identify, synth
     "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
+    "admittance.fidelity.cli",  # fidelity
 )
 
 

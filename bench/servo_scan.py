@@ -1,4 +1,5 @@
-"""How long a Dynamixel scan takes: ServoBus (the adapter's real latency timer) vs the plain SDK.
+"""How long a Dynamixel scan takes: ServoBus (the adapter's real latency timer) vs the plain SDK,
+and the bring-up wizard's scan (admittance.bringup.scan: every protocol at every usual rate).
 
 dynamixel-sdk waits 2 × 16 ms (an assumed FTDI latency timer) + 2 ms for every missing reply;
 ServoBus uses the port's real timer (none on a pty) plus its 20 ms slack. The figures are for
@@ -15,6 +16,7 @@ import time
 from dynamixel_sdk import PacketHandler, PortHandler
 
 from admittance import _rtcore
+from admittance.bringup.scan import DEFAULT_BAUDRATES, DEFAULT_PROTOCOLS, scan_bus
 from admittance.drivers.dynamixel import ServoBus
 
 IDS = range(1, 21)
@@ -44,6 +46,12 @@ def _broadcast(port: str) -> tuple[float, int]:
         return time.perf_counter() - t0, found
 
 
+def _wizard_scan(port: str) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    found = scan_bus(port, baudrates=DEFAULT_BAUDRATES, protocols=DEFAULT_PROTOCOLS)
+    return time.perf_counter() - t0, len(found)
+
+
 def main() -> None:
     bus = _rtcore.MockBus(servos=[{"id": 1, "model": "MX-64", "protocol": 2, "params": {"motor_inertia": 0.0147}}], baudrate=1_000_000, wire_delay=True)
     bus.start()
@@ -51,6 +59,7 @@ def main() -> None:
         sdk, found_sdk = _sdk_scan(bus.port_path)
         ours, found_ours = _servobus_scan(bus.port_path)
         broadcast, found_bc = _broadcast(bus.port_path)
+        wizard, found_wizard = _wizard_scan(bus.port_path)
     finally:
         bus.stop()
     n = len(IDS)
@@ -58,6 +67,8 @@ def main() -> None:
     print(f"  dynamixel-sdk ping per ID          {sdk * 1e3:8.0f} ms  ({sdk / n * 1e3:5.1f} ms/ID, found {found_sdk})")
     print(f"  ServoBus.scan(ids) ping per ID     {ours * 1e3:8.0f} ms  ({ours / n * 1e3:5.1f} ms/ID, found {found_ours})")
     print(f"  ServoBus.scan() broadcast ping     {broadcast * 1e3:8.0f} ms  (whole bus, found {found_bc})")
+    print(f"  setup's scan: P2 and P1 (IDs 0-31) at {len(DEFAULT_BAUDRATES)} rates  {wizard * 1e3:8.0f} ms  "
+          f"(found {found_wizard}: a pty answers at every rate, a real bus at one)")
     print(f"  SDK / ServoBus per-ID scan: {sdk / ours:.1f}×")
 
 

@@ -1,5 +1,5 @@
-"""Fixtures shared by every test module: where the repository and the shared data are; and the
-Hypothesis profiles.
+"""Fixtures shared by every test module: where the repository and the shared data are, the
+Hypothesis profiles, and a private folder for device locks.
 
 The Hypothesis profile drops the per-example deadline (200 ms), which measures the machine
 rather than the code: a loaded CI machine can stall one example past it, and Hypothesis then
@@ -43,3 +43,12 @@ def thesis_data() -> Path:
     if not THESIS_DATA.is_dir():
         pytest.skip(f"thesis tables not found at {THESIS_DATA}")
     return THESIS_DATA
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_lock_dir(tmp_path_factory):
+    """Device claims (admittance.drivers.ports) of this run's daemons go to a folder of its own,
+    not /run/lock: concurrent test runs never see each other's, and nothing is left behind."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("ADMITTANCE_LOCK_DIR", str(tmp_path_factory.mktemp("locks")))
+        yield

@@ -9,6 +9,7 @@ can mean 0.3 s of pushing there, while "run 2000 more cycles" means the same mot
 from __future__ import annotations
 
 import contextlib
+import csv
 import signal
 import subprocess
 import sys
@@ -16,6 +17,8 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 ADMITTANCE = Path(sys.executable).with_name("admittance")
 
@@ -94,3 +97,12 @@ def wait_for_cycles(client, prefix: str, cycles: int, after: dict | None = None)
         after = wait_for_state(client, prefix, lambda message: True, "any state")
     target = after["cycle"] + cycles
     wait_for_state(client, prefix, lambda m: m["cycle"] >= target, f"cycle {target}")
+
+
+def read_recording(folder: Path, joint_id: int = 1) -> dict[str, np.ndarray]:
+    """Every segment of one joint's recording (``--record``), concatenated, by column."""
+    rows = []
+    for path in sorted(folder.glob(f"joint{joint_id}_*.csv")):
+        with path.open() as fh:
+            rows += list(csv.DictReader(fh))
+    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}

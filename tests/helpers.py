@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import signal
 import socket
 import subprocess
 import sys
@@ -44,10 +45,24 @@ def wait_until(condition: Callable[[], bool], timeout: float = 10.0) -> bool:
 MX64_PLANT = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
 
 
+# The SDK waits 34 ms for a status packet (it assumes a 16 ms FTDI latency timer). A machine
+# shared with other jobs may not schedule the simulated bus's thread that soon (seen at load
+# 8-10 on 2 cores), so the tests' ports wait this long: a servo that answers is never missed,
+# and one that should not answer costs this per packet.
+SDK_REPLY_TIMEOUT_MS = 500.0
+
+
+def patient(port):
+    """A dynamixel-sdk PortHandler that waits SDK_REPLY_TIMEOUT_MS for every reply."""
+    port.setPacketTimeout = lambda _length: port.setPacketTimeoutMillis(SDK_REPLY_TIMEOUT_MS)
+    return port
+
+
 @contextlib.contextmanager
 def sdk_on_mock_bus() -> Iterator[Callable]:
     """Yields ``open(servos, protocol=2, **bus_options) -> (bus, port, packet_handler)``: a started
-    MockBus with a dynamixel-sdk PortHandler open on it. Everything opened is closed on exit."""
+    MockBus with a (patient) dynamixel-sdk PortHandler open on it. Everything opened is closed
+    on exit."""
     import dynamixel_sdk as sdk
 
     from admittance import _rtcore
@@ -57,7 +72,7 @@ def sdk_on_mock_bus() -> Iterator[Callable]:
     def _open(servos, protocol=2, **bus_options):
         bus = _rtcore.MockBus(servos=servos, baudrate=1_000_000, **bus_options)
         bus.start()
-        port = sdk.PortHandler(bus.port_path)
+        port = patient(sdk.PortHandler(bus.port_path))
         assert port.openPort() and port.setBaudRate(1_000_000)
         opened.append((bus, port))
         return bus, port, sdk.PacketHandler(float(protocol))
@@ -96,3 +111,21 @@ def first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
         proc.kill()
         pytest.fail(f"mock-bench printed nothing; stderr: {proc.stderr.read()}")
     return proc.stdout.readline()
+
+
+@contextlib.contextmanager
+def mock_bench_process(*args: str, stop: int = signal.SIGTERM) -> Iterator[tuple[subprocess.Popen, dict]]:
+    """``admittance mock-bench --print-ports ARGS`` running for the block: yields the process and
+    its ports; on leaving, sends ``stop`` and waits (``proc.returncode`` then holds the exit
+    status; ``proc.stderr_text`` its stderr). Killed if it does not exit."""
+    import json
+
+    proc = start_mock_bench(*args)
+    try:
+        yield proc, json.loads(first_line(proc))
+        proc.send_signal(stop)
+        _, proc.stderr_text = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()

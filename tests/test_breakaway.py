@@ -94,3 +94,15 @@ def test_cli_on_a_dataset(tmp_path, capsys):
     summary = json.loads(out.read_text())
     assert summary["average"] == pytest.approx(0.1, rel=0.05)
     assert set(summary["average_by_direction"]) == {"ccw", "cw"}
+
+
+@pytest.mark.parametrize("shape, reason", [
+    (lambda t: 0.3 * np.sin(2 * np.pi * 0.5 * t), "not a straight line"),
+    (lambda t: np.where(t < 1.0, 0.0, 0.4), "not a straight line"),
+])
+def test_a_segment_that_is_not_a_ramp_is_refused_with_its_reason(shape, reason):
+    trial = ramp_trial(0.08, 1.0, 0.0)
+    trial.tau = shape(trial.t)
+    with pytest.raises(DataError, match=f"not a torque ramp.*{reason}"):
+        breakaway.breakaway_of(trial)
+    assert breakaway.not_a_ramp(trial.t, np.full_like(trial.t, 0.2)) == "tau is constant"

@@ -1,4 +1,4 @@
-"""The shipped parameter files (config/params/*.toml) hold the thesis's fitted averages."""
+"""The shipped parameter files (admittance/data/params/*.toml) hold the thesis's fitted averages."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import statistics
 import tomllib
 
 import pytest
+
+from admittance import data
 
 MOTORS = {"MX-28": "mx28.toml", "MX-64": "mx64.toml", "MX-106": "mx106.toml"}
 # (bob distance cm, direction, repeat) of the friction typo in table 3.2, and its correction
@@ -30,7 +32,7 @@ def _table_means(thesis_data, motor):
 
 
 def _load(repo_root, name):
-    with open(repo_root / "config" / "params" / name, "rb") as fh:
+    with open(data.path("params", name), "rb") as fh:
         return tomllib.load(fh)
 
 
@@ -67,7 +69,7 @@ def test_mx28_friction_typo_is_corrected(repo_root, thesis_data):
 def test_paramfile_reader_accepts_them(repo_root, name):
     from admittance.ident import paramfile
 
-    loaded = paramfile.load(repo_root / "config" / "params" / name)
+    loaded = paramfile.load(data.path("params", name))
     assert loaded["model"]["friction"] == "tanh"
     vector = paramfile.full_vector(loaded["params"])
     assert vector[0] == _load(repo_root, name)["params"]["motor_inertia"]

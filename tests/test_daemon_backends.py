@@ -8,6 +8,7 @@ import pytest
 from admittance import _rtcore
 from admittance.daemon import backends
 from admittance.daemon.config import parse_config
+from admittance.drivers.sensor import SampleBuffer
 from admittance.errors import DeviceError
 
 from helpers import wait_until
@@ -47,3 +48,30 @@ def test_a_horn_that_keeps_spinning_is_one_clear_error(tmp_path, turned_bus, mon
         backends.check_servos(_config(tmp_path, turned_bus.port_path), turned_bus.port_path)
     assert "\n" not in str(err.value)
     assert not turned_bus.servo_state(1)["torque_enabled"]
+
+
+def _sensor_config(tmp_path, bus: str, sensor: dict):
+    doc = {"bus": {"port": bus}, "joints": [{"id": 1, "model": "MX-64"}],
+           "sensor": {"lever_arm": 0.1, **sensor}}
+    return parse_config(doc, tmp_path / "daemon.toml")
+
+
+@pytest.mark.parametrize(("bus", "sensor", "claimed"), [
+    ("/dev/ttyDXL", {"kind": "optoforce", "port": "/dev/ttyOPTO"}, ["/dev/ttyDXL", "/dev/ttyOPTO"]),
+    ("/dev/ttyDXL", {"kind": "can", "interface": "slcan", "port": "/dev/ttyCAN@3000000"}, ["/dev/ttyDXL", "/dev/ttyCAN"]),
+    ("/dev/ttyDXL", {"kind": "can", "interface": "socketcan", "port": "can0"}, ["/dev/ttyDXL"]),
+    ("mock", {"kind": "optoforce", "port": "mock"}, []),
+], ids=["optoforce", "slcan", "socketcan", "bench"])
+def test_the_daemon_claims_its_serial_devices_only(tmp_path, monkeypatch, bus, sensor, claimed):
+    from admittance.drivers import ports
+
+    monkeypatch.setenv(ports.LOCK_DIR_ENV, str(tmp_path))
+    with backends.claim_devices(_sensor_config(tmp_path, bus, sensor)) as held:
+        assert held.paths == [ports.lock_path(p, tmp_path) for p in claimed]
+
+
+def test_the_saturation_policy_reaches_the_reader(tmp_path):
+    for policy in ("hold", "pass"):
+        cfg = _sensor_config(tmp_path, "mock", {"kind": "optoforce", "port": "/dev/null", "saturation": policy})
+        reader = backends.make_sensor(cfg, "/dev/null", SampleBuffer())
+        assert reader._converter.hold_saturated is (policy == "hold")

@@ -12,6 +12,7 @@ import tomli_w
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from admittance import data
 from admittance.daemon import config
 from admittance.daemon.schema import describe
 from admittance.errors import ConfigError
@@ -19,7 +20,7 @@ from admittance.errors import ConfigError
 from helpers import examples
 
 REPO = Path(__file__).resolve().parents[1]
-MX64 = REPO / "config" / "params" / "mx64.toml"
+MX64 = data.params_file("MX-64")
 
 
 def minimal() -> dict:
@@ -45,8 +46,8 @@ def error_of(tmp_path: Path, doc: dict) -> str:
 
 
 def test_shipped_configurations_load():
-    for name in ("bench.toml", "example.toml"):
-        cfg = config.load_config(REPO / "config" / name)
+    for path in (data.bench_config(), data.example_config()):
+        cfg = config.load_config(path)
         assert cfg.joints and cfg.zenoh.prefix
 
 
@@ -69,13 +70,23 @@ def test_explicit_virtual_values_win(tmp_path):
     assert (joint.virtual_inertia, joint.virtual_damping, joint.virtual_coulomb) == (0.03, 0.0, 0.01)
 
 
-def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
+def test_params_path_is_resolved_beside_the_config_then_cwd_then_the_package(tmp_path, monkeypatch):
     doc = minimal()
     doc["joints"][0]["params"] = "mine.toml"
     (tmp_path / "mine.toml").write_text(MX64.read_text().replace("0.01467", "0.02"))
     assert config.load_config(write(tmp_path, doc)).joints[0].virtual_inertia == 0.02
-    doc["joints"][0]["params"] = "params/mx28.toml"  # not beside: found under config/ of the repo
-    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(REPO / "config/params/mx28.toml")
+    monkeypatch.chdir(tmp_path / "..")
+    doc["joints"][0]["params"] = "params/mx28.toml"  # not beside, not in cwd: the shipped fit
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(data.params_file("MX-28"))
+    doc["joints"][0]["params"] = "config/params/mx28.toml"  # a checkout's former layout still resolves
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(data.params_file("MX-28"))
+    (tmp_path / "cwd" / "params").mkdir(parents=True)  # a user's own file in the working directory wins
+    (tmp_path / "cwd" / "params" / "mx28.toml").write_text(MX64.read_text())
+    monkeypatch.chdir(tmp_path / "cwd")
+    doc["joints"][0]["params"] = "params/mx28.toml"
+    assert config.load_config(write(tmp_path, doc)).joints[0].params == str(tmp_path / "cwd/params/mx28.toml")
+    doc["joints"][0]["params"] = "../secret.toml"
+    assert "not found" in error_of(tmp_path, doc)
     del doc["joints"][0]["params"]  # the model's own file by default
     assert config.load_config(write(tmp_path, doc)).joints[0].params.endswith("mx64.toml")
 
@@ -89,7 +100,7 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d.pop("sensor"), r"\[sensor\] is required"),
     (lambda d: d["joints"][0].update(id=300), r"\[\[joints\]\] #1\.id: must be <= 252"),
     (lambda d: d["joints"][0].update(virtual_damping=-1.0), r"virtual_damping: must be >= 0"),
-    (lambda d: d["joints"][0].update(virtual_inertia=0.0), r"virtual_inertia: must be > 0"),
+    (lambda d: d["joints"][0].update(virtual_inertia=0.0), r"virtual_inertia: must be >= 0\.0001 kg·m²"),
     (lambda d: d["joints"].append(dict(d["joints"][0])), r"duplicate joint id 1"),
     (lambda d: d["joints"][0].update(virtual_damping=50.0), r"\[joints\.1\] virtual_\*: h·B/I = .* must be < 1"),
     (lambda d: d["joints"][0].update(params="nowhere.toml"), r"params: file 'nowhere.toml' not found"),
@@ -101,7 +112,7 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d.update(bus={"port": "/dev/x", "protocol": 1}) or d["joints"][0].update(model="XM430-W350"),
      r"'XM430-W350' is not a Protocol 1\.0 model"),
     (lambda d: d["sensor"].update(kind="laser"), r"\[sensor\]\.kind: expected one of"),
-    (lambda d: d["sensor"].update(lever_arm=0.0), r"lever_arm: must not be 0"),
+    (lambda d: d["sensor"].update(lever_arm=0.0), r"lever_arm: must be at least 0\.001 m either side of 0"),
     (lambda d: d["sensor"].update(counts_per_newton=[1.0]), r"counts_per_newton: expected 3 values"),
     (lambda d: d["sensor"].update(port="mock"), r"needs the simulated bench"),
     (lambda d: d.update(loop={"rate_hz": 1000, "stale_timeout_ms": 0}), r"stale_timeout_ms: must be > 0"),
@@ -111,6 +122,12 @@ def test_params_path_is_resolved_beside_the_config_then_the_repo(tmp_path):
     (lambda d: d.update(zenoh={"prefix": "a//b"}), r"prefix: 'a//b' is not a valid key expression"),
     (lambda d: d.update(stop={"torque_policy": "float"}), r"torque_policy: expected one of 'hold', 'torque_off'"),
     (lambda d: d.update(joints=[]), r"\[\[joints\]\] must be a non-empty array"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/127.0.0.1:99999"]}),
+     r"\[zenoh\]\.listen\[0\]: 'tcp/127\.0\.0\.1:99999': the port must be a number 0\.\.65535"),
+    (lambda d: d.update(zenoh={"listen": [""]}), r"\[zenoh\]\.listen\[0\]: '' is not an endpoint"),
+    (lambda d: d.update(zenoh={"connect": ["foo/bar"]}), r"\[zenoh\]\.connect\[0\]: 'foo/bar': unknown protocol 'foo'"),
+    (lambda d: d.update(zenoh={"connect": ["tcp/256.1.1.1:7447"]}), r"'256\.1\.1\.1' is not an IPv4 address"),
+    (lambda d: d.update(zenoh={"listen": ["tcp/[::g]:1"]}), r"in brackets is not an IPv6 address"),
 ])
 def test_errors_name_the_key_and_the_problem_in_one_line(tmp_path, mutate, expected):
     doc = minimal()
@@ -125,6 +142,16 @@ def test_unreadable_files_give_one_line(tmp_path):
     bad.write_text("[bus\nport = 1")
     with pytest.raises(ConfigError, match="not valid TOML"):
         config.load_config(bad)
+
+
+def test_compensation_needs_a_servo_model_in_the_parameter_file(tmp_path):
+    doc = minimal()
+    doc["joints"][0]["servo_compensation"] = 1.0
+    assert "servo_compensation: 1 needs a servo model" in error_of(tmp_path, doc)
+    doc["joints"][0]["servo_compensation"] = 0.0
+    assert config.load_config(write(tmp_path, doc)).joints[0].servo_compensation == 0.0
+    doc["joints"][0]["servo_compensation"] = 1.5
+    assert "servo_compensation: must be <= 1" in error_of(tmp_path, doc)
 
 
 def test_a_lumped_parameter_file_is_refused(tmp_path):
@@ -170,6 +197,24 @@ def test_every_key_is_documented():
 def test_run_check_prints_the_resolved_configuration(capsys):
     from admittance.cli import main
 
-    assert main(["run", "--check", "--config", str(REPO / "config" / "example.toml")]) == 0
+    assert main(["run", "--check", "--config", str(data.example_config())]) == 0
     out = capsys.readouterr().out
     assert "joint 1: MX-64" in out and "I=0.02 kg·m²" in out and "zenoh: bench/arm1" in out
+
+
+@pytest.mark.parametrize("listen, mode, warned", [
+    (["tcp/127.0.0.1:7447"], "peer", []),
+    (["tcp/[::1]:7447", "tcp/localhost:7448", "unixsock-stream//tmp/z.sock"], "peer", []),
+    ([], "peer", ["listen is empty"]),
+    (["tcp/0.0.0.0:7447"], "peer", ["tcp/0.0.0.0:7447 is reachable from every interface"]),
+    (["tcp/[::]:7447", "tcp/192.168.1.5:7447"], "router", ["every interface", "the network"]),
+    ([], "client", []),  # a client listens nowhere
+])
+def test_listening_beyond_loopback_is_warned_about(listen, mode, warned):
+    from admittance.daemon.endpoints import exposure_warnings
+
+    zcfg = config.ZenohConfig(listen=listen, mode=mode, connect=["tcp/10.0.0.1:7447"])
+    warnings = exposure_warnings(zcfg)
+    assert len(warnings) == len(warned)
+    for line, expected in zip(warnings, warned):
+        assert expected in line and "can set parameters and tare" in line and "\n" not in line

@@ -35,11 +35,17 @@ def test_addresses_come_from_the_model_table(tmp_path, protocol, goal, present, 
     assert d["joints"][0]["virtual_inertia"] == pytest.approx(0.01467)
 
 
-def test_position_limits_are_clipped_to_what_the_goal_range_reaches(tmp_path):
-    cfg = cfg_for(tmp_path, 2, zero_tick=3500, limits={"position_min": -1.0, "position_max": 3.0})
+def test_default_position_limits_are_clipped_to_what_the_goal_range_reaches(tmp_path):
+    cfg = cfg_for(tmp_path, 2, zero_tick=3500, limits={"position_min": -1.0})
     limits = loop_config(cfg, "/dev/x")["joints"][0]["limits"]
     assert limits["position_min"] == -1.0
     assert limits["position_max"] == pytest.approx((4095 - 3500) * 2 * 3.141592653589793 / 4096)
+    assert loop_config(cfg, "/dev/x")["joints"][1]["limits"]["position_max"] == 3.1  # zero tick 2048: ±3.1
+
+
+def test_an_explicit_position_limit_beyond_the_reach_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"limits\.position_max: must be within \[-5\.3689, 0\.9127\] rad"):
+        cfg_for(tmp_path, 2, zero_tick=3500, limits={"position_max": 3.0})
 
 
 def test_the_real_loop_accepts_the_dict(tmp_path):
@@ -54,3 +60,21 @@ def test_a_zero_tick_outside_the_goal_range_is_a_config_error(tmp_path):
     bad = config.dataclasses.replace(cfg, joints=(config.dataclasses.replace(cfg.joints[0], zero_tick=5000),))
     with pytest.raises(ConfigError, match="zero_tick: 5000 is outside"):
         loop_config(bad, "/dev/x")
+
+
+@pytest.mark.parametrize("loop, mode, locked", [({}, "sample", True), ({"phase_lock": False}, "sample", False),
+                                                ({"trigger": "schedule"}, "schedule", False)])
+def test_the_loops_trigger_comes_from_the_loop_table(tmp_path, loop, mode, locked):
+    cfg = cfg_for(tmp_path, 2)
+    cfg = config.dataclasses.replace(cfg, loop=config.dataclasses.replace(cfg.loop, **loop))
+    trigger = _rtcore.AdmittanceLoop(loop_config(cfg, "/dev/null")).stats()["trigger"]
+    assert (trigger["mode"], trigger["phase_lock"]) == (mode, locked)
+
+
+def test_an_unknown_trigger_is_a_config_error(tmp_path):
+    path = tmp_path / "d.toml"
+    path.write_text(tomli_w.dumps({"bus": {"port": "/dev/ttyUSB0"}, "joints": [{"id": 1, "model": "MX-64"}],
+                                   "sensor": {"kind": "optoforce", "port": "/dev/x", "lever_arm": 0.1},
+                                   "loop": {"trigger": "sometimes"}}))
+    with pytest.raises(ConfigError, match=r"loop.*trigger"):
+        config.load_config(path)

@@ -49,10 +49,16 @@ def test_arbitrary_bytes_never_escape_as_anything_but_data_error(payload):
     (b'{"bias": [1, "a"]}', r"bias\[1\]: expected a number"),
     (b"[1, 2]", "malformed payload"),
     (b'{"a": ', "malformed payload"),
+    (b'{"velocity_max": ' + b"9" * 400 + b"}", r"velocity_max: integer out of range \(beyond ±2\^53\), got an integer of"),
+    (b'{"bias": [0, 0, ' + b"9" * 400 + b", 0, 0, 0]}", r"bias\[2\]: integer out of range"),
+    (msgspec.msgpack.encode({"deadband": 2**64 - 1}), "deadband: integer out of range"),
+    (b'{"deadband": 1e999}', "malformed payload: Number out of range"),
+    (b'{"deadband": NaN}', "malformed payload"),
 ])
 def test_bad_set_requests_say_why(payload, message):
-    with pytest.raises(DataError, match=message):
+    with pytest.raises(DataError, match=message) as refused:
         decode_set_request(payload)
+    assert len(str(refused.value)) < 200
 
 
 def test_set_reply_omits_an_empty_reason():

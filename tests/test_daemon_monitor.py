@@ -34,6 +34,15 @@ def test_screen_shows_joints_and_timing():
     assert "waiting for bench/arm1/state" in screen("bench/arm1", None, None)
 
 
+def test_the_rendering_error_has_its_line_in_both_modes():
+    stats = {**STATS, "rendering_rms": {"1": 0.00123, "2": 0.0105}}
+    assert "render" in screen("p", STATE, stats) and "joint 1   1.23 mrad" in screen("p", STATE, stats)
+    plain = io.StringIO()
+    View("p", plain, False).feed("stats", stats)
+    assert "joint 2  10.50 mrad" in plain.getvalue()
+    assert "render" not in screen("p", STATE, STATS), "no line before the daemon reports one"
+
+
 def test_tty_mode_redraws_and_plain_mode_prints_lines():
     tty, plain = io.StringIO(), io.StringIO()
     for out, is_tty in ((tty, True), (plain, False)):

@@ -21,10 +21,10 @@ from admittance.daemon.supervisor import Backends, GatedSink, RunOptions, Superv
 from admittance.errors import DeviceError
 
 REPO = Path(__file__).resolve().parents[1]
-RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns") else "<f8" if name in
+RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns", "deadline_ns", "fault") else "<f8" if name in
                           ("force", "torque", "theta", "omega") else "<i8")
-                         for name in ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                                      "present_tick", "period_error_ns", "latency_ns")])
+                         for name in ("cycle", "t_ns", "deadline_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
+                                      "present_tick", "period_error_ns", "latency_ns", "fault", "mode")])
 PCT = {"p50": 1.0, "p99": 2.0, "p999": 3.0, "max": 4.0}
 
 
@@ -50,7 +50,8 @@ class FakeLoop:
             self.cycle += 1
             for j, jid in enumerate(self.ids):
                 r = rec[k * len(self.ids) + j]
-                r["cycle"], r["t_ns"], r["id"] = self.cycle, 10**9 + self.cycle * 10**6, jid
+                r["cycle"], r["deadline_ns"], r["id"] = self.cycle, 10**9 + self.cycle * 10**6, jid
+                r["t_ns"] = r["deadline_ns"] + 30_000  # woke 30 µs after the deadline
                 r["torque"], r["theta"], r["goal_tick"] = 0.1, 0.001 * self.cycle, 2048 + self.cycle
                 r["present_tick"] = 2048 + self.cycle if self.cycle % 5 == 0 else -1
         return rec
@@ -130,11 +131,12 @@ class FakeNotifier:
 
 
 class Harness:
-    def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None):
+    def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None,
+                 zenoh=None):
         doc = {"bus": {"port": "/dev/fake"},
                "joints": [{"id": 1, "model": "MX-64"}, {"id": 2, "model": "MX-28"}],
                "sensor": {"kind": "optoforce", "port": "/dev/fakesensor", "lever_arm": 0.1},
-               "stop": {"torque_policy": policy}}
+               "stop": {"torque_policy": policy}, "zenoh": zenoh or {}}
         if record:
             doc["record"] = {"path": record}
         path = tmp_path / "daemon.toml"
@@ -170,15 +172,26 @@ class Harness:
             self._maybe_fail("sensor")
             return FakeSensor(self.events, sink, self.tare_ok)
 
-        def make_interface(zcfg, codec, handler):
+        def make_interface(zcfg, codec, handler, log):
             self.events.append("zenoh")
             self._maybe_fail("zenoh")
             return SimpleNamespace(publish_state=self.published.append, publish_stats=self.published.append,
-                                   poll=lambda: 0, close=lambda: self.events.append("zenoh.close"), queries=0)
+                                   poll=lambda: 0, close=lambda: self.events.append("zenoh.close"), queries=0,
+                                   serve=lambda: self.events.append("zenoh.serve"))
+
+        @contextlib.contextmanager
+        def claim(cfg):
+            self.events.append("claim")
+            self._maybe_fail("claim")
+            try:
+                yield
+            finally:
+                self.events.append("release-claim")
 
         self.backends = Backends(start_bench=bench, check_servos=check,
                                  release_servos=lambda cfg, port: self.events.append("release"),
-                                 make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface)
+                                 make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
+                                 claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
         options = RunOptions(duration=stop_after, stats_json=self.stats_path, log=self.logs.append)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
@@ -192,13 +205,47 @@ def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
     h = Harness(tmp_path, stop_after=0.2)
     assert h.supervisor.run() == 0
     start = h.events[: h.events.index("READY") + 1]
-    assert start == ["bench", "servos", "sensor.start", "sensor.tare:100", "loop.start", "zenoh", "READY"]
+    assert start == ["claim", "bench", "zenoh", "sensor.start", "servos", "sensor.tare:100", "loop.start",
+                     "zenoh.serve", "READY"]
     assert h.events[len(start)] == "hand"  # the simulated hand only starts once the loop runs
-    assert h.events[-5:] == ["STOPPING", "loop.stop:hold", "zenoh.close", "sensor.stop", "bench.stop"]
+    assert h.events[-6:] == ["STOPPING", "loop.stop:hold", "sensor.stop", "zenoh.close", "bench.stop",
+                             "release-claim"]
     stats = json.loads(h.stats_path.read_text())
     assert set(STATS_KEYS) <= set(stats) and "daemon" in stats
     assert any("latency timer" in line for line in h.logs) and any("SCHED_FIFO" in line for line in h.logs)
     assert h.published, "state and stats are published while running"
+
+
+def test_the_rendering_error_reaches_the_state_the_stats_and_the_stats_file(tmp_path):
+    """The fake's horn reads 2048 + n ticks while its model is at 0.001·n rad: a growing gap."""
+    from admittance.daemon.messages import State
+
+    h = Harness(tmp_path, stop_after=0.2)
+    h.supervisor.run()
+    states = [m for m in h.published if isinstance(m, State)]
+    last = states[-1].joints[0]
+    gap = (last.present_tick - 2048) * 2 * np.pi / 4096 - last.theta  # the largest gap so far
+    assert last.rendering_rms is not None and 0 < last.rendering_rms <= gap
+    stats = json.loads(h.stats_path.read_text())
+    assert set(stats["rendering_rms"]) == {"1", "2"}
+    assert any("rendering_rms" in m for m in h.published if isinstance(m, dict))
+
+
+def test_the_running_rendering_error_is_an_rms_over_about_a_second_of_reads():
+    from admittance.daemon.telemetry import RAD_PER_TICK, RenderingError
+
+    cfg = SimpleNamespace(joints=[SimpleNamespace(id=1, zero_tick=2048, direction=1)])
+    tracker = RenderingError(cfg, window_s=1.0)
+    assert tracker.rms(1) is None
+    rec = np.zeros(3000, RECORD_DTYPE)
+    rec["id"], rec["t_ns"], rec["cycle"] = 1, 10**9 + np.arange(3000) * 10**6, np.arange(3000)
+    rec["present_tick"] = np.where(np.arange(3000) % 10 == 0, 2050, -1)  # 2 ticks off, read every 10th cycle
+    tracker.update(rec)
+    assert tracker.rms(1) == pytest.approx(2 * RAD_PER_TICK)
+    rec["t_ns"] += 3 * 10**9
+    rec["theta"] = 2 * RAD_PER_TICK  # the horn now sits on the model
+    tracker.update(rec[:1001])
+    assert tracker.rms(1) ** 2 == pytest.approx((2 * RAD_PER_TICK) ** 2 * np.exp(-1.0), rel=0.02)
 
 
 def test_the_gate_keeps_pre_tare_samples_from_the_loop(tmp_path):
@@ -214,18 +261,62 @@ def test_the_gate_keeps_pre_tare_samples_from_the_loop(tmp_path):
 
 
 @pytest.mark.parametrize("step, undone", [
-    ("bench", []),
-    ("servos", ["bench.stop"]),
-    ("loop", ["bench.stop"]),
-    ("sensor", ["bench.stop"]),
-    ("zenoh", ["loop.stop:hold", "sensor.stop", "bench.stop"]),
+    ("claim", []),
+    ("bench", ["release-claim"]),
+    ("zenoh", ["bench.stop", "release-claim"]),
+    ("loop", ["zenoh.close", "bench.stop", "release-claim"]),
+    ("sensor", ["zenoh.close", "bench.stop", "release-claim"]),
+    ("servos", ["sensor.stop", "zenoh.close", "bench.stop", "release-claim"]),
 ])
-def test_a_failing_step_raises_its_device_error_and_undoes_the_earlier_ones(tmp_path, step, undone):
+def test_a_failing_step_raises_its_device_error_undoes_the_earlier_ones_and_writes_stats(tmp_path, step, undone):
     h = Harness(tmp_path, fail_at=step, stop_after=1.0)
     with pytest.raises(DeviceError, match=f"{step} failed"):
         h.supervisor.run()
-    assert [e for e in h.events if e in ("bench.stop", "sensor.stop", "loop.stop:hold")] == undone
-    assert "READY" not in h.events and not h.stats_path.exists()
+    undo = ("release-claim", "bench.stop", "zenoh.close", "sensor.stop", "loop.stop:hold")
+    assert [e for e in h.events if e in undo] == undone
+    assert "READY" not in h.events
+    stats = json.loads(h.stats_path.read_text())
+    assert stats["error"] == f"{step} failed" and stats["exit_status"] == 3 and "daemon" in stats
+
+
+def test_every_resource_is_claimed_before_the_first_write_to_a_servo(tmp_path):
+    """The ports (hook), the bench, the Zenoh endpoint, the recording folder and the sensor's device:
+    a daemon that cannot have one of them fails before torque goes on."""
+    h = Harness(tmp_path, record="rec", stop_after=0.05)
+    folder_existed = []
+    check = h.backends.check_servos
+    h.backends.check_servos = lambda cfg, port: folder_existed.append((tmp_path / "rec").is_dir()) or check(cfg, port)
+    h.supervisor.run()
+    servos = h.events.index("servos")
+    assert {"claim", "bench", "zenoh", "sensor.start"} <= set(h.events[:servos]) and folder_existed == [True]
+    assert "zenoh.serve" not in h.events[:servos], "queries are only served once the loop runs"
+
+
+def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path):
+    h = Harness(tmp_path, stop_after=0.05, zenoh={"listen": ["tcp/0.0.0.0:7447"]})
+    h.supervisor.run()
+    assert any(line.startswith("warning: [zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface")
+               for line in h.logs)
+    h = Harness(tmp_path, stop_after=0.05)
+    h.supervisor.run()
+    assert not any("[zenoh].listen" in line for line in h.logs), "loopback: no warning"
+
+
+def test_an_unexpected_exception_still_writes_stats_with_the_error(tmp_path):
+    h = Harness(tmp_path)
+    make_loop = h.backends.make_loop
+
+    def loop_with_a_bug(cfg, port):
+        loop = make_loop(cfg, port)
+        loop.drain_telemetry = lambda: 1 / 0
+        return loop
+
+    h.backends.make_loop = loop_with_a_bug
+    with pytest.raises(ZeroDivisionError):
+        h.supervisor.run()
+    stats = json.loads(h.stats_path.read_text())
+    assert stats["error"].startswith("internal error: ZeroDivisionError") and stats["exit_status"] == 1
+    assert stats["cycles"] == 0 and "loop.stop:hold" in h.events
 
 
 def test_a_refused_tare_stops_the_start(tmp_path):
@@ -236,10 +327,14 @@ def test_a_refused_tare_stops_the_start(tmp_path):
 
 
 def test_torque_off_policy_releases_the_servos_when_the_start_fails_before_the_loop(tmp_path):
-    h = Harness(tmp_path, fail_at="sensor", policy="torque_off")
+    h = Harness(tmp_path, tare_ok=False, policy="torque_off")
     with pytest.raises(DeviceError):
         h.supervisor.run()
     assert "release" in h.events
+    h = Harness(tmp_path, fail_at="sensor", policy="torque_off")  # before the servos: nothing to release
+    with pytest.raises(DeviceError):
+        h.supervisor.run()
+    assert "release" not in h.events
     h = Harness(tmp_path, policy="torque_off", stop_after=0.05)
     h.supervisor.run()
     assert "release" not in h.events and "loop.stop:torque_off" in h.events
@@ -322,3 +417,29 @@ def test_a_loop_that_dies_stops_the_daemon_with_a_device_error(tmp_path):
     with pytest.raises(DeviceError, match="RT loop thread ended"):
         h.supervisor.run()
     assert "loop.stop:hold" in h.events  # the undo path still holds the joints
+
+
+def test_the_claim_comes_before_any_device_and_a_refused_claim_touches_none(tmp_path):
+    h = Harness(tmp_path, stop_after=0.2)
+
+    @contextlib.contextmanager
+    def claim(cfg):
+        h.events.append("claim")
+        try:
+            yield
+        finally:
+            h.events.append("claim.release")
+
+    h.backends.claim_devices = claim
+    assert h.supervisor.run() == 0
+    assert h.events[:2] == ["claim", "bench"] and h.events[-1] == "claim.release"
+
+    refused = Harness(tmp_path, stop_after=0.2)
+
+    def busy(cfg):
+        raise DeviceError("cannot claim /dev/fake: another admittance daemon has it (pid 1)")
+
+    refused.backends.claim_devices = busy
+    with pytest.raises(DeviceError, match="cannot claim"):
+        refused.supervisor.run()
+    assert refused.events == [], "no bench, no servo check, no sensor: nothing was opened"

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from admittance import data
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
 
 from helpers import examples
+
+MX64 = data.params_file("MX-64")
 
 
 def test_round_trip(tmp_path):
@@ -22,6 +26,17 @@ def test_round_trip(tmp_path):
     assert doc["params"] == params
     assert doc["model"]["motor"] == "MX-64"
     assert doc["fit"]["effects"] == ["angle_offset"]
+
+
+def test_a_servo_table_round_trips_and_its_names_agree_with_the_rust_model(tmp_path):
+    from admittance import _rtcore
+
+    assert paramfile.SERVO_PARAM_NAMES == tuple(_rtcore.SERVO_PARAM_NAMES)
+    servo = {"time_constant": 0.017, "inertial_time": 0.02, "dead_time": 0.001, "compliance": 0.024, "deadband": 0.002}
+    path = tmp_path / "with_servo.toml"
+    paramfile.dump(path, {"motor_inertia": 0.0147}, servo=servo)
+    assert paramfile.load(path)["servo"] == servo
+    assert "servo" not in paramfile.load(MX64)
 
 
 def test_names_agree_with_the_simulator():
@@ -43,6 +58,12 @@ def test_names_agree_with_the_simulator():
         ("[model]\nmode = \"other\"\n", "mode"),
         ("params = 3\n", "[params] must be a table"),
         ("[params\n", "not valid TOML"),
+        ("[servo]\ntime_constant = 0.02\n", "inertial_time: required"),
+        ("[servo]\ntime_constant = 0.0\ninertial_time = 0\ndead_time = 0\ncompliance = 0\ndeadband = 0\n",
+         "time_constant: must be in (0"),
+        ("[servo]\ntime_constant = 0.02\ninertial_time = 0\ndead_time = 0\ncompliance = 0\ndeadband = -1\n",
+         "deadband: must be in [0"),
+        ("[servo]\ntime_constnt = 0.02\n", "time_constnt: unknown servo parameter"),
     ],
 )
 def test_bad_files_name_file_and_key(tmp_path, body, fragment):

@@ -7,6 +7,7 @@ import signal
 
 import pytest
 
+from admittance import data
 from admittance.drivers.dynamixel import ServoBus
 from admittance.drivers.optoforce import OptoForceSerialReader
 from admittance.drivers.sensor import SampleBuffer
@@ -86,7 +87,7 @@ def test_the_can_variant_exposes_its_channel_and_no_pty():
 
 
 def test_models_map_to_their_parameter_files(repo_root):
-    assert params_path("MX-64") == repo_root / "config" / "params" / "mx64.toml"
+    assert params_path("MX-64") == data.params_file("MX-64") and params_path("MX-64").name == "mx64.toml"
     with pytest.raises(ConfigError, match="no fitted parameters for XM430-W350"):
         MockBench(model="XM430-W350")
 
@@ -94,7 +95,7 @@ def test_models_map_to_their_parameter_files(repo_root):
 def test_servo_tables_choose_model_parameters_and_mockbus_options(repo_root):
     servos = [
         {"id": 1},
-        {"id": 3, "model": "XM430-W350", "params_file": str(repo_root / "config" / "params" / "mx64.toml"), "kt": 1.2, "resistance": 5.0, "initial_theta": 0.5},
+        {"id": 3, "model": "XM430-W350", "params_file": str(data.params_file("MX-64")), "kt": 1.2, "resistance": 5.0, "initial_theta": 0.5},
     ]
     with MockBench(servos=servos, profile="still") as bench:
         assert bench.bus.servo_state(3)["theta"] == pytest.approx(0.5)

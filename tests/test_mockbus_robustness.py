@@ -17,7 +17,7 @@ sdk = pytest.importorskip("dynamixel_sdk")
 serial = pytest.importorskip("serial")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
-from helpers import MX64_PLANT, examples  # noqa: E402
+from helpers import MX64_PLANT, examples, patient  # noqa: E402
 
 MX64 = MX64_PLANT
 # Longer than the mock's 1.5 ms inter-byte timeout, so a partial packet has been dropped.
@@ -45,7 +45,7 @@ def bus_and_port(request):
     bus = _rtcore.MockBus(servos=servos, wire_delay=False)
     bus.start()
     raw = serial.Serial(bus.port_path, 1_000_000, timeout=0.2)
-    port = sdk.PortHandler(bus.port_path)
+    port = patient(sdk.PortHandler(bus.port_path))
     assert port.openPort()
     yield bus, raw, port, sdk.PacketHandler(float(protocol))
     port.closePort()

@@ -13,7 +13,7 @@ sdk = pytest.importorskip("dynamixel_sdk")
 _rtcore = pytest.importorskip("admittance._rtcore")
 
 from admittance.errors import ConfigError  # noqa: E402
-from helpers import MX64_PLANT, sdk_on_mock_bus  # noqa: E402
+from helpers import MX64_PLANT, sdk_on_mock_bus, wait_until  # noqa: E402
 
 MX64 = MX64_PLANT
 
@@ -149,15 +149,18 @@ def test_broadcast_ping_lists_every_servo(open_bus):
     assert all(model == 311 for model, _firmware in found.values())
 
 
-def test_reboot_clears_a_hardware_error_and_the_alert(open_bus):
-    bus, port, ph = open_bus([servo(1)])
+def test_reboot_is_answered_then_the_servo_boots_and_comes_back_without_the_error(open_bus):
+    bus, port, ph = open_bus([servo(1, reboot_time_s=1.0)])
     ok(*ph.write1ByteTxRx(port, 1, P2_TORQUE_ENABLE, 1))
     bus.set_hardware_error(1, 0x20)  # overload
     status, result, error = ph.read1ByteTxRx(port, 1, P2_HW_ERROR)
     assert result == sdk.COMM_SUCCESS
     assert status == 0x20 and error & 0x80
     assert ph.read1ByteTxRx(port, 1, P2_TORQUE_ENABLE)[0] == 0  # overload is in the Shutdown mask
-    ok(*ph.reboot(port, 1))
+    result, error = ph.reboot(port, 1)
+    assert result == sdk.COMM_SUCCESS and error == 0x80, "answered as it was, then it boots"
+    assert wait_until(lambda: ph.ping(port, 1)[1] == sdk.COMM_SUCCESS)
+    assert bus.stats()["silent_drops"] >= 1, "the pings of its boot second went unanswered"
     status, result, error = ph.read1ByteTxRx(port, 1, P2_HW_ERROR)
     ok(result, error)
     assert status == 0

@@ -137,19 +137,22 @@ def test_converter_scales_counts_per_axis_and_tracks_the_counter(samples):
     converter = of.SampleConverter([100.0, 200.0, 400.0], axes=3)
     stream = b"".join(of.encode_sample(i, 0, s) for i, s in enumerate(samples))
     vectors = converter.forces(stream)
-    expected = [[s[0] / 100.0, s[1] / 200.0, s[2] / 400.0, 0.0, 0.0, 0.0] for s in samples]
-    assert np.allclose(vectors, expected) and len(vectors) == len(samples)
-    assert converter.stats()["counter_gaps"] == 0
+    # A count at the int16 limit is a clipped reading: held (the default policy), and counted.
+    clipped = [s for s in samples if set(s) & {32767, -32767, -32768}]
+    expected = [[s[0] / 100.0, s[1] / 200.0, s[2] / 400.0, 0.0, 0.0, 0.0] for s in samples if s not in clipped]
+    assert len(vectors) == len(expected) and np.allclose(np.reshape(vectors, (-1, 6)), np.reshape(expected, (-1, 6)))
+    assert converter.stats()["counter_gaps"] == 0 and converter.stats()["overloads"] == len(clipped)
 
 
-def test_converter_drops_faulty_samples_and_counts_gaps_and_overloads():
-    converter = of.SampleConverter(10.0, axes=3)
+@pytest.mark.parametrize(("policy", "kept"), [("hold", [1.0]), ("pass", [1.0, 3.0])])
+def test_converter_drops_faulty_samples_and_counts_gaps_and_overloads(policy, kept):
+    converter = of.SampleConverter(10.0, axes=3, saturation=policy)
     stream = (
         of.encode_sample(5, 0, (10, 0, 0))
         + of.encode_sample(6, 0x2000, (20, 0, 0))  # DAQ error: dropped
-        + of.encode_sample(9, 1 << 9, (30, 0, 0))  # gap 6 -> 9, Fx overload flag: kept
+        + of.encode_sample(9, 1 << 9, (30, 0, 0))  # gap 6 -> 9, Fx overload flag: held, or passed
     )
-    assert [v[0] for v in converter.forces(stream)] == [1.0, 3.0]
+    assert [v[0] for v in converter.forces(stream)] == kept
     stats = converter.stats()
     assert (stats["status_faults"], stats["counter_gaps"], stats["overloads"]) == (1, 1, 1)
 

@@ -99,16 +99,22 @@ def test_the_reader_survives_garbage_on_the_line():
     assert stats["resyncs"] >= 1 and stats["checksum_errors"] >= 1
 
 
-def test_a_vanished_device_ends_the_reader_with_an_error():
-    sim = SimulatedOptoForce(make_profile("still"), ForceModel(), rate_hz=333)
+def test_a_vanished_device_is_reported_and_reopened_with_backoff(tmp_path):
+    # Read through the link: a freed /dev/pts number is soon another program's pty, which a
+    # reopening reader must not open instead.
+    sim = SimulatedOptoForce(make_profile("still"), ForceModel(), rate_hz=333, link=str(tmp_path / "ttyACM"))
     sim.start()
     buffer = SampleBuffer()
-    reader = of.OptoForceSerialReader(sim.port_path, 100.0, buffer)
+    reader = of.OptoForceSerialReader(sim.link_path, 100.0, buffer)
     reader.start()
     try:
         assert buffer.wait_for(3, timeout=10)
-        sim.stop()  # closes the pty: the "USB cable" is pulled
-        assert wait_until(lambda: reader.error is not None)
-        assert not reader.running and reader.stats()["error"] == reader.error
+        sim.stop()  # closes the pty for good: the "USB cable" is pulled and lost
+        assert wait_until(lambda: reader.stats()["reopen_failures"] >= 2)
+        stats = reader.stats()
+        assert reader.running and stats["state"] == "reconnecting" and stats["disconnects"] == 1
+        assert stats["error"] == reader.error and "SerialException" in reader.error
+        assert "no such device" in stats["last_error"], "a reopen names why it failed"
     finally:
         reader.stop()
+    assert reader.stats()["state"] == "stopped"

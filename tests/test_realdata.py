@@ -106,11 +106,16 @@ def test_dfki_identify_weighs_the_torque_gain_on_two_runs(real_data, tmp_path):
 
 def test_dfki_torque_gain_lowers_the_leave_one_out_error(real_data, tmp_path):
     """Fitted on two runs and scored on the third, the gain (the plant's torque_gain, geometry
-    mode) lowers every fold's error, and the ladder's verdict (identify's tests) claims it."""
+    mode) lowers every fold's error at one value (0.85–0.87 in each fold). The ladder admits it
+    but only as a stand-in: fitted apart, the large swings and the small ones still want models
+    far apart (inertia ~5× apart, tens of noise variances gained), so something the library does
+    not name is left in these runs, and the gain may be covering part of it."""
     base, gain = effect_ladder(_dfki_geometry(real_data, tmp_path), [(), ("torque_gain",)])
     assert gain.pooled_rmse < 0.85 * base.pooled_rmse
     assert all(g <= b for g, b in zip(gain.heldout_rmse, base.heldout_rmse))
-    assert gain.verdict == "claimed" and gain.support["folds_supporting"] == 3
+    assert all(0.82 < fold["torque_gain"][0] < 0.92 for fold in gain.fold_values)
+    assert gain.verdict == "stand-in" and gain.support["folds_supporting"] == 3
+    assert "not one model on the large-swing and the small-swing data" in gain.reason
     assert 0.82 < gain.params["torque_gain"] < 0.92
     assert gain.params["motor_inertia"] < 0.01
 

@@ -12,6 +12,9 @@ from admittance import _rtcore
 from admittance.errors import ConfigError, DeviceError
 
 
+SERVO = {"time_constant": 0.02, "inertial_time": 0.0, "dead_time": 0.001, "compliance": 0.02, "deadband": 0.0}
+
+
 def config(**overrides) -> dict:
     joints = [{"id": 1, "virtual_inertia": 0.02, "virtual_damping": 0.05},
               {"id": 2, "virtual_inertia": 0.03, "virtual_damping": 0.05, "axis": "ty"}]
@@ -26,12 +29,20 @@ def config(**overrides) -> dict:
     ({"joints": [{"virtual_inertia": 1.0}]}, "\"id\" is required"),
     ({"joints": [{"id": 1, "axis": "w"}]}, "axis"),
     ({"joints": [{"id": 1, "direction": 2}]}, "direction"),
-    ({"joints": [{"id": 1, "limits": {"position_max": -4.0}}]}, "position_min"),
+    ({"joints": [{"id": 1, "limits": {"position_max": -4.0}}]}, "position_max"),
+    ({"joints": [{"id": 1, "limits": {"position_min": 1.0, "position_max": 0.5}}]}, "position_min"),
+    ({"joints": [{"id": 1, "limits": {"velocity_max": 1e300}}]}, "velocity_max"),
     ({"joints": [{"id": 1, "virtual_damping": 100.0}]}, "h·B/I"),
     ({"joints": [{"id": 1}, {"id": 2, "goal_address": 30}]}, "must be equal"),
     ({"protocol": 3}, "protocol"),
     ({"rt_policy": "rr"}, "rt_policy"),
     ({"lowpass_hz": 600.0}, "lowpass_hz"),
+    ({"trigger": "sometimes"}, "config.trigger"),
+    ({"phase_lock": "yes"}, "phase_lock"),
+    ({"joints": [{"id": 1, "servo_compensation": 1.0}]}, "needs a servo model"),
+    ({"joints": [{"id": 1, "servo": {"time_constant": 0.02}}]}, "inertial_time\" is required"),
+    ({"joints": [{"id": 1, "servo": {**SERVO, "time_constant": -1.0}}]}, "time_constant"),
+    ({"joints": [{"id": 1, "servo": SERVO, "servo_compensation": 2.0}]}, "servo_compensation"),
 ])
 def test_bad_configurations_name_the_key(overrides, message):
     with pytest.raises(ConfigError, match=message):
@@ -79,10 +90,20 @@ def test_the_sink_takes_up_to_six_components():
         sink.push(time.time_ns(), [0.0])
 
 
+def test_a_servo_model_turns_compensation_on_and_a_live_set_may_turn_it_off():
+    loop = _rtcore.AdmittanceLoop(config(joints=[{"id": 1, "servo": SERVO}, {"id": 2}]))
+    assert loop.params()["1.servo_compensation"] == 1.0 and loop.params()["2.servo_compensation"] == 0.0
+    assert loop.set_params({"1.servo_compensation": 0.0}) == (True, "")
+    before = loop.params()
+    accepted, reason = loop.set_params({"servo_compensation": 1.0, "1.virtual_damping": 0.2})
+    assert not accepted and "joint 2" in reason and "servo model" in reason
+    assert loop.params() == before, "all or nothing"
+
+
 def test_telemetry_dtype_is_the_documented_record():
     names = _rtcore.AdmittanceLoop.telemetry_dtype().names
-    assert names == ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                     "present_tick", "period_error_ns", "latency_ns")
+    assert names == ("cycle", "t_ns", "deadline_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
+                     "present_tick", "period_error_ns", "latency_ns", "fault", "mode")
     assert len(_rtcore.AdmittanceLoop(config()).drain_telemetry()) == 0
 
 

@@ -64,13 +64,26 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     loop.stop("hold")
     rec = loop.drain_telemetry()
     assert len(rec) >= 200 and np.all(np.diff(rec["cycle"]) == 1)
+    assert np.all(rec["fault"] == 0), f"the state guard held the joint (fault bits {set(rec['fault'].tolist())})"
+    assert np.all(rec["mode"] == 0), "the loop held: no force sample for stale_timeout_ms (the pusher stalled)"
     h = 1.0 / RATE_HZ
     # plant::admittance with F = 0, on the torque each cycle used: the velocity first (damping
-    # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'.
-    omega_prev, theta_prev = rec["omega"][:-1], rec["theta"][:-1]
-    omega_want = (omega_prev + h * rec["torque"][1:] / INERTIA) / (1 + h * DAMPING / INERTIA)
+    # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'; one step per deadline since the
+    # last cycle (a cycle after an overrun takes the skipped deadlines' steps too, at most 10:
+    # docs/realtime.md), whatever started the cycle: `deadline_ns` is the model's time. A cycle
+    # that held on a stale force (mode holding: this test's pushing thread stalled on a loaded
+    # machine) stops the model instead.
+    deadline = rec["deadline_ns"].astype(np.int64)
+    steps = np.minimum(np.round(np.diff(deadline) / (1e9 / RATE_HZ)).astype(int), 10)
+    omega_want, theta_want = rec["omega"][:-1].copy(), rec["theta"][:-1].copy()
+    for k in range(steps.max()):
+        more = steps > k
+        omega_want[more] = (omega_want[more] + h * rec["torque"][1:][more] / INERTIA) / (1 + h * DAMPING / INERTIA)
+        theta_want[more] += h * omega_want[more]
+    held = rec["mode"][1:] != 0
+    omega_want[held], theta_want[held] = 0.0, rec["theta"][:-1][held]
     np.testing.assert_allclose(rec["omega"][1:], omega_want, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(rec["theta"][1:], theta_prev + h * omega_want, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rec["theta"][1:], theta_want, rtol=1e-9, atol=1e-12)
     assert rec["torque"].max() == pytest.approx(1.5 * LEVER)
     assert rec["omega"][-1] > 0.1, "the pushed joint moves"
     want_ticks = np.clip(2048 + np.round(rec["theta"] * 4096 / (2 * math.pi)), 0, 4095)
@@ -116,6 +129,25 @@ def test_stats_has_every_key_of_the_daemon_contract(bus):
         assert stats[key]["p50"] <= stats[key]["p99"] <= stats[key]["p999"] <= stats[key]["max"]
     assert stats["rt"] == {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False, "cpu": None}
     assert stats["rate_hz"] == RATE_HZ and stats["cycles"] >= 20 and stats["sensor_samples"] > 0
+
+
+@pytest.mark.parametrize("trigger", ["sample", "schedule"])
+def test_a_sample_starts_the_cycle_unless_the_loop_keeps_to_its_schedule(bus, trigger):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path, trigger=trigger))
+    loop.start()
+    run_with_force(loop, 0.5, 100)
+    loop.stop()
+    stats = loop.stats()
+    t = stats["trigger"]
+    assert t["mode"] == trigger and t["phase_lock"] == (trigger == "sample")
+    assert sum(t["starts"].values()) == stats["cycles"]
+    if trigger == "schedule":
+        assert t["starts"]["schedule"] == stats["cycles"]
+    else:
+        # The pushes (about one a millisecond; 500 Hz loop) wake the loop: cycles start on a
+        # sample's arrival, and the sensor's period is known.
+        assert t["starts"]["schedule"] == 0 and t["starts"]["arrival"] > 0
+        assert t["sensor_interval_us"] > 0
 
 
 def test_fifo_is_obtained_or_refused_with_a_warning(bus):

@@ -12,7 +12,7 @@ import pytest
 from admittance.cli import main
 from admittance.daemon.config import ZenohConfig
 from admittance.daemon.messages import Codec, JointState, State, decode
-from admittance.daemon.zenoh_iface import Client, DaemonInterface
+from admittance.daemon.zenoh_iface import Client, DaemonInterface, RateLimitedLog
 from admittance.errors import DeviceError
 
 from helpers import free_endpoint
@@ -46,7 +46,11 @@ class FakeHandler:
 def daemon(request):
     endpoint = free_endpoint()
     params = FakeHandler()
-    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param), params)
+    logs = []
+    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param), params,
+                            log=logs.append)
+    iface.serve()
+    iface.logs = logs
     stop = threading.Event()
     state = State(cycle=7, joints=[JointState(id=1, t=1.0, force=2.0, tau=0.2, theta=0.1, omega=0.0,
                                               goal_tick=2100, present_tick=2099)])
@@ -137,8 +141,74 @@ def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsy
     assert main(["tare", "--samples", "250", "--prefix", "test/arm", "--connect", endpoint]) == 0
     assert json.loads(capsys.readouterr().out) == {"accepted": True}
     with Client([endpoint]) as client:
-        assert client.query("test/arm/tare") == {"accepted": True}  # no payload: 100 samples
+        assert client.query("test/arm/tare", {}) == {"accepted": True}  # an empty object: 100 samples
+        reply = client.query("test/arm/tare")  # no payload: a read, not a tare
+        assert reply["accepted"] is False and "needs a payload" in reply["reason"]
         reply = client.query("test/arm/tare", {"samples": 0})
         assert reply["accepted"] is False and "samples" in reply["reason"]
         assert client.query("test/arm/tare", {"sample": 5})["accepted"] is False
     assert handler.tares == [250, 100]
+
+
+def replies(client, key, payload=None):
+    """Every reply to a get on ``key`` (a wildcard reaches several queryables), decoded."""
+    kwargs = {} if payload is None else {"payload": payload}
+    return {str(r.ok.key_expr): decode(r.ok.payload.to_bytes()) for r in client._session.get(key, timeout=3.0, **kwargs)}
+
+
+def test_a_wildcard_get_reads_but_never_acts(daemon):
+    """`get <prefix>/**` reaches the tare and params queryables: it may read the parameters, but
+    tares and sets need the exact key (a wildcard get re-zeroed the sensor under a pushing hand)."""
+    endpoint, handler, _ = daemon
+    with Client([endpoint]) as client:
+        read = replies(client, "test/arm/**")
+        assert read["test/arm/params"] == {"params": handler.values}
+        assert read["test/arm/tare"]["accepted"] is False and "exact key" in read["test/arm/tare"]["reason"]
+        for key in ("test/arm/**", "test/arm/*", "test/**", "test/arm/ta$*"):
+            acted = replies(client, key, b'{"samples": 5, "virtual_damping": 0.3}')
+            assert all(reply["accepted"] is False for reply in acted.values()), (key, acted)
+            assert all("exact key" in reply["reason"] for reply in acted.values())
+    assert handler.tares == [] and handler.requests == []
+
+
+def test_a_handler_that_raises_costs_one_refusal_not_the_loop(daemon):
+    endpoint, handler, iface = daemon
+
+    def broken(request):
+        raise OverflowError("int too large to convert to float")
+
+    handler.set_params = broken
+    with Client([endpoint]) as client:
+        for _ in range(3):
+            reply = client.query_params("test/arm", {"virtual_damping": 0.1})
+            assert reply["accepted"] is False and "internal error (OverflowError)" in reply["reason"]
+        assert client.query_params("test/arm") == {"params": handler.values}, "still answering"
+    assert iface.query_errors == 3
+    assert len(iface.logs) == 1 and "OverflowError" in iface.logs[0], "rate-limited: one line"
+
+
+def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on():
+    class Query:
+        payload, key_expr = None, "k/params"
+
+        def reply(self, *args, **kwargs):
+            raise RuntimeError("the asker left")
+
+        def drop(self):
+            pass
+
+    class Channel:
+        def __init__(self):
+            self.queue = [Query(), Query()]
+
+        def try_recv(self):
+            return self.queue.pop() if self.queue else None
+
+    iface = DaemonInterface.__new__(DaemonInterface)
+    logs = []
+    iface._log, iface._codec, iface._handler = RateLimitedLog(logs.append), Codec("json"), FakeHandler()
+    iface._queryables = {"k/params": (Channel(), iface._answer_params)}
+    iface.queries = iface.query_errors = 0
+    iface.prefix = "k"
+    assert iface.poll() == 2
+    assert len(logs) == 1 and "could not be sent" in logs[0]

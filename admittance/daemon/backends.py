@@ -25,7 +25,23 @@ def real_backends() -> Backends:
     from admittance.daemon.zenoh_iface import DaemonInterface
 
     return Backends(start_bench=start_bench, check_servos=check_servos, release_servos=release_servos,
-                    make_sensor=make_sensor, make_loop=make_loop, make_interface=DaemonInterface)
+                    make_sensor=make_sensor, make_loop=make_loop, make_interface=DaemonInterface,
+                    claim_devices=claim_devices)
+
+
+def claim_devices(cfg: DaemonConfig) -> contextlib.AbstractContextManager:
+    """The configured serial devices, claimed for this daemon's whole run (drivers/ports.py):
+    a second daemon on the same servo bus or sensor tty stops here with one line, before it
+    opens or writes anything. The simulated bench's ptys are the daemon's own; CAN channels
+    (socketcan) are shared buses, and an slcan adapter is claimed by its serial port."""
+    from admittance.drivers.ports import claim
+
+    ports = [cfg.bus.port]
+    if cfg.sensor.kind == "optoforce":
+        ports.append(cfg.sensor.port)
+    elif (cfg.sensor.kind, cfg.sensor.interface) == ("can", "slcan"):
+        ports.append(cfg.sensor.port.partition("@")[0])  # python-can's "port@tty_baudrate"
+    return claim(port for port in ports if port and port != MOCK_PORT)
 
 
 @contextlib.contextmanager
@@ -77,11 +93,13 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
 
     servos = [{"id": j.id, "model": j.model, "protocol": cfg.bus.protocol, "params_file": j.params}
               for j in cfg.joints]
-    s = cfg.sensor
+    s, b = cfg.sensor, cfg.bench
+    hand = (b.hand_inertia, b.hand_damping, b.hand_stiffness)
     bench = MockBench(BenchConfig(
-        servos=servos, baudrate=cfg.bus.baudrate, profile=cfg.bench.profile,
+        servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile,
         sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
-        counts_per_newton=list(s.counts_per_newton), noise_std_n=cfg.bench.noise_std_n, can_id=s.can_id))
+        counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
+        hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None))
     hand = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
     bench.profile = hand
     return bench, hand
@@ -175,7 +193,8 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
 
     s = cfg.sensor
     section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),
-               "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate}
+               "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate, "channel": s.channel,
+               "can_options": dict(s.can_options), "saturation": s.saturation}
     if s.kind == "mock":  # a scripted sensor in this process: it plays the [bench] hand itself
         section.update(lever_arm=cfg.joints[0].lever_arm, axis=s.axis, profile=cfg.bench.profile,
                        noise_std_n=cfg.bench.noise_std_n)

@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import threading
 from pathlib import Path
+from typing import Any
 
-from admittance.errors import ConfigError
+from admittance.errors import AdmittanceError, ConfigError
 
 DEFAULT_PREFIX = "bench/arm1"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -25,41 +25,77 @@ def register(subparsers) -> None:
         description="Run the admittance loop. Without --config: the embedded simulated bench "
                     "(a mock MX-64 and a scripted hand on pseudo-terminals). Stops on SIGINT/SIGTERM "
                     "or after --duration, holding position, then applying [stop].torque_policy.")
-    run.add_argument("--config", type=Path, help="daemon configuration (TOML, see docs/daemon.md)")
-    run.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
-    run.add_argument("--stats-json", type=Path, metavar="FILE", help="write the loop's statistics on exit")
-    run.add_argument("--record", metavar="DIR", help="record the session as a dataset for `admittance identify`")
+    run.add_argument("--config", type=Path, metavar="FILE",
+                     help="daemon configuration (TOML, see docs/daemon.md; default: the simulated bench)")
+    run.add_argument("--duration", type=_positive, metavar="S",
+                     help="stop after S seconds (default: run until SIGINT/SIGTERM)")
+    run.add_argument("--stats-json", type=Path, metavar="FILE.json",
+                     help="write the loop's statistics on exit (default: not written)")
+    run.add_argument("--record", metavar="DIR",
+                     help="record the session as a dataset for `admittance identify` (default: [record].path); "
+                     "DIR must be new or empty unless --force")
+    run.add_argument("--force", action="store_true",
+                     help="record into a non-empty DIR, removing the trials and manifest already there")
     run.add_argument("--check", action="store_true", help="validate the configuration, print it and exit")
+    run.add_argument("--print-example-config", action="store_true",
+                     help="print the example configuration of a real bench and exit (start one with > my.toml)")
     run.set_defaults(func=cmd_run)
 
-    monitor = subparsers.add_parser("monitor", help="live view of a running daemon's state and timing")
+    monitor = subparsers.add_parser(
+        "monitor", help="live view of a running daemon's state and timing",
+        description="Subscribe to <prefix>/state and <prefix>/stats of a running daemon and show each joint's "
+                    "state and the loop's timing; redraws in place on a terminal, plain lines otherwise.")
     _remote_args(monitor)
-    monitor.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds")
+    monitor.add_argument("--duration", type=_positive, metavar="S",
+                         help="stop after S seconds (default: run until Ctrl-C)")
     monitor.set_defaults(func=cmd_monitor)
 
-    setp = subparsers.add_parser(
-        "set", help="change parameters of a running daemon (all or nothing)",
+    setp = _request_command(
+        subparsers, "set", cmd_set, help="change parameters of a running daemon (all or nothing)",
         description="Set live parameters, e.g. `admittance set virtual_damping=0.08 1.virtual_inertia=0.03`. "
                     "A bare name applies to every joint, <id>.name to one joint.")
-    setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
-    _remote_args(setp)
-    setp.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
-    setp.set_defaults(func=cmd_set)
+    setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE",
+                      help="a live key (docs/daemon.md) and its value in the key's unit; <id>.NAME for one joint")
 
-    tare = subparsers.add_parser(
-        "tare", help="re-zero a running daemon's force sensor (let go of the handle first)",
+    tare = _request_command(
+        subparsers, "tare", cmd_tare, help="re-zero a running daemon's force sensor (let go of the handle first)",
         description="The loop averages the next N force samples into its bias; a hand on the "
                     "handle during those samples becomes part of the zero.")
     tare.add_argument("--samples", type=int, default=100, metavar="N", help="samples to average (default 100)")
-    _remote_args(tare)
-    tare.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply")
-    tare.set_defaults(func=cmd_tare)
+
+    get = _request_command(
+        subparsers, "get", cmd_get, help="read a running daemon's live parameters",
+        description="Print the live parameters of the daemon at --prefix as JSON (all, or the NAMEs given).")
+    get.add_argument("names", nargs="*", metavar="NAME", help="parameters to print, e.g. 1.virtual_damping (default: all)")
+
+    router = subparsers.add_parser(
+        "router", help="a Zenoh router for several benches (daemons in client mode connect to it)",
+        description="Open a router-mode Zenoh session and serve until SIGINT/SIGTERM. Its [zenoh] table "
+                    "(--zenoh-config) gives listen endpoints, authentication, TLS and the ACL (docs/lab-network.md).")
+    router.add_argument("--listen", action="append", metavar="ENDPOINT",
+                        help=f"endpoint to listen on (default: the file's listen, else {DEFAULT_ENDPOINT}; repeatable)")
+    router.add_argument("--zenoh-config", type=Path, metavar="FILE", help="a TOML file with a [zenoh] table (default: none)")
+    router.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: run until SIGINT/SIGTERM)")
+    router.set_defaults(func=cmd_router)
+
+
+def _request_command(subparsers, name: str, func, **texts) -> argparse.ArgumentParser:
+    """A remote tool that sends one request and waits for its reply."""
+    parser = subparsers.add_parser(name, **texts)
+    _remote_args(parser)
+    parser.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply, in s (default 3)")
+    parser.set_defaults(func=func)
+    return parser
 
 
 def _remote_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"the daemon's key prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, metavar="PREFIX",
+                        help=f"the daemon's key prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
-                        help=f"zenoh endpoint of the daemon (default {DEFAULT_ENDPOINT}; repeatable)")
+                        help=f"zenoh endpoint of the daemon or router (default {DEFAULT_ENDPOINT}; repeatable)")
+    parser.add_argument("--zenoh-config", type=Path, metavar="FILE",
+                        help="a TOML file whose [zenoh] table gives this session's login, TLS files and "
+                             "connect endpoints (default: none: no login, --connect or loopback; docs/zenoh.md)")
 
 
 def _positive(text: str) -> float:
@@ -73,21 +109,42 @@ def _positive(text: str) -> float:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from admittance.daemon.stopsignals import stop_signals_call
+    import signal
 
-    stop = threading.Event()
-    with stop_signals_call(lambda *_: stop.set()):
+    from admittance.daemon.stopsignals import StopRequest, stop_signals_call
+
+    stop = StopRequest()
+    # After a run the process only exits; a late stop signal (a second SIGTERM during teardown)
+    # must not cut that exit short and turn a clean stop into -15. `--check` and
+    # `--print-example-config` run nothing and leave them be.
+    after = None if args.check or args.print_example_config else signal.SIG_IGN
+    with stop_signals_call(lambda *_: stop.set(), then=after):
         return _run(args, stop)
 
 
-def _run(args: argparse.Namespace, stop: threading.Event) -> int:
+def _run(args: argparse.Namespace, stop: Any) -> int:
     from admittance.daemon import config
 
-    cfg = config.load_config(args.config) if args.config else config.load_default()
-    cfg = config.with_overrides(cfg, record=args.record)
+    if args.print_example_config:
+        from admittance import data
+
+        print(data.example_config().read_text(), end="")
+        return 0
+
+    try:
+        cfg = config.load_config(args.config) if args.config else config.load_default()
+        cfg = config.with_overrides(cfg, record=args.record)
+    except ConfigError as exc:
+        _stats_of_a_failed_start(args, exc)
+        raise
     if args.check:
         print(config.summary(cfg))
         return 0
+    if args.record:  # a CLI folder, checked here; [record].path of a service may grow across restarts
+        from admittance import outfolder
+
+        outfolder.check(args.record, args.force, "--record")
+        outfolder.clear(args.record, "--record")
     from admittance.daemon.backends import real_backends
     from admittance.daemon.supervisor import RunOptions, Supervisor
 
@@ -95,12 +152,37 @@ def _run(args: argparse.Namespace, stop: threading.Event) -> int:
     return Supervisor(cfg, real_backends(), options).run()
 
 
+def _stats_of_a_failed_start(args: argparse.Namespace, error: ConfigError) -> None:
+    """--stats-json on every exit path: a configuration that did not load leaves its error."""
+    if args.stats_json is None or args.check:
+        return
+    from admittance.daemon.supervisor import error_fields, write_stats_file
+
+    try:
+        write_stats_file(args.stats_json, error_fields(error))
+    except AdmittanceError as exc:
+        print(f"admittance run: warning: {exc}", file=sys.stderr)
+
+
+def remote_client(args: argparse.Namespace):
+    """The remote tools' session: --connect, else the --zenoh-config file's connect, else loopback;
+    login and TLS files from --zenoh-config (access control is the daemon's or router's business)."""
+    from admittance.daemon import config
+    from admittance.daemon.zenoh_iface import Client, security_of
+
+    security, connect = {}, args.connect
+    if getattr(args, "zenoh_config", None):
+        zen = config.load_zenoh_table(args.zenoh_config)
+        security = {k: v for k, v in security_of(zen).items() if k != "access_control"}
+        connect = connect or zen.connect
+    return Client(connect or [DEFAULT_ENDPOINT], security)
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     from admittance.daemon.monitor import View, run_monitor
-    from admittance.daemon.zenoh_iface import Client
 
-    with Client(args.connect or [DEFAULT_ENDPOINT]) as client:
-        subscription = client.try_stream(args.prefix)
+    with remote_client(args) as client:
+        subscription = client.try_stream_benches(args.prefix)
         try:
             view = View(args.prefix, sys.stdout, sys.stdout.isatty())
             return run_monitor(subscription, view, args.duration)
@@ -133,12 +215,29 @@ def cmd_tare(args: argparse.Namespace) -> int:
 
 def _remote_request(args: argparse.Namespace, leaf: str, request: dict) -> int:
     """Send one request to ``<prefix>/<leaf>``, print the reply; 1 when the daemon rejects it."""
-    from admittance.daemon.zenoh_iface import Client
-
-    with Client(args.connect or [DEFAULT_ENDPOINT]) as client:
+    with remote_client(args) as client:
         reply = client.query(f"{args.prefix}/{leaf}", request, timeout=args.timeout)
     print(json.dumps(reply))
     if not reply.get("accepted", False):
         print(f"admittance {args.command}: rejected: {reply.get('reason', 'no reason given')}", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_get(args: argparse.Namespace) -> int:
+    """Print the live parameters (all, or the names asked for); 1 when a name is unknown."""
+    with remote_client(args) as client:
+        params = client.query(f"{args.prefix}/params", None, timeout=args.timeout).get("params", {})
+    unknown = [n for n in args.names if n not in params]
+    print(json.dumps({n: params[n] for n in args.names if n in params} if args.names else params, sort_keys=True))
+    if unknown:
+        print(f"admittance get: unknown parameter(s): {', '.join(unknown)} (known: {', '.join(sorted(params))})",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    from admittance.daemon.router import run_router
+
+    return run_router(args.zenoh_config, args.listen, args.duration)

@@ -3,17 +3,15 @@
 The daemon's TOML speaks the user's language (a model name, a lever arm, limits in rad); the
 loop wants register addresses and tick ranges. The addresses come from the one model table
 (``_rtcore.model_table()``, read through ``admittance.drivers.control_table``), so an address
-is never typed twice. The tick range is position mode's single turn (0..4095), and the position
-limits are clipped to what that range reaches from the joint's zero tick.
+is never typed twice. The tick range is position mode's single turn (0..4095); the position
+limits lie within what that range reaches from the joint's zero tick (config.py checks them).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-from admittance.daemon.config import DaemonConfig, JointConfig
-from admittance.daemon.telemetry import TICKS_PER_REV
+from admittance.daemon.config import GOAL_TICKS, TICKS_PER_REV, DaemonConfig, JointConfig
 from admittance.errors import ConfigError
 
 GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Torque Enable"
@@ -38,6 +36,9 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
         "lowpass_hz": s.lowpass_hz,
         "stale_timeout_ms": lp.stale_timeout_ms,
         "ramp_time_s": lp.ramp_time_s,
+        "trigger": lp.trigger,
+        "phase_lock": lp.phase_lock,
+        "bias": list(s.bias),
         "joints": [joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints],
     }
 
@@ -49,12 +50,11 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
     goal, present, torque = (table.item(name) for name in (GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM))
     # Position mode (set up by the servo checks): one turn, whatever wider range the Goal
     # Position item allows in the extended or multi-turn modes.
-    tick_min, tick_max = 0, TICKS_PER_REV - 1
+    tick_min, tick_max = GOAL_TICKS
     if not tick_min <= joint.zero_tick <= tick_max:
         raise ConfigError(f"[joints.{joint.id}].zero_tick: {joint.zero_tick} is outside the {joint.model}'s "
                           f"goal range {tick_min}..{tick_max}")
     limits = joint.resolved_limits
-    reachable = _reachable(joint, tick_min, tick_max)
     return {
         "id": joint.id,
         "model": table.name,
@@ -68,17 +68,13 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "virtual_damping": joint.virtual_damping,
         "virtual_coulomb": joint.virtual_coulomb,
         "lever_arm": joint.lever_arm,
+        "servo": joint.plant.get("servo"),
+        "servo_compensation": joint.servo_compensation,
         "limits": {
-            # The model may not go where the servo cannot follow: clip to the tick range.
-            "position_min": max(limits.position_min, reachable[0]),
-            "position_max": min(limits.position_max, reachable[1]),
+            # Within what the tick range reaches: the configuration checked (or clipped) them.
+            "position_min": limits.position_min,
+            "position_max": limits.position_max,
             "velocity_max": limits.velocity_max,
             "acceleration_max": limits.acceleration_max,
         },
     }
-
-
-def _reachable(joint: JointConfig, tick_min: int, tick_max: int) -> tuple[float, float]:
-    """The joint-angle range that the goal's tick range covers (direction taken into account)."""
-    ends = sorted(joint.direction * (t - joint.zero_tick) * 2 * math.pi / TICKS_PER_REV for t in (tick_min, tick_max))
-    return ends[0], ends[1]

@@ -7,6 +7,10 @@ fails in the decoder with a message rather than deep in the supervisor.
 Decoding sniffs the encoding: a JSON object starts with ``{`` (after optional blanks) and a
 MessagePack map never does (0x80–0x8f, 0xde, 0xdf), so clients need not be told which
 encoding a daemon was configured with.
+
+Requests (a set, a tare) are hostile input: their size and nesting are bounded on the raw bytes
+before decoding (``payload_limits``), an integer a float cannot hold exactly is refused by name,
+and every failure is a DataError whose message stays short (``schema.shown``).
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from typing import Any, TypeVar
 
 import msgspec
 
+from admittance.daemon import payload_limits
+from admittance.daemon.schema import MAX_EXACT_INT, clip, shown
 from admittance.errors import DataError
 
 T = TypeVar("T")
@@ -29,11 +35,18 @@ class JointState(msgspec.Struct, omit_defaults=True):
     omega: float  # rad/s, model velocity
     goal_tick: int
     present_tick: int | None = None  # the servo's position when it was read this cycle
+    fault: int = 0  # the fault kinds active for this joint (bits: _rtcore.FAULT_KINDS)
+    # For ROS users (extensions; absent from older daemons):
+    name: str | None = None  # the joint's configured name, else "joint<ID>"
+    wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
+    position: float | None = None  # rad, the measured angle of present_tick
+    rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
 
 
 class State(msgspec.Struct):
     cycle: int
     joints: list[JointState]
+    mode: str = "running"  # the loop's mode: "running", "holding" (stale force) or "faulted"
 
 
 class Percentiles(msgspec.Struct):
@@ -107,38 +120,62 @@ def is_json(payload: bytes) -> bool:
     return payload.lstrip()[:1] in (b"{", b"[")
 
 
-def decode(payload: bytes, typ: type[T] = Any) -> T:  # type: ignore[assignment]
-    """Decode a JSON or MessagePack payload into ``typ``; DataError on anything malformed."""
+# What the daemon accepts from the network, checked on the raw bytes before decoding.
+MAX_REQUEST_BYTES = 16 * 1024
+MAX_REQUEST_DEPTH = 4  # an object of lists of numbers is 2
+# What the tools accept from a daemon (its publications are bounded by what it sends).
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+
+
+def decode(payload: bytes, typ: type[T] = Any, *, max_bytes: int = MAX_MESSAGE_BYTES,  # type: ignore[assignment]
+           max_depth: int | None = None) -> T:
+    """Decode a JSON or MessagePack payload into ``typ``; DataError on anything malformed or too
+    large, and, with ``max_depth``, nested too deep (checked on the raw bytes, before decoding)."""
+    json = is_json(payload)
+    payload_limits.check(payload, max_bytes=max_bytes, max_depth=max_depth, is_json=json)
     try:
-        if is_json(payload):
+        if json:
             return msgspec.json.decode(payload, type=typ)
         return msgspec.msgpack.decode(payload, type=typ)
     except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as exc:
         # msgspec's MessagePack decoder lets a string with invalid UTF-8 escape as a
         # UnicodeDecodeError rather than its own DecodeError.
-        raise DataError(f"malformed payload: {exc}") from None
+        raise DataError(f"malformed payload: {clip(str(exc), 120)}") from None
+    except RecursionError:  # a publication nested past the interpreter's limit (requests never get here)
+        raise DataError("malformed payload: nested too deep") from None
+
+
+def decode_request(payload: bytes, typ: type[T] = Any) -> T:  # type: ignore[assignment]
+    """A request from the network: :func:`decode` with the request's size and depth bounds."""
+    return decode(payload, typ, max_bytes=MAX_REQUEST_BYTES, max_depth=MAX_REQUEST_DEPTH)
 
 
 def decode_set_request(payload: bytes) -> dict[str, float | list[float]]:
-    """A set request: an object of ``{"name": number or list of numbers}``; DataError says what is wrong."""
+    """A set request: an object of ``{"name": number or list of numbers}``; DataError says what is wrong.
+
+    Values stay as the request gave them (ints are not turned into floats here: an int too
+    large for a float is refused by name, not left to overflow); the schema checks their range.
+    """
     if not payload.strip():
         raise DataError("empty request")
-    request = decode(payload, dict[str, Any])
+    request = decode_request(payload, dict[str, Any])
     if not request:
         raise DataError("empty request: no parameter given")
     return {name: _number_or_list(name, value) for name, value in request.items()}
 
 
-def _number_or_list(name: str, value: Any) -> float | list[float]:
+def _number_or_list(name: str, value: Any) -> float | int | list[float | int]:
     if isinstance(value, list):
         return [_number(f"{name}[{i}]", v) for i, v in enumerate(value)]
     return _number(name, value)
 
 
-def _number(name: str, value: Any) -> float:
+def _number(name: str, value: Any) -> float | int:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise DataError(f"{name}: expected a number, got {value!r}")
-    return float(value)
+        raise DataError(f"{clip(name)}: expected a number, got {shown(value)}")
+    if isinstance(value, int) and abs(value) > MAX_EXACT_INT:
+        raise DataError(f"{clip(name)}: integer out of range (beyond ±2^53), got {shown(value)}")
+    return value
 
 
 class TareRequest(msgspec.Struct, forbid_unknown_fields=True):
@@ -149,10 +186,11 @@ MAX_TARE_SAMPLES = 100_000
 
 
 def decode_tare_request(payload: bytes) -> int:
-    """A tare request: no payload (100 samples) or ``{"samples": n}`` with 1 ≤ n ≤ 100000."""
+    """A tare request: ``{"samples": n}`` with 1 ≤ n ≤ 100000, or ``{}`` for 100 samples. A tare
+    acts on the joint, so it needs an explicit payload: an empty get is not a tare."""
     if not payload.strip():
-        return TareRequest().samples
-    samples = decode(payload, TareRequest).samples
+        raise DataError('a tare needs a payload: {"samples": n} (or {} for 100 samples)')
+    samples = decode_request(payload, TareRequest).samples
     if not 1 <= samples <= MAX_TARE_SAMPLES:
-        raise DataError(f"samples: must be 1..{MAX_TARE_SAMPLES}, got {samples}")
+        raise DataError(f"samples: must be 1..{MAX_TARE_SAMPLES}, got {shown(samples)}")
     return samples

@@ -1,10 +1,35 @@
-"""Record a session as a pendulum dataset (../shared/contracts/datasets.md), for `identify`.
+"""Record a session as a pendulum dataset (../shared/contracts/datasets.md), for `identify`
+and `fidelity`.
 
 ``admittance run --record DIR`` writes ``DIR/manifest.toml`` and, per joint, CSV segments of
 ``[record].segment_s`` seconds (``joint1_000.csv``, ``joint1_001.csv``...), one trial each. The
 contract's columns are ``t`` (s from the start), ``theta`` (rad) and ``tau`` (N·m, the hand
 torque the model saw); extra columns keep the rest of the cycle (force, the model's angle and
-velocity, the goal angle, the cycle number) for plots and for replay checks.
+velocity, the goal angle, the cycle's wake-up time, the cycle number, ``held`` = 1 where the
+model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, plots and replay
+checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
+on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
+own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
+because the force was stale, or a fault held a joint.
+
+Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
+(so `identify` with theta := theta_model returns the configured I, B, F):
+
+- ``t`` is the cycle's *deadline*, the model's own time (the loop integrates one step per
+  deadline, a skipped one included), not its wake-up time, which is late by the scheduler's
+  jitter; ``t_wake`` keeps the wake-up time, when the goal was written and the servo read.
+- ``tau`` on a row is the torque of the *next* cycle: the model's step at cycle k uses that
+  cycle's newest torque over the interval that ends at k, while the contract's simulator
+  applies τ(t) over the substep that *starts* at t. The recorder therefore holds each batch's
+  last cycle back until the next batch (or the close) shows what follows it.
+
+A cycle that took no step (the loop's grid, phase-locked to a sensor on another clock, fell
+half a period behind the model: docs/realtime.md) repeats its predecessor's ``t`` and state,
+and its torque was never integrated: the predecessor's row is then *superseded* and left out,
+so ``t`` stays strictly increasing and each row's ``tau`` is the one the model stepped with.
+
+The same rows are made from a ``session.mcap`` (every cycle) by :func:`recorded_rows`, so both
+files of a session give the same dataset (admittance.ident.loaders.load_recording).
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With
@@ -30,9 +55,13 @@ from typing import Any, TextIO
 import numpy as np
 import tomli_w
 
+from admittance.daemon.telemetry import MODE_RUNNING
 from admittance.errors import ConfigError
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "cycle")
+COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
+           "fault")
+# The per-joint values written into each trial's manifest entry: what the loop ran.
+TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
@@ -47,12 +76,19 @@ class Recorder:
     """
 
     def __init__(self, folder: Path, joints: list[tuple[int, str]], *, measured_theta: bool, t0: float,
-                 segment_s: float = 10.0) -> None:
+                 segment_s: float = 10.0, joint_info: dict[int, dict] | None = None) -> None:
         self.folder = folder
         self.t0 = t0
         self.measured_theta = measured_theta
         self.segment_s = segment_s
         self.models = dict(joints)
+        # Per joint: the parameter file, plant and loop settings (the manifest's [[joints]]).
+        self.joint_info = joint_info or {}
+        self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
+        self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
+        self._pending: dict[int, dict[str, np.ndarray]] = {}
+        # Per joint: (held, fault) of the cycles after its last written row (see recorded_rows).
+        self._carry: dict[int, tuple[int, int]] = {}
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
@@ -76,13 +112,15 @@ class Recorder:
         self._writers[joint_id] = csv.writer(fh)
         self._writers[joint_id].writerow(COLUMNS)
         self._segments[joint_id].append(name)
+        self._entries[joint_id].append(dict(self._targets[joint_id]))
         self._segment_rows[joint_id] = 0
         self._segment_start[joint_id] = t
         self._write_manifest()
 
     def _write_manifest(self) -> None:
-        trials = [{"file": name, "bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": jid, "motor": self.models[jid]}
-                  for jid, names in self._segments.items() for name in names]
+        trials = [{"file": name, "bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": jid, "motor": self.models[jid],
+                   **entry}
+                  for jid, names in self._segments.items() for name, entry in zip(names, self._entries[jid])]
         doc = {
             "motor": ", ".join(sorted(set(self.models.values()))),
             "source": "admittance run --record",
@@ -90,29 +128,63 @@ class Recorder:
             "bob": NEGLIGIBLE_BOB,
             "trials": trials,
         }
+        if self.joint_info:
+            doc["joints"] = [{"id": jid, **info} for jid, info in self.joint_info.items()]
         tmp = self.folder / "manifest.toml.tmp"
         tmp.write_text(tomli_w.dumps(doc))
         tmp.replace(self.folder / "manifest.toml")  # readers never see half a manifest
 
-    def append(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
-        """Append the rows of one joint; returns how many were written.
+    def set_targets(self, params: dict[str, float]) -> None:
+        """The loop's parameters (its flat ``params()``), recorded with each segment: a segment
+        opened after this carries them, one open now is marked ``params_changed``."""
+        for joint_id in self.models:
+            values = {key: float(params[f"{joint_id}.{key}"]) for key in TARGET_KEYS if f"{joint_id}.{key}" in params}
+            if values == self._targets[joint_id]:
+                continue
+            if self._targets[joint_id] and self._entries[joint_id]:
+                self._entries[joint_id][-1]["params_changed"] = True
+            self._targets[joint_id] = values
+            if self._entries[joint_id] and not self._entries[joint_id][-1]:
+                self._entries[joint_id][-1].update(values)  # the first segment, opened before the loop ran
+        self._write_manifest()
 
-        ``columns`` holds ``t`` (s, monotonic), ``tau``, ``force``, ``theta_model``,
-        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read) and ``cycle``.
+    def append(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
+        """Append the rows of one joint (every cycle of a drained batch); returns how many were written.
+
+        ``columns`` holds ``t`` (s, the cycle's deadline), ``tau``, ``force``, ``theta_model``,
+        ``omega_model``, ``theta_goal``, ``theta_present`` (NaN where not read), ``cycle``, and
+        optionally ``t_wake`` (else ``t``), ``mode`` (the loop's mode code) and ``fault`` (that
+        joint's fault bits), both 0 when absent. The batch's last cycle waits for the next batch
+        (see the module doc).
         """
-        keep = np.isfinite(columns["theta_present"]) if self.measured_theta else np.ones(len(columns["t"]), bool)
-        if not keep.any():
+        columns = self._with_next_tau(joint_id, columns)
+        return self._write(joint_id, columns) if columns is not None else 0
+
+    def _with_next_tau(self, joint_id: int, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
+        """The pending cycle plus this batch, each with the following cycle's torque, minus the new
+        last cycle (kept pending)."""
+        columns = with_defaults(columns)
+        pending = self._pending.pop(joint_id, None)
+        if pending is not None:
+            columns = {k: np.concatenate([pending[k], v]) for k, v in columns.items() if k in pending}
+        if len(columns["t"]) == 0:
+            return None
+        self._pending[joint_id] = {k: v[-1:] for k, v in columns.items()}
+        if len(columns["t"]) == 1:
+            return None
+        columns = with_next_cycle(columns)
+        return {k: v[:-1] for k, v in columns.items()}
+
+    def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
+        rows, self._carry[joint_id] = recorded_rows(columns, measured_theta=self.measured_theta, t0=self.t0,
+                                                    carry=self._carry.get(joint_id, (0, 0)))
+        t = rows["t"]
+        if len(t) == 0:
             return 0
-        theta = columns["theta_present"] if self.measured_theta else columns["theta_model"]
-        t = columns["t"][keep] - self.t0
         if t[0] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS:
             self._files[joint_id].close()
             self._open_segment(joint_id, float(t[0]))
-        table = np.column_stack([
-            t, theta[keep], columns["tau"][keep], columns["force"][keep],
-            columns["theta_model"][keep], columns["omega_model"][keep], columns["theta_goal"][keep],
-            columns["cycle"][keep],
-        ])
+        table = np.column_stack([rows[c] for c in COLUMNS])
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
@@ -120,10 +192,80 @@ class Recorder:
         return len(table)
 
     def close(self) -> None:
-        """Close the files; a last segment too short to fit on is dropped (file and manifest entry)."""
+        """Write the held-back cycles (with their own torque: nothing follows them), close the
+        files; a last segment too short to fit on is dropped (file and manifest entry)."""
+        for joint_id, pending in list(self._pending.items()):
+            self._write(joint_id, pending)
+        self._pending.clear()
         for joint_id, fh in self._files.items():
             fh.close()
             names = self._segments[joint_id]
             if self._segment_rows[joint_id] < MIN_ROWS and len(names) > 1:
                 (self.folder / names.pop()).unlink()
+                self._entries[joint_id].pop()
         self._write_manifest()
+
+
+def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault``
+    0, none ``superseded``."""
+    zeros = np.zeros(len(columns["t"]))
+    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, "superseded": zeros, **columns}
+
+
+def with_next_cycle(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Consecutive cycles with what the cycle after each says about it (module doc): ``tau`` the
+    following cycle's torque, and ``superseded`` where the following cycle took no step."""
+    follows = np.diff(columns["cycle"]) == 1
+    superseded = np.zeros(len(columns["cycle"]))
+    superseded[:-1] = follows & (np.diff(columns["t"]) <= 0)
+    return {**columns, "tau": next_cycle_tau(columns["tau"], columns["cycle"]), "superseded": superseded}
+
+
+def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
+    """Each cycle's row with the following cycle's torque (module doc); a cycle whose next record
+    is missing (a dropped record, the last one) keeps its own."""
+    out = np.array(tau, dtype=float)
+    follows = np.diff(cycle) == 1
+    out[:-1] = np.where(follows, tau[1:], tau[:-1])
+    return out
+
+
+def held_cycles(mode: np.ndarray) -> np.ndarray:
+    """1 on a cycle where the model did not follow the torque: the loop was not running."""
+    return (np.isfinite(mode) & (mode != MODE_RUNNING)).astype(np.int64)  # NaN: an older file, running
+
+
+def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> tuple[np.ndarray, int]:
+    """Per cycle, the bitwise OR of ``flags`` over the cycles since the previous kept row up to
+    its own kept row (``carry``: what the cycles after the last batch's last row had); and the
+    carry for the next batch."""
+    if not carry and not flags.any():  # the usual batch: nothing held, no fault
+        return np.zeros(len(keep), np.int64), 0
+    group = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
+    acc = np.zeros(int(group[-1]) + 1 if len(group) else 1, np.int64)
+    np.bitwise_or.at(acc, group, flags.astype(np.int64))
+    acc[0] |= carry
+    return acc[group], int(acc[-1]) if len(keep) and not keep[-1] else 0
+
+
+def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
+                  carry: tuple[int, int] = (0, 0)) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+    """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
+    cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
+    reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
+    previous row. Also the (held, fault) carry."""
+    columns = with_defaults(columns)
+    n = len(columns["t"])
+    keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
+    keep &= columns["superseded"] == 0
+    held, held_carry = since_previous_row(held_cycles(columns["mode"]), keep, carry[0])
+    faults = columns["fault"]
+    faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
+    fault, fault_carry = since_previous_row(faults, keep, carry[1])
+    theta = columns["theta_present"] if measured_theta else columns["theta_model"]
+    rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
+            "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
+            "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
+            "held": held.astype(float), "fault": fault.astype(float)}
+    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)

@@ -1,20 +1,32 @@
 """The supervisor: bring the joint up in a safe order, serve it, and bring it down cleanly.
 
 Start order, each step with its own clear error (a DeviceError/ConfigError becomes one stderr
-line and a non-zero exit in the CLI; everything already started is undone in reverse):
+line and a non-zero exit in the CLI; everything already started is undone in reverse). Every
+resource is claimed before the first write to a servo, so a daemon that cannot have them all
+fails without touching the joint:
 
+0. ``Backends.claim_devices``: the exclusive claim of the ttys (backends.claim_devices);
 1. the bench (only for ``[bus].port = "mock"``: the simulated bus and sensor on ptys);
-2. bus and servo checks with the Python SDK (ping, model, RDT 0, position mode, latency timer,
-   torque on), then the SDK port is closed so the RT loop owns the tty alone;
-3. the force sensor: open, then tare while nothing moves yet;
-4. the RT loop (``_rtcore.AdmittanceLoop``), and only then is the sensor's stream let through
-   to it (a gate), so the loop never starts on samples taken before the tare;
-5. the Zenoh interface, the recorder, and ``READY=1`` to systemd.
+2. the Zenoh session (its endpoint) and the views on it (ROS 2, Foxglove's port), then the
+   recording folder, then the RT loop object (its configuration checked; no I/O yet), then
+   the force sensor's device (it streams into a closed gate);
+3. bus and servo checks with the Python SDK (ping, model, RDT 0, position mode, latency timer,
+   torque on): the first write to a servo; then the SDK port is closed so the RT loop owns
+   the tty alone;
+4. the tare, while the joint holds still;
+5. the RT loop starts, and only then is the sensor's stream let through to it (the gate), so
+   the loop never acts on a sample taken before the tare;
+6. the MCAP session file (it starts with the loop's parameters), the Zenoh queryables and
+   liveliness token, then ``READY=1`` to systemd.
 
 The main thread then ticks at ``[zenoh].state_rate_hz``: it drains the loop's telemetry
 (recording every cycle, publishing the latest), answers params queries, publishes stats about
 once a second and relays the loop's warnings. SIGINT/SIGTERM only set an event; the stop
 itself (hold, then the torque policy) happens on the main thread, and exits 0.
+
+``--stats-json`` is written on every way out: a clean stop, and an error too (with an
+``error`` field, the exit status, and whatever the loop had counted), before the error goes on
+to the CLI's one line and non-zero status.
 
 Every dependency on another part of the project comes in through :class:`Backends`, so the
 whole sequence is unit-tested with fakes and run for real by the HIL tests.
@@ -25,20 +37,22 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from admittance.daemon import telemetry
+from admittance.daemon import endpoints, telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
+from admittance.daemon.ecosystem import Ecosystem
+from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.recording import Recorder
-from admittance.daemon.stopsignals import stop_signals_call
-from admittance.errors import DeviceError
+from admittance.daemon.schema import clip
+from admittance.daemon.stopsignals import StopRequest, stop_signals_call
+from admittance.errors import AdmittanceError, DeviceError
 
 STATS_PERIOD_S = 1.0
 TARE_MIN_RATE_HZ = 30.0
@@ -49,8 +63,9 @@ class RunOptions:
     duration: float | None = None
     stats_json: Path | None = None
     log: Callable[[str], None] = field(default=lambda line: print(f"admittance run: {line}", file=sys.stderr))
-    # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals).
-    stop: threading.Event = field(default_factory=threading.Event)
+    # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals). Anything
+    # with set/is_set/wait; a StopRequest because signal handlers set it (a threading.Event can deadlock).
+    stop: StopRequest = field(default_factory=StopRequest)
 
 
 @dataclass
@@ -62,7 +77,9 @@ class Backends:
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
-    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
+    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler, log=) -> DaemonInterface
+    # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
+    claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
 
 
 class GatedSink:
@@ -100,8 +117,11 @@ class Supervisor:
         self.sensor: Any = None
         self.interface: Any = None
         self.recorder: Recorder | None = None
+        self.ecosystem = Ecosystem()  # session.mcap, ROS 2 bridge, Foxglove view: all optional
         self.final_stats: dict[str, Any] | None = None
+        self.live = LiveParams(cfg)
         self._codec = Codec(cfg.zenoh.encoding)
+        self.rendering = telemetry.RenderingError(cfg)
         self._t0 = 0.0
         self._warned: set[str] = set()
         self.watchdog: Watchdog | None = None
@@ -109,10 +129,16 @@ class Supervisor:
     # -- lifecycle ---------------------------------------------------------------------------
 
     def run(self) -> int:
-        with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
-            self._start(stack)
-            self._serve()
-            self._stop()
+        """Start, serve until stopped, stop; 0 after a clean stop. Every way out writes
+        ``--stats-json`` (an error with its ``error`` field) before the error propagates."""
+        try:
+            with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
+                self._start(stack)
+                self._serve()
+                self._stop()
+        except BaseException as exc:
+            self._write_stats(error=exc)
+            raise
         self._write_stats()
         return 0
 
@@ -120,17 +146,25 @@ class Supervisor:
         self.stop_event.set()
 
     def _start(self, stack: contextlib.ExitStack) -> None:
-        self.notifier.status("starting: bus")
+        self.notifier.status("starting: devices")
+        stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
         ports = stack.enter_context(self.backends.start_bench(self.cfg))
         bus_port, sensor_port, start_hand = ports
-        self._check_servos(stack, bus_port)
+        for warning in endpoints.exposure_warnings(self.cfg.zenoh):
+            self._warn(warning)
+        self._open_interface(stack)
+        self._open_recorder(stack)
         self.loop = self.backends.make_loop(self.cfg, bus_port)
         gate = GatedSink(self.loop.force_sink())
-        self._start_sensor(stack, sensor_port, gate)
+        self._open_sensor(stack, sensor_port, gate)
+        self.notifier.status("starting: bus")
+        self._check_servos(stack, bus_port)  # the first write to a servo
+        self._tare()
         self._start_loop(stack, bus_port)
         gate.open()
-        self._start_recorder(stack)
-        self._start_interface(stack)
+        self._start_mcap(stack)
+        if self.interface is not None:
+            self.interface.serve()
         self.watchdog = Watchdog(self.notifier, self.loop.heartbeat)
         status = self._status_line()
         self.notifier.ready(status)
@@ -145,16 +179,19 @@ class Supervisor:
         if self.cfg.stop.torque_policy == "torque_off":
             stack.callback(self._release_unless_loop_ran, bus_port)
 
-    def _start_sensor(self, stack: contextlib.ExitStack, port: str, sink: GatedSink) -> None:
+    def _open_sensor(self, stack: contextlib.ExitStack, port: str, sink: GatedSink) -> None:
+        """Open the sensor's device; it streams into the closed gate until the loop runs."""
         self.notifier.status("starting: sensor")
         self.sensor = self.backends.make_sensor(self.cfg, port, sink)
         self.sensor.start()
         stack.callback(self.sensor.stop)
-        self._tare()
 
     def _start_loop(self, stack: contextlib.ExitStack, bus_port: str) -> None:
         self.notifier.status("starting: loop")
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
+        if self.recorder is not None:
+            self.recorder.t0 = self._t0
+            self.recorder.set_targets(self.loop.params())  # what the first segment runs
         try:
             self.loop.start()
         except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
@@ -162,6 +199,7 @@ class Supervisor:
         stack.callback(self._stop_loop)
 
     def _tare(self) -> None:
+        self.notifier.status("starting: tare")
         n = self.cfg.sensor.tare_samples
         if n == 0:
             return
@@ -171,20 +209,46 @@ class Supervisor:
         if not result.accepted:
             raise DeviceError(f"sensor: tare refused: {result.reason}")
 
-    def _start_recorder(self, stack: contextlib.ExitStack) -> None:
+    def _open_recorder(self, stack: contextlib.ExitStack) -> None:
+        """Create the recording folder and its files (t = 0 is set when the loop starts)."""
         folder = record_dir(self.cfg)
         if folder is None:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
         self.recorder = Recorder(folder, joints, measured_theta=self.cfg.loop.sync_read_divisor > 0,
-                                 t0=self._t0, segment_s=self.cfg.record.segment_s)
+                                 t0=0.0, segment_s=self.cfg.record.segment_s, joint_info=self.joint_info())
         stack.callback(self.recorder.close)
 
-    def _start_interface(self, stack: contextlib.ExitStack) -> None:
+    def joint_info(self) -> dict[int, dict]:
+        """What a recording needs to be judged later (`admittance fidelity`): each joint's plant
+        and servo model, and the loop's timing (the manifest's [[joints]], the MCAP's /session)."""
+        info = {}
+        for j in self.cfg.joints:
+            plant = j.plant or {}
+            entry = {"model": j.model, "params_file": j.params, "rate_hz": self.cfg.loop.rate_hz,
+                     "sync_read_divisor": self.cfg.loop.sync_read_divisor,
+                     "friction": str(plant.get("model", {}).get("friction", "stick")),
+                     "plant": dict(plant.get("params", {}))}
+            if "servo" in plant:
+                entry["servo"] = dict(plant["servo"])
+            info[j.id] = entry
+        return info
+
+    def _start_mcap(self, stack: contextlib.ExitStack) -> None:
+        """The MCAP session file beside the recording: it starts with the loop's first parameters
+        and its t = 0, so it opens once the loop runs (the folder itself was claimed before)."""
+        folder = record_dir(self.cfg)
+        if folder is not None:
+            self.ecosystem.start_mcap(stack, folder, self.cfg, self._t0, self.get_params(), self.joint_info())
+
+    def _open_interface(self, stack: contextlib.ExitStack) -> None:
+        """Open the Zenoh session (claims the endpoint); it serves queries once the loop runs."""
         if self.backends.make_interface is None:
             return
-        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self)
+        self.notifier.status("starting: zenoh")
+        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self, log=self.options.log)
         stack.callback(self.interface.close)
+        self.ecosystem.start_views(stack, self.cfg, self.interface)
 
     def _release_unless_loop_ran(self, bus_port: str) -> None:
         """A start that failed after torque-on: the loop cannot apply the policy, so do it here."""
@@ -204,6 +268,7 @@ class Supervisor:
         self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
+        self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint()}
         self.options.log(self._summary_line(self.final_stats))
 
     def _summary_line(self, stats: dict[str, Any]) -> str:
@@ -241,50 +306,76 @@ class Supervisor:
             if latest is not None:
                 self.interface.publish_state(latest)
             self.interface.poll()
+        if latest is not None:
+            self._report_faults(latest)
+        for warning in self.ecosystem.publish(latest):
+            self._warn(warning)
         if self.sensor.error:
             self._warn(f"force sensor stopped: {self.sensor.error} (the joints hold)")
+
+    def _report_faults(self, state) -> None:
+        """One line per fault kind and joint, the first time it is seen (stats count every event)."""
+        for joint in state.joints:
+            for kind in telemetry.fault_names(joint.fault):
+                self._warn(f"fault on joint {joint.id}: {kind}; the joint holds at its last good state "
+                           "(stats: faults)")
 
     def _drain(self):
         """Drain the loop's telemetry into the recorder; return the latest State message."""
         records = self.loop.drain_telemetry()
         if len(records) == 0:
             return None
+        self.rendering.update(records)
         if self.recorder is not None:
-            for joint_id, columns in telemetry.columns_by_joint(records, self.cfg).items():
+            by_joint = telemetry.columns_by_joint(records, self.cfg)
+            for joint_id, columns in by_joint.items():
                 self.recorder.append(joint_id, columns)
-        return telemetry.latest_state(records, self.cfg)
+            self.ecosystem.record_cycles(by_joint)
+        return telemetry.latest_state(records, self.cfg, self.rendering)
 
     def _publish_stats(self) -> None:
         for warning in self.loop.warnings():
             self._warn(warning)
         if not self.loop.running():
             raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
-        stats = self.loop.stats()
+        stats = {**self.loop.stats(), "rendering_rms": self.rendering.by_joint()}
         self.notifier.status(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                              f"{stats['sensor_stale_events']} stale-sensor holds")
         if self.interface is not None:
             self.interface.publish_stats(stats_message(stats))
+        self.ecosystem.record("stats", stats)
 
     def _warn(self, text: str) -> None:
         if text not in self._warned:
             self._warned.add(text)
             self.options.log(f"warning: {text}")
+            self.ecosystem.record("event", f"warning: {text}")
 
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
     def get_params(self) -> dict[str, float | list[float]]:
         return telemetry.params_values(self.loop.params())
 
-    def set_params(self, request: dict[str, float]) -> tuple[bool, str]:
+    def set_params(self, request: dict[str, Any]) -> tuple[bool, str]:
+        """Check a live set as the configuration would be checked (liveparams), then hand it to
+        the loop, whose own gate checks it again; all or nothing."""
+        try:
+            request = self.live.check(request, self.get_params())
+        except AdmittanceError as exc:
+            return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            self.options.log(f"params set: {json.dumps(request, sort_keys=True)}")
+            self.options.log(f"params set: {clip(json.dumps(request, sort_keys=True), 400)}")
+            if self.recorder is not None:
+                self.recorder.set_targets(self.loop.params())
+            self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
         self.loop.tare(samples)
         self.options.log(f"tare requested over the next {samples} samples")
+        self.ecosystem.record("event", f"tare over the next {samples} samples")
         return True, ""
 
     # -- exit ----------------------------------------------------------------------------------
@@ -294,18 +385,49 @@ class Supervisor:
         joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
         return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')})"
 
-    def _write_stats(self) -> None:
+    def _write_stats(self, error: BaseException | None = None) -> None:
+        """``--stats-json``: the loop's final counts and the daemon's own, plus, after an error,
+        ``error`` (its one line) and ``exit_status``. After an error what is known is written
+        (possibly no loop counts at all), and a failure to write is logged, not raised over it."""
         path = self.options.stats_json
-        if path is None or self.final_stats is None:
+        if path is None:
             return
-        stats = dict(self.final_stats)
+        stats = dict(self.final_stats or {})
+        if error is None and not stats:
+            return
+        if stats:  # the loop ran: its rendering error too, on an error's way out as well
+            stats.setdefault("rendering_rms", self.rendering.by_joint())
         stats["daemon"] = {
             "queries": getattr(self.interface, "queries", 0),
+            "query_errors": getattr(self.interface, "query_errors", 0),
             "recorded_rows": dict(self.recorder.rows) if self.recorder else {},
             "sensor": self.sensor.stats() if self.sensor is not None else {},
         }
+        if error is not None:
+            stats.update(error_fields(error))
         try:
-            Path(path).write_text(json.dumps(stats, indent=2, default=str) + "\n")
-        except OSError as exc:
-            raise DeviceError(f"--stats-json: cannot write {path} ({exc.strerror})") from None
+            write_stats_file(path, stats)
+        except DeviceError as exc:
+            if error is None:
+                raise
+            self.options.log(f"warning: {exc}")
 
+
+def error_fields(error: BaseException) -> dict[str, Any]:
+    """What a stats file says about the error that ended the run: its line and the exit status."""
+    if isinstance(error, AdmittanceError):
+        return {"error": str(error), "exit_status": error.exit_code}
+    if isinstance(error, KeyboardInterrupt):
+        return {"error": "interrupted", "exit_status": 130}
+    return {"error": f"internal error: {type(error).__name__}: {clip(str(error), 200)}", "exit_status": 1}
+
+
+def write_stats_file(path: Path, stats: dict[str, Any]) -> None:
+    """Write ``stats`` as JSON, whole or not at all (a reader never sees half a file)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(stats, indent=2, default=str) + "\n")
+        tmp.replace(path)
+    except OSError as exc:
+        raise DeviceError(f"--stats-json: cannot write {path} ({exc.strerror})") from None

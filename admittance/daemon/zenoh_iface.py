@@ -11,12 +11,25 @@ channel; it never stalls anything but the main loop's own next tick.
 
 Networking is loopback-only by default (listen on tcp/127.0.0.1:7447, multicast scouting
 off): a bench daemon should not appear on a lab network unless its configuration says so.
+
+Queries are hostile input. A query *acts* (sets parameters, tares) only when its key
+expression is exactly the queryable's key and it carries a payload: ``get <prefix>/**`` reaches
+every queryable under the prefix, and must read, never act. Whatever a handler raises becomes a
+refusal reply (and a rate-limited log line), and a reply that cannot be sent is logged; neither
+ends the supervisor's loop.
+
+The session opens (the endpoint is claimed) when the interface is built, early in the start
+order, before any servo is written; the queryables and the liveliness token are declared by
+:meth:`DaemonInterface.serve`, once the loop runs.
 """
 
 from __future__ import annotations
 
 import json
 import re
+import sys
+import time
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import zenoh
@@ -24,13 +37,16 @@ import zenoh
 from admittance.daemon.messages import (
     Codec, ParamsReply, SetReply, decode, decode_set_request, decode_tare_request,
 )
-from admittance.errors import DataError, DeviceError
+from admittance.daemon.schema import clip
+from admittance.errors import AdmittanceError, ConfigError, DataError, DeviceError
 
 QUERY_BACKLOG = 32
+LOG_PERIOD_S = 10.0  # at most one line per kind of query problem per this long
 
 
 def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
-                scouting: bool = False) -> zenoh.Config:
+                scouting: bool = False, security: dict[str, Any] | None = None) -> zenoh.Config:
+    """A session configuration; ``security`` holds zenoh_security.security_entries (JSON5 path -> value)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(scouting))
@@ -40,13 +56,29 @@ def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect:
         conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    for path, value in (security or {}).items():
+        try:
+            conf.insert_json5(path, json.dumps(value))
+        except zenoh.ZError as exc:
+            raise ConfigError(f"[zenoh]: {path}: {_short(str(exc))}") from None
     return conf
 
 
-def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
+def security_of(zcfg: Any) -> dict[str, Any]:
+    """The security entries of a [zenoh] table (its paths are already absolute: config.py)."""
+    from pathlib import Path
+
+    from admittance.daemon.zenoh_security import security_entries
+
+    return security_entries(zcfg, Path.cwd())
+
+
+def open_session(conf: zenoh.Config | Callable[[], zenoh.Config], what: str) -> zenoh.Session:
+    """A session from ``conf`` (or from a function that builds it, whose errors are caught too:
+    zenoh refuses a malformed endpoint while the configuration is built); one-line DeviceError."""
     zenoh.init_log_from_env_or("error")
     try:
-        return zenoh.open(conf)
+        return zenoh.open(conf() if callable(conf) else conf)
     except zenoh.ZError as exc:
         raise DeviceError(f"zenoh: cannot open a session {what}: {_short(str(exc))}") from None
 
@@ -68,16 +100,38 @@ class Handler(Protocol):
     def tare(self, samples: int) -> tuple[bool, str]: ...
 
 
+class RateLimitedLog:
+    """At most one line per ``key`` per ``period`` seconds; the next one says how many were skipped."""
+
+    def __init__(self, log: Callable[[str], None], period: float = LOG_PERIOD_S) -> None:
+        self._log = log
+        self._period = period
+        self._last: dict[str, float] = {}
+        self._skipped: dict[str, int] = {}
+
+    def __call__(self, key: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(key, -self._period) < self._period:
+            self._skipped[key] = self._skipped.get(key, 0) + 1
+            return
+        skipped = self._skipped.pop(key, 0)
+        self._last[key] = now
+        self._log(text + (f" ({skipped} more like it since the last line)" if skipped else ""))
+
+
 class DaemonInterface:
     """``<prefix>/state``, ``/stats`` (publications), ``/params``, ``/tare`` (queryables), ``/alive``."""
 
-    def __init__(self, zcfg, codec: Codec, handler: Handler) -> None:
+    def __init__(self, zcfg, codec: Codec, handler: Handler, log: Callable[[str], None] | None = None) -> None:
         self.prefix = zcfg.prefix
         self._codec = codec
         self._handler = handler
+        self._log = RateLimitedLog(log or (lambda line: print(line, file=sys.stderr)))
         listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
-        conf = make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting)
-        self._session = open_session(conf, f"listening on {', '.join(zcfg.listen) or 'defaults'}")
+        self._session = open_session(
+            lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
+                                security=security_of(zcfg)),
+            f"listening on {', '.join(zcfg.listen) or 'defaults'}")
         encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
             "application/msgpack")
         self._encoding = encoding
@@ -85,13 +139,24 @@ class DaemonInterface:
         self._state_pub = declare(f"{self.prefix}/state", encoding=encoding,
                                   congestion_control=zenoh.CongestionControl.DROP, express=True)
         self._stats_pub = declare(f"{self.prefix}/stats", encoding=encoding)
+        self._queryables: dict[str, tuple[Any, Callable[[bytes, bool], Any]]] = {}
+        self._token = None
+        self.queries = 0
+        self.query_errors = 0
+
+    def serve(self) -> None:
+        """Declare the queryables and the liveliness token: the daemon is now visible and steerable."""
         self._queryables = {
             f"{self.prefix}/{leaf}": (self._session.declare_queryable(
                 f"{self.prefix}/{leaf}", zenoh.handlers.FifoChannel(QUERY_BACKLOG)), answer)
             for leaf, answer in (("params", self._answer_params), ("tare", self._answer_tare))
         }
         self._token = self._session.liveliness().declare_token(f"{self.prefix}/alive")
-        self.queries = 0
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The daemon's own session: the ROS 2 bridge declares its publishers and tokens on it."""
+        return self._session
 
     def publish_state(self, message: Any) -> None:
         self._state_pub.put(self._codec.encode(message))
@@ -100,52 +165,72 @@ class DaemonInterface:
         self._stats_pub.put(self._codec.encode(message))
 
     def poll(self) -> int:
-        """Answer every pending query; returns how many were answered."""
+        """Answer every pending query; returns how many were answered. Never raises."""
         answered = 0
         for key, (queryable, answer) in self._queryables.items():
             while (query := queryable.try_recv()) is not None:
                 try:
-                    payload = query.payload.to_bytes() if query.payload is not None else b""
-                    query.reply(key, self._codec.encode(answer(payload)), encoding=self._encoding)
+                    self._answer(key, query, answer)
                 finally:
                     query.drop()
                 answered += 1
         self.queries += answered
         return answered
 
-    def _answer_params(self, payload: bytes) -> ParamsReply | SetReply:
+    def _answer(self, key: str, query: Any, answer: Callable[[bytes, bool], Any]) -> None:
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            # Exactly this key: a wildcard (`<prefix>/**`) reaches every queryable and may only read.
+            reply = answer(payload, str(query.key_expr) == key)
+        except Exception as exc:  # a handler's bug must cost one refusal, never the daemon
+            self.query_errors += 1
+            self._log("handler", f"warning: {key}: a query failed inside the daemon and was refused: "
+                                 f"{type(exc).__name__}: {clip(str(exc), 120)}")
+            reply = SetReply(accepted=False, reason=f"internal error ({type(exc).__name__}); see the daemon's log")
+        try:
+            query.reply(key, self._codec.encode(reply), encoding=self._encoding)
+        except Exception as exc:  # the asker left, the session is closing: nothing to undo
+            self._log("reply", f"warning: {key}: a reply could not be sent: {type(exc).__name__}: "
+                               f"{clip(str(exc), 120)}")
+
+    def _answer_params(self, payload: bytes, exact: bool) -> ParamsReply | SetReply:
         if not payload.strip():
             return ParamsReply(params=self._handler.get_params())
+        if not exact:
+            return SetReply(accepted=False, reason=f"a set needs the exact key {self.prefix}/params, not a wildcard")
         return _apply(decode_set_request, self._handler.set_params, payload)
 
-    def _answer_tare(self, payload: bytes) -> SetReply:
+    def _answer_tare(self, payload: bytes, exact: bool) -> SetReply:
+        if not exact:
+            return SetReply(accepted=False, reason=f"a tare needs the exact key {self.prefix}/tare, not a wildcard")
         return _apply(decode_tare_request, self._handler.tare, payload)
 
     def close(self) -> None:
         """Withdraw the liveliness token first, so watchers see the daemon leave at once."""
         queryables = [queryable for queryable, _ in self._queryables.values()]
-        for entity in (self._token, *queryables, self._state_pub, self._stats_pub):
+        entities = [self._token] if self._token is not None else []
+        for entity in (*entities, *queryables, self._state_pub, self._stats_pub):
             entity.undeclare()
         self._session.close()
 
 
 def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
-    """Decode a request and hand it to the supervisor; a malformed one is rejected with why."""
+    """Decode a request and hand it to the supervisor; a malformed or refused one is rejected
+    with why (an AdmittanceError raised by the handler is a refusal like any other)."""
     try:
-        request = decode_request(payload)
-    except DataError as exc:
+        accepted, reason = apply(decode_request(payload))
+    except AdmittanceError as exc:
         return SetReply(accepted=False, reason=str(exc))
-    accepted, reason = apply(request)
     return SetReply(accepted=accepted, reason="" if accepted else reason)
 
 
 class Client:
     """A short-lived session for ``monitor``, ``set`` and ``tare``: connects to a daemon, listens nowhere."""
 
-    def __init__(self, connect: list[str]) -> None:
+    def __init__(self, connect: list[str], security: dict[str, Any] | None = None) -> None:
         self.connect = connect
-        conf = make_config(mode="peer", listen=[], connect=connect)
-        self._session = open_session(conf, f"connecting to {', '.join(connect)}")
+        self._session = open_session(lambda: make_config(mode="peer", listen=[], connect=connect, security=security),
+                                     f"connecting to {', '.join(connect)}")
 
     def __enter__(self) -> Client:
         return self
@@ -172,20 +257,31 @@ class Client:
         """A subscriber whose ``try_recv()`` never blocks (for a redraw loop with its own clock)."""
         return _Polled(self._session.declare_subscriber(f"{prefix}/*", zenoh.handlers.RingChannel(16)))
 
+    def try_stream_benches(self, prefix: str) -> Any:
+        """Like try_stream, for every bench under ``prefix``: drain() gives (leaf, message, bench)."""
+        return _Polled(self._session.declare_subscriber(f"{prefix}/**", zenoh.handlers.RingChannel(256)),
+                       with_bench=True)
+
     def alive(self, prefix: str, timeout: float = 2.0) -> bool:
         return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))
 
 
 class _Polled:
-    def __init__(self, subscriber: Any) -> None:
+    def __init__(self, subscriber: Any, with_bench: bool = False) -> None:
         self._subscriber = subscriber
+        self._with_bench = with_bench
 
-    def drain(self) -> list[tuple[str, dict[str, Any]]]:
+    def drain(self) -> list[tuple]:
         out = []
         while (sample := self._subscriber.try_recv()) is not None:
-            leaf = str(sample.key_expr).rsplit("/", 1)[-1]
-            if leaf in ("state", "stats"):
-                out.append((leaf, decode(sample.payload.to_bytes())))
+            bench, _, leaf = str(sample.key_expr).rpartition("/")
+            if leaf not in ("state", "stats"):
+                continue
+            try:
+                message = decode(sample.payload.to_bytes())
+            except DataError:
+                continue  # someone else's payload on a matching key: not ours to show
+            out.append((leaf, message, bench) if self._with_bench else (leaf, message))
         return out
 
     def close(self) -> None:

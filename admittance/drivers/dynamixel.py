@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from admittance.drivers.control_table import ControlTable, Item, table_for_number
-from admittance.drivers.ports import open_error_message
+from admittance.drivers.ports import exclusive_serial, open_error_message
 from admittance.drivers.usb_latency import latency_warning, read_latency_timer
 from admittance.errors import ConfigError, DeviceError
 
@@ -127,13 +127,24 @@ def decode_p1_error(value: int) -> list[str]:
 
 
 def _port_handler(port: str, latency_ms: float, slack_ms: float) -> Any:
-    """A dynamixel-sdk PortHandler whose reply timeout uses the adapter's real latency."""
+    """A dynamixel-sdk PortHandler whose reply timeout uses the adapter's real latency, and
+    whose port is opened exclusively (ports.py): a second daemon on the bus fails here, at
+    its first open, before it has written anything."""
     from dynamixel_sdk import PortHandler
 
     class _PortHandler(PortHandler):
         def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - SDK's name
             self.packet_start_time = self.getCurrentTime()
             self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + slack_ms
+
+        def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - the SDK's, with an exclusive open
+            if self.is_open:
+                self.closePort()
+            self.ser = exclusive_serial(self.port_name, self.baudrate, bytesize=8, timeout=0)
+            self.is_open = True
+            self.ser.reset_input_buffer()
+            self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+            return True
 
     return _PortHandler(port)
 

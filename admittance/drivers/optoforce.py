@@ -28,7 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from admittance.drivers.ports import open_error_message
+from admittance.drivers.ports import exclusive_serial, open_error_message
 from admittance.drivers.sensor import ForceSensor, Sink, counts_per_unit, require_key
 from admittance.errors import ConfigError, DeviceError
 
@@ -44,6 +44,11 @@ STATUS_SENSOR_ERROR_MASK = 0x1C00
 STATUS_FAULT_MASK = STATUS_DAQ_ERROR_MASK | STATUS_SENSOR_ERROR_MASK
 STATUS_OVERLOAD_BITS = {"fx": 9, "fy": 8, "fz": 7, "tx": 6, "ty": 5, "tz": 4}
 STATUS_OVERLOAD_MASK = sum(1 << bit for bit in STATUS_OVERLOAD_BITS.values())
+# A reading at the int16 limits is clipped whether or not the DAQ flagged it.
+COUNT_LIMITS = (-32768, -32767, 32767)
+# What a saturated sample does: "hold" drops it (the loop's staleness check then holds the
+# joint: the true force is unknown, and beyond the range), "pass" hands it on as it reads.
+SATURATION_POLICIES = ("hold", "pass")
 
 # SPEED code = sample period in ms (0 stops streaming); FILTER code = cut-off frequency.
 RATE_CODES = {0: 0, 1000: 1, 333: 3, 100: 10, 30: 33, 10: 100}
@@ -299,10 +304,16 @@ class SampleConverter:
     ``axes`` is the sensor's axis count (3 or 6). A 4-channel DAQ carries four 3-axis
     sensors; ``sensor_index`` picks the one that drives the joint. Samples whose status word
     reports a DAQ or sensor fault are not handed on (they are counted): a broken reading must
-    not move the joint, and the loop's staleness check takes over.
+    not move the joint, and the loop's staleness check takes over. A saturated sample (an
+    overload bit in the status word, or a count at the int16 limit) is counted in
+    ``overloads`` and, with ``saturation="hold"`` (the default), not handed on either.
     """
 
-    def __init__(self, counts_per_newton: float | Sequence[float], *, axes: int = 3, sensor_index: int = 0):
+    def __init__(
+        self, counts_per_newton: float | Sequence[float], *, axes: int = 3, sensor_index: int = 0, saturation: str = "hold"
+    ):
+        if saturation not in SATURATION_POLICIES:
+            raise ConfigError(f"saturation must be one of {', '.join(SATURATION_POLICIES)}, not {saturation!r}")
         if axes not in (3, 6):
             raise ConfigError(f"an OptoForce sensor has 3 or 6 axes, not {axes}")
         if not 0 <= sensor_index < 4 or (axes == 6 and sensor_index):
@@ -311,8 +322,11 @@ class SampleConverter:
         self.sensor_index = sensor_index
         self.scale = tuple(1.0 / c for c in counts_per_unit(counts_per_newton, axes))
         self.parser = OptoForceParser()
+        self.hold_saturated = saturation == "hold"
         self.status_faults = 0
         self.overloads = 0
+        self.last_fault_status = 0
+        self.last_overload_status = 0
         self.unexpected_frames = 0
         self.counter_gaps = 0
         self.ack_errors = 0
@@ -335,17 +349,28 @@ class SampleConverter:
         self._track_counter(sample.counter)
         if sample.status & STATUS_FAULT_MASK:
             self.status_faults += 1
+            self.last_fault_status = sample.status
             return None
-        if sample.status & STATUS_OVERLOAD_MASK:
-            self.overloads += 1
         counts = sample.counts
         if len(counts) == 12:
             counts = counts[3 * self.sensor_index : 3 * self.sensor_index + 3]
         if (len(counts) == 6) != (self.axes == 6):
             self.unexpected_frames += 1
             return None
+        if sample.status & STATUS_OVERLOAD_MASK or any(c in COUNT_LIMITS for c in counts):
+            self.overloads += 1
+            self.last_overload_status = sample.status
+            if self.hold_saturated:
+                return None
         vector = [c * s for c, s in zip(counts, self.scale)]
         return vector + [0.0] * (6 - len(vector))
+
+    def saturation_note(self) -> str:
+        """The last saturated sample in words, with what the policy did with it."""
+        axes = status_overloads(self.last_overload_status)
+        what = f"overload flag on {', '.join(axes)}" if axes else "a count at the int16 limit"
+        action = "held, not passed to the loop" if self.hold_saturated else 'passed on (saturation = "pass")'
+        return f"saturated samples ({what}): {action}"
 
     def _track_counter(self, counter: int) -> None:
         last = self._last_counter
@@ -388,13 +413,14 @@ class OptoForceSerialReader(ForceSensor):
         sensor_index: int = 0,
         settings: DaqSettings | None = None,
         read_timeout: float = 0.05,
+        saturation: str = "hold",
     ):
         super().__init__(sink)
         self.port = port
         self.baudrate = baudrate
         self.settings = settings
         self.read_timeout = read_timeout
-        self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index)
+        self._converter = SampleConverter(counts_per_newton, axes=axes, sensor_index=sensor_index, saturation=saturation)
         self._config_packet = settings.packet() if settings else None
         self._serial = None
 
@@ -415,13 +441,14 @@ class OptoForceSerialReader(ForceSensor):
             axes=int(section.get("axes", 3)),
             sensor_index=int(section.get("sensor_index", 0)),
             settings=settings,
+            saturation=str(section.get("saturation", "hold")),
         )
 
     def _open(self) -> None:
         import serial  # pyserial; imported here so that the registry stays cheap
 
         try:
-            self._serial = serial.Serial(self.port, self.baudrate, timeout=self.read_timeout)
+            self._serial = exclusive_serial(self.port, self.baudrate, timeout=self.read_timeout)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceError(open_error_message("the OptoForce sensor port", self.port, exc)) from None
         self._serial.reset_input_buffer()
@@ -434,7 +461,7 @@ class OptoForceSerialReader(ForceSensor):
         # everything already waiting in one read: one syscall per USB packet, not per byte.
         data = ser.read(max(1, ser.in_waiting))
         if data:
-            self._emit_all(self._converter.forces(data))
+            self._emit_converted(self._converter, data)
 
     def _close(self) -> None:
         if self._serial is not None:

@@ -12,6 +12,13 @@ Modelled on python-can's driver abstraction (shared style-anchors.md §2):
   with ``push(t_ns, forces) -> bool``. The reader thread only converts and pushes; a sink
   that is full (False) loses that sample and the loss is counted, never waited for.
 
+A device that fails while running (unplugged: EIO, hang-up, a CAN adapter gone) is closed and
+reopened with backoff (0.05 s doubling to 2 s) until it answers again, so a replug recovers
+without a restart; meanwhile the joint holds on the loop's staleness check. Whatever happens
+is counted in ``stats()`` and told once through a rate-limited event hook (``set_event_hook``;
+by default the ``logging`` module): a disconnection, a failed reopen, the recovery, a stream
+gone stale and fresh again, saturated samples.
+
 Tare is done on the host from the reader's own stream and not with the DAQ's ZERO command,
 because the same code then serves every kind of sensor, and because a tare taken while the
 user is still touching the handle must be refused: the bias is the mean of N samples, and the
@@ -26,7 +33,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -41,6 +48,45 @@ AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
 # know; a hand resting on the handle moves by tenths of a newton.
 DEFAULT_TARE_MAX_STD = (0.25, 0.25, 0.25, 0.025, 0.025, 0.025)
 DEFAULT_TARE_SAMPLES = 200
+RECONNECT_FIRST_S = 0.05
+RECONNECT_MAX_S = 2.0
+DEFAULT_STALE_AFTER_S = 0.2
+EVENT_REPEAT_S = 5.0
+
+
+class EventLog:
+    """Tells each kind of event at most once per ``repeat_s``, with the count of those held
+    back, to a hook ``(kind, message)``: a stream that fails 1000 times a second must not
+    flood the journal, and the first of a kind is never delayed."""
+
+    def __init__(self, hook: Callable[[str, str], None] | None = None, repeat_s: float = EVENT_REPEAT_S,
+                 clock: Callable[[], float] = time.monotonic):
+        self.hook = hook or _log_event
+        self.repeat_s = repeat_s
+        self.clock = clock
+        self.counts: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+        self._held: dict[str, int] = {}
+
+    def __call__(self, kind: str, message: str) -> None:
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        now = self.clock()
+        last = self._last.get(kind)
+        if last is not None and now - last < self.repeat_s:
+            self._held[kind] = self._held.get(kind, 0) + 1
+            return
+        held = self._held.pop(kind, 0)
+        self._last[kind] = now
+        suffix = f" ({held} more since the last report)" if held else ""
+        try:
+            self.hook(kind, message + suffix)
+        except Exception:  # a broken hook must not stop the reader
+            log.exception("the force sensor's event hook failed")
+
+
+def _log_event(kind: str, message: str) -> None:
+    level = logging.INFO if kind in ("reconnected", "fresh") else logging.WARNING
+    log.log(level, "%s", message)
 
 
 class Sink(Protocol):
@@ -131,11 +177,14 @@ class ForceSensor(abc.ABC):
 
     ``start()`` opens the device (DeviceError if it is missing) and starts the thread;
     ``stop()`` joins it and closes the device. Both are idempotent; the sensor can be started
-    again after a stop. If the device fails while running (unplugged), the thread ends and
-    ``error`` holds the message; the caller sees the samples stop.
+    again after a stop. If the device fails while running (unplugged), it is closed and
+    reopened with backoff until it works again; meanwhile ``error`` holds the failure (None
+    again once samples flow) and ``state`` is ``"reconnecting"``.
     """
 
     kind: str = ""
+    reconnect_first_s = RECONNECT_FIRST_S
+    reconnect_max_s = RECONNECT_MAX_S
 
     def __init__(self, sink: Sink):
         if not callable(getattr(sink, "push", None)):
@@ -148,9 +197,22 @@ class ForceSensor(abc.ABC):
         self._tare_full = threading.Event()
         self._tare_wanted = 0
         self.error: str | None = None
+        self.last_error: str | None = None
+        self.state = "stopped"
         self.samples_pushed = 0
         self.samples_dropped = 0
         self.last_sample_ns = 0
+        self.disconnects = 0
+        self.reconnects = 0
+        self.reopen_failures = 0
+        self.stale_events = 0
+        self.stale_after_s = DEFAULT_STALE_AFTER_S
+        self.events = EventLog()
+        self._stale = False
+        self._last_arrival = 0.0
+        # The next reopen's wait: it grows while reopens fail, or succeed without a sample
+        # (a device that opens, then fails at once, must not be reopened 20 times a second).
+        self._backoff = self.reconnect_first_s
 
     # -- backend contract --------------------------------------------------------------------
 
@@ -165,6 +227,18 @@ class ForceSensor(abc.ABC):
     @abc.abstractmethod
     def _close(self) -> None:
         """Release the device (called once per successful ``_open``)."""
+
+    def describe(self) -> str:
+        """The device in words for messages, e.g. ``optoforce sensor on /dev/ttyACM0``."""
+        where = getattr(self, "port", None) or getattr(self, "channel", None)
+        return f"{self.kind} sensor" + (f" on {where}" if where is not None else "")
+
+    def set_event_hook(self, hook: Callable[[str, str], None] | None, repeat_s: float = EVENT_REPEAT_S) -> None:
+        """Where events go, ``hook(kind, message)``, each kind at most once per ``repeat_s``.
+        Kinds: disconnected, reopen_failed, reconnected, stale, fresh, saturated, status_fault."""
+        counts = self.events.counts
+        self.events = EventLog(hook, repeat_s)
+        self.events.counts = counts
 
     @classmethod
     def from_config(cls, section: Mapping[str, Any], sink: Sink) -> ForceSensor:
@@ -182,6 +256,9 @@ class ForceSensor(abc.ABC):
             return
         self.error = None
         self._open()
+        self.state = "streaming"
+        self._last_arrival = time.monotonic()
+        self._stale = False
         self._stop_event.clear()
         self._thread = threading.Thread(target=self._run, name=f"force-{self.kind}", daemon=True)
         self._thread.start()
@@ -193,6 +270,7 @@ class ForceSensor(abc.ABC):
         self._stop_event.set()
         thread.join()
         self._close()
+        self.state = "stopped"
 
     def __enter__(self) -> ForceSensor:
         self.start()
@@ -202,19 +280,60 @@ class ForceSensor(abc.ABC):
         self.stop()
 
     def _run(self) -> None:
+        while not self._stop_event.is_set():
+            try:
+                while not self._stop_event.is_set():
+                    self._poll()
+                    self._watch_staleness()
+            except Exception as exc:  # the device died under us: reopen it, never kill the process
+                self._lost(exc)
+                self._reopen()
+
+    def _lost(self, exc: BaseException) -> None:
+        self.error = self.last_error = f"{type(exc).__name__}: {exc}"
+        self.disconnects += 1
+        self.state = "reconnecting"
+        self.events("disconnected", f"{self.describe()} failed ({self.error}); reopening it with backoff, the joints hold meanwhile")
         try:
-            while not self._stop_event.is_set():
-                self._poll()
-        except Exception as exc:  # the device died under us: report it, do not kill the process
-            self.error = f"{type(exc).__name__}: {exc}"
-            log.error("force sensor %s stopped: %s", self.kind, self.error)
+            self._close()
+        except Exception as close_exc:  # closing a dead device may fail too; it is closed anyway
+            log.debug("closing the failed %s: %s", self.describe(), close_exc)
+
+    def _reopen(self) -> None:
+        """Reopen with backoff until it works or the reader is stopped."""
+        while not self._stop_event.wait(self._backoff):
+            self._backoff = min(2 * self._backoff, self.reconnect_max_s)
+            try:
+                self._open()
+            except Exception as exc:
+                self.reopen_failures += 1
+                self.last_error = str(exc)
+                self.events("reopen_failed", f"{self.describe()} is still gone: {exc}")
+                continue
+            self.reconnects += 1
+            self.error = None
+            self.state = "streaming"
+            self._last_arrival = time.monotonic()
+            self.events("reconnected", f"{self.describe()} is back after {self.disconnects} disconnection(s)")
+            return
+
+    def _watch_staleness(self) -> None:
+        """Tells when the stream stops for ``stale_after_s`` and when it comes back (the loop
+        holds the joint on its own, sooner; this is for the log and the counters)."""
+        silent_s = time.monotonic() - self._last_arrival
+        if not self._stale and silent_s > self.stale_after_s:
+            self._stale = True
+            self.stale_events += 1
+            self.events("stale", f"{self.describe()}: no samples for {silent_s:.2f} s; the joints hold")
 
     # -- samples -------------------------------------------------------------------------------
 
-    def _emit_all(self, vectors: Iterable[list[float]]) -> None:
+    def _emit_all(self, vectors: Sequence[list[float]]) -> None:
         """Hand a batch of 6-vectors (bias not yet removed) to the sink, stamped now."""
         t_ns = time.monotonic_ns()
         bias = self._bias
+        if vectors:
+            self._arrived()
         for raw in vectors:
             if self._tare_rows is not None:
                 self._collect_for_tare(raw)
@@ -224,6 +343,27 @@ class ForceSensor(abc.ABC):
             else:
                 self.samples_dropped += 1
             self.last_sample_ns = t_ns
+
+    def _emit_converted(self, converter: Any, data: bytes | bytearray) -> None:
+        """Parse ``data`` with an OptoForce ``SampleConverter``, push its forces, and tell
+        saturated and faulty samples (rate-limited). A frame that arrived counts as arrival
+        even when the policy holds it: the stream is alive, its readings are not usable."""
+        samples, overloads, faults = converter.parser.samples, converter.overloads, converter.status_faults
+        self._emit_all(converter.forces(data))
+        if converter.parser.samples != samples:
+            self._arrived()
+        if converter.overloads != overloads:
+            self.events("saturated", f"{self.describe()}: {converter.saturation_note()}")
+        if converter.status_faults != faults:
+            self.events("status_fault", f"{self.describe()}: the DAQ reports an error "
+                                        f"(status 0x{converter.last_fault_status:04X}); those samples are dropped")
+
+    def _arrived(self) -> None:
+        self._last_arrival = time.monotonic()
+        self._backoff = self.reconnect_first_s
+        if self._stale:
+            self._stale = False
+            self.events("fresh", f"{self.describe()}: samples flow again")
 
     def _collect_for_tare(self, raw: list[float]) -> None:
         rows = self._tare_rows
@@ -276,10 +416,18 @@ class ForceSensor(abc.ABC):
         return {
             "kind": self.kind,
             "running": self.running,
+            "state": self.state,
             "error": self.error,
+            "last_error": self.last_error,
             "samples_pushed": self.samples_pushed,
             "samples_dropped": self.samples_dropped,
             "last_sample_ns": self.last_sample_ns,
+            "disconnects": self.disconnects,
+            "reconnects": self.reconnects,
+            "reopen_failures": self.reopen_failures,
+            "stale_events": self.stale_events,
+            "stale": self._stale,
+            "events": dict(self.events.counts),
         }
 
 

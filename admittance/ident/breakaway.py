@@ -33,6 +33,7 @@ from scipy.optimize import least_squares
 from admittance.errors import DataError
 
 REST_FRACTION = 0.05  # share of the trial (from the start) taken as at rest
+RAMP_MIN_R2 = 0.9  # a ramp's torque is a line in time; a step, hold or sine is not
 K_SIGMA = 6.0
 K_ONSET = 2.0
 K_FIT = 20.0
@@ -107,8 +108,28 @@ def breakaway_of(trial) -> Breakaway:
         raise DataError(f"{trial.name}: {exc}") from None
     torque = float(np.interp(onset, trial.t, trial.tau))
     before = trial.tau[trial.t <= onset]
+    reason = not_a_ramp(trial.t[trial.t <= onset], before)
+    if reason:
+        raise DataError(f"{trial.name}: not a torque ramp before the breakaway ({reason}); "
+                        "the breakaway test needs a slow, steady ramp of tau")
     direction = str(trial.meta.get("direction") or ("ccw" if _ramp_sign(before) > 0 else "cw"))
     return Breakaway(trial.name, direction, abs(torque), float(onset - trial.t[0]), float(sigma))
+
+
+def not_a_ramp(t: np.ndarray, tau: np.ndarray, min_r2: float = RAMP_MIN_R2) -> str:
+    """Why the torque up to the onset is not a ramp (a straight line away from zero), or ''."""
+    if tau.size < 3:
+        return f"only {tau.size} samples before the onset"
+    slope, intercept = np.polyfit(t, tau, 1)
+    total = float(np.sum((tau - tau.mean()) ** 2))
+    if total == 0.0 or slope == 0.0:
+        return "tau is constant"
+    r2 = 1.0 - float(np.sum((tau - (slope * t + intercept)) ** 2)) / total
+    if r2 < min_r2:
+        return f"tau is not a straight line in time: R² {r2:.2f} < {min_r2}"
+    if abs(tau[-1]) <= abs(tau[0]):
+        return "|tau| does not grow"
+    return ""
 
 
 def _ramp_sign(tau: np.ndarray) -> float:

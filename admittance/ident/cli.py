@@ -13,9 +13,11 @@ import math
 import sys
 from pathlib import Path
 
+from admittance import outfolder
 from admittance.errors import ConfigError, DataError
 
 LUMPED_BOB_DISTANCE = 0.30  # m: the one load of a `synth --lumped` dataset
+REPORT_FILES = ("report.md", "*.png")
 
 
 def register(subparsers) -> None:
@@ -26,14 +28,18 @@ def register(subparsers) -> None:
         "and report the simulation error on held-out trials (shared/contracts/datasets.md).",
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with manifest.toml and the trial files")
-    p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="write the result here")
-    p.add_argument("--params-out", metavar="FILE.toml", help="also write the final model as a parameter file")
-    p.add_argument("--report", metavar="DIR", help="write a Markdown report with plots into DIR")
+    p.add_argument("--json", dest="json_out", metavar="FILE.json", required=True, help="write the result here")
+    p.add_argument("--params-out", metavar="FILE.toml",
+                   help="also write the final model as a parameter file (default: not written)")
+    p.add_argument("--report", metavar="DIR", help="write a Markdown report with plots into DIR "
+                   "(new or empty unless --force; default: no report; needs admittance[plots])")
+    p.add_argument("--force", action="store_true", help="write the report into a non-empty DIR, replacing its "
+                   "report.md and figures")
     p.add_argument("--friction", choices=("stick", "tanh"), default="stick",
                    help="Coulomb law: exact stick-slip (default) or the thesis's tanh")
     p.add_argument("--max-effects", type=int, default=4, metavar="N", help="add at most N effects (default 4)")
     p.add_argument("--min-gain", type=float, default=0.03, metavar="FRACTION",
-                   help="relative validation improvement an effect must bring (default 0.03)")
+                   help="relative validation improvement an effect must bring, as a fraction (default 0.03)")
     p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     p.set_defaults(func=run_identify)
 
@@ -42,16 +48,19 @@ def register(subparsers) -> None:
         help="write a synthetic pendulum dataset (known truth, optional hidden effects)",
         description="Thesis-like MX-64 pendulum drops in the dataset format, with undeclared effects.",
     )
-    s.add_argument("out_dir", metavar="OUT_DIR")
+    s.add_argument("out_dir", metavar="DIR", help="the dataset folder to write (new or empty unless --force)")
     s.add_argument("--effect", action="append", metavar="NAME=VALUE",
-                   help="inject an effect (e.g. stribeck=0.04, cogging=0.01) or set a parameter; repeatable")
-    s.add_argument("--trials", type=int, default=10, metavar="N")
-    s.add_argument("--duration", type=float, default=8.0, metavar="SECONDS")
-    s.add_argument("--noise", type=float, default=0.002, metavar="RAD", help="angle noise σ (default 0.002)")
+                   help="inject an effect (e.g. stribeck=0.04, cogging=0.01) or set a parameter, in its unit; "
+                   "repeatable (default: none)")
+    s.add_argument("--trials", type=int, default=10, metavar="N", help="number of drops (default 10)")
+    s.add_argument("--duration", type=float, default=8.0, metavar="S", help="length of each drop in s (default 8)")
+    s.add_argument("--noise", type=float, default=0.002, metavar="RAD", help="angle noise σ in rad (default 0.002)")
     s.add_argument("--noise-corr", type=float, default=0.0, metavar="RHO",
-                   help="AR(1) correlation of the noise between samples (default 0: white)")
-    s.add_argument("--jitter", type=float, default=0.1, metavar="FRACTION", help="sampling-time jitter")
-    s.add_argument("--seed", type=int, default=0)
+                   help="AR(1) correlation of the noise between samples, dimensionless (default 0: white)")
+    s.add_argument("--jitter", type=float, default=0.1, metavar="FRACTION",
+                   help="sampling-time jitter as a fraction of the period (default 0.1)")
+    s.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
+    s.add_argument("--force", action="store_true", help="write into a non-empty DIR, replacing its manifest and CSVs")
     s.add_argument("--with-torque", action="store_true", help="torque-driven trials with a tau column")
     s.add_argument("--lumped", action="store_true",
                    help="leave the geometry out of the manifest (all trials then share one load)")
@@ -70,6 +79,11 @@ def run_identify(args: argparse.Namespace) -> int:
     params_path = _writable(args.params_out, "--params-out") if args.params_out else None
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise DataError(f"--report {args.report}: exists and is not a folder")
+    if args.report:
+        from admittance.extras import require
+
+        require("matplotlib", "identify --report")  # before the fit, not after it
+        outfolder.check(args.report, args.force, "--report", REPORT_FILES)
     dataset = load_dataset(args.dataset)
     settings = IdentifySettings(friction=args.friction, max_effects=args.max_effects, min_gain=args.min_gain,
                                 quiet=args.quiet)
@@ -81,7 +95,7 @@ def run_identify(args: argparse.Namespace) -> int:
     if args.report:
         from admittance.ident.report import write_report
 
-        write_report(result, args.report)
+        write_report(result, outfolder.clear(args.report, "--report", REPORT_FILES))
     if not args.quiet:
         _print_summary(result)
     return 0
@@ -104,7 +118,8 @@ def run_synth(args: argparse.Namespace) -> int:
                      noise_correlation=args.noise_corr, jitter=args.jitter,
                      effects=parse_effect_args(args.effect), with_torque=args.with_torque,
                      geometry=not args.lumped, seed=args.seed, **loads)
-    out = generate(args.out_dir, spec)
+    outfolder.check(args.out_dir, args.force, "synth")
+    out = generate(outfolder.clear(args.out_dir, "synth"), spec)
     print(f"wrote {args.trials} trials to {out}")
     return 0
 

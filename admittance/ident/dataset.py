@@ -68,8 +68,12 @@ class Dataset:
 
 
 def load_dataset(folder: str | Path) -> Dataset:
-    """Read ``folder/manifest.toml`` and every trial it lists."""
+    """Read ``folder/manifest.toml`` and every trial it lists (or a session.mcap: loaders.load_recording)."""
     folder = Path(folder)
+    if folder.suffix == ".mcap" and folder.is_file():
+        from admittance.ident.loaders import load_recording
+
+        return load_recording(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: dataset folder not found")
     manifest_path = folder / MANIFEST

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from admittance.errors import DataError
+from admittance.ident.dataset import MIN_SAMPLES as DATASET_MIN_SAMPLES
 from admittance.ident.dataset import TrialArrays, check_series
 
 
@@ -418,3 +419,155 @@ def trial_names(files: Sequence[str | Path]) -> list[str]:
     if len(set(names)) != len(names):
         raise DataError(f"two input files would get the same trial name: {', '.join(names)}")
     return names
+
+
+# --------------------------------------------------------------------------- MCAP recordings
+#
+# ``admittance run --record DIR`` writes DIR/session.mcap (admittance.daemon.mcap_recording):
+# every cycle of every joint on ``/joint<ID>/cycle``. Two entry points:
+#
+# - :func:`read_recording` gives every column of every cycle (for `fidelity` and plots);
+# - :func:`load_recording` gives the same Dataset object the CSV folder of the same session gives
+#   (load_dataset): per joint, trials of ``segment_s`` seconds, theta = the measured angle on the
+#   cycles that read it (the model angle when the session read none), tau = the hand torque.
+#
+# Files are read with the streaming reader, message by message, so a file cut short (SIGKILL,
+# power loss: no summary at its end) reads back up to its last complete chunk.
+
+MCAP_CYCLE_COLUMNS = ("t", "t_wake", "wall", "cycle", "force", "tau", "theta_model", "omega_model", "theta_goal",
+                      "theta_present", "rendering_error", "fault", "mode")
+
+
+@dataclass
+class Recording:
+    """A session.mcap read back: per joint ID, every cycle's columns as float arrays (NaN = not read,
+    or absent from an older file). Each ``params`` entry carries ``t``: its monotonic time (s)."""
+
+    path: Path
+    session: dict[str, Any]
+    joints: dict[int, dict[str, np.ndarray]]
+    params: list[dict[str, Any]]
+    stats: list[dict[str, Any]]
+    events: list[str]
+    truncated: bool  # True when the file ends without its summary (the session was cut short)
+
+
+def _mcap_path(path: str | Path) -> Path:
+    path = Path(path)
+    if path.is_dir():
+        path = path / "session.mcap"
+    if not path.is_file():
+        raise DataError(f"{path}: MCAP recording not found")
+    return path
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Every message of a session.mcap (a file, or a --record folder holding one)."""
+    import msgspec
+    from mcap.exceptions import McapError
+    from mcap.reader import NonSeekingReader
+
+    path = _mcap_path(path)
+    rows: dict[int, list[dict]] = {}
+    session: dict[str, Any] | None = None
+    params, stats, events, truncated = [], [], [], False
+    decode = msgspec.json.Decoder().decode
+    with path.open("rb") as fh:
+        try:
+            for _schema, channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
+                topic, body = channel.topic, decode(message.data)
+                if topic.endswith("/cycle") and topic.startswith("/joint"):
+                    rows.setdefault(int(topic[len("/joint"):-len("/cycle")]), []).append(body)
+                elif topic == "/session":
+                    session = body
+                elif topic == "/params":
+                    params.append({**body, "t": message.publish_time * 1e-9})
+                elif topic == "/stats":
+                    stats.append(body)
+                elif topic == "/events":
+                    events.append(body.get("text", ""))
+        except (McapError, EOFError, ValueError, OSError, msgspec.DecodeError) as exc:
+            truncated = True
+            if session is None:
+                raise DataError(f"{path}: not a readable admittance MCAP recording ({type(exc).__name__})") from None
+    if session is None:
+        raise DataError(f"{path}: no /session message (not written by admittance run --record)")
+    joints = {jid: {c: np.array([np.nan if r.get(c) is None else r[c] for r in body], dtype=float)
+                    for c in MCAP_CYCLE_COLUMNS} for jid, body in rows.items()}
+    return Recording(path, session, joints, params, stats, events, truncated)
+
+
+def _segments(t: np.ndarray, segment_s: float) -> list[np.ndarray]:
+    """Row indices per segment of segment_s seconds; a last segment too short to fit is dropped."""
+    index = np.floor(t / segment_s).astype(int)
+    out = [np.flatnonzero(index == k) for k in np.unique(index)]
+    if len(out) > 1 and len(out[-1]) < DATASET_MIN_SAMPLES:
+        out.pop()
+    return out
+
+
+def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]:
+    """Per joint, the rows the session's CSV dataset has (recording.recorded_rows: one per cycle
+    that read the servo, the next cycle's torque, held and fault since the previous row, times
+    from t0), cut into segments of ``segment_s`` seconds."""
+    from admittance.daemon.recording import recorded_rows, with_next_cycle
+
+    measured = bool(rec.session.get("measured_theta", True))
+    t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
+    out = {}
+    for jid in sorted(rec.joints):
+        cols = with_next_cycle(dict(rec.joints[jid]))
+        if not np.isfinite(cols["t_wake"]).all():
+            cols["t_wake"] = cols["t"]  # an older file
+        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0)
+        out[jid] = [{k: v[index] for k, v in rows.items()} for index in _segments(rows["t"], segment_s)] \
+            if rows["t"].size else []
+    return out
+
+
+def load_recording(path: str | Path):
+    """A session.mcap as the Dataset that ``load_dataset`` gives for the session's CSV folder.
+
+    ``path`` is the .mcap file or the --record folder. This is the entry point `identify`
+    (through load_dataset) and `fidelity` use; see docs/identification.md.
+    """
+    return recording_dataset(read_recording(path))
+
+
+def recording_dataset(rec: Recording):
+    """The Dataset of a read recording: one trial per segment of :func:`recording_segments`, in
+    its order (joints by id)."""
+    from admittance.daemon.recording import NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE
+    from admittance.ident.dataset import Dataset, TrialData, load_geometry
+
+    measured = bool(rec.session.get("measured_theta", True))
+    models = {int(j["id"]): j.get("model", "") for j in rec.session.get("joints", [])}
+    inertia, gravity = load_geometry(None, NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE)
+    trials = []
+    for jid, segments in recording_segments(rec).items():
+        for k, rows in enumerate(segments):
+            name = f"joint{jid}_{k:03d}"
+            ts, th, ta = check_series(Path(f"{rec.path}:{name}"), rows["t"], rows["theta"], rows["tau"])
+            trials.append(TrialData(name=name, t=ts, theta=th, tau=ta, load_inertia=inertia, gravity_torque=gravity,
+                                    meta={"format": "mcap", "joint_id": jid, "motor": models.get(jid, ""),
+                                          "source": str(rec.path)}))
+    if not trials:
+        raise DataError(f"{rec.path}: no cycle with a {'measured' if measured else 'model'} angle recorded")
+    motors = ", ".join(sorted({m for m in models.values() if m}))
+    return Dataset(mode="geometry", trials=tuple(trials), motor=motors, folder=rec.path.parent,
+                   geometry={"rod": None, "bob": dict(NEGLIGIBLE_BOB)})
+
+
+def convert_recording(files: Sequence[str | Path], out_dir: str | Path) -> Path:
+    """``admittance convert mcap session.mcap --out DIR``: the contract's CSV dataset of a recording."""
+    from admittance.daemon.recording import NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE
+
+    trials = []
+    for f in files:
+        dataset = load_recording(f)
+        prefix = "" if len(files) == 1 else f"{Path(f).parent.name}_"
+        trials += [ConvertedTrial(prefix + tr.name, tr.t, tr.theta, tr.tau,
+                                  {"bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": tr.meta["joint_id"],
+                                   "motor": tr.meta["motor"]}) for tr in dataset.trials]
+    header = {"motor": dataset.motor, "source": "admittance convert mcap", "bob": dict(NEGLIGIBLE_BOB)}
+    return write_dataset(out_dir, trials, header)

@@ -2,8 +2,11 @@
 
 A file has three tables: ``[model]`` (labels: motor, friction law, mode, source), ``[params]``
 (the plant parameters of Contract 1 by name, SI units; absent names keep their defaults) and
-``[fit]`` (provenance). The parameter names are checked against one list, so a typo in a
-hand-edited file is an error naming the file and key instead of a silently ignored value.
+``[fit]`` (provenance); and optionally ``[servo]``, the servo's tracking dynamics that
+``admittance fidelity`` identifies (docs/fidelity.md): all five of ``SERVO_PARAM_NAMES``. A
+joint whose file has ``[servo]`` compensates for it. The parameter names are checked against
+one list, so a typo in a hand-edited file is an error naming the file and key instead of a
+silently ignored value.
 
 The name list lives here rather than being read from ``_rtcore.PARAM_NAMES`` so that reading a
 parameter file never needs the compiled extension (the daemon's config check runs before it
@@ -47,6 +50,15 @@ PARAM_DEFAULTS: dict[str, float | None] = {
     "friction_ripple_phase": 0.0,
 }
 PARAM_NAMES: tuple[str, ...] = tuple(PARAM_DEFAULTS)
+# plant::servo's parameter order (units: s, s, s, rad/N·m, rad), and each value's domain.
+SERVO_PARAM_NAMES: tuple[str, ...] = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband")
+SERVO_BOUNDS: dict[str, tuple[float, float]] = {
+    "time_constant": (0.0, 10.0),  # open at 0
+    "inertial_time": (0.0, 10.0),
+    "dead_time": (-0.1, 1.0),
+    "compliance": (-math.inf, math.inf),
+    "deadband": (0.0, math.inf),
+}
 FRICTION_LAWS = ("stick", "tanh")
 MODES = ("geometry", "lumped")
 
@@ -59,7 +71,10 @@ def load(path: str | Path) -> dict[str, Any]:
     fit = _table(doc, "fit", path)
     params = validate_params(_table(doc, "params", path), where=str(path))
     _check_model(model, path)
-    return {"model": model, "params": params, "fit": fit}
+    out = {"model": model, "params": params, "fit": fit}
+    if "servo" in doc:
+        out["servo"] = validate_servo(_table(doc, "servo", path), where=str(path))
+    return out
 
 
 def read_toml(path: Path, error: type[Exception], what: str) -> dict:
@@ -80,13 +95,17 @@ def dump(
     params: dict[str, float],
     model: dict[str, Any] | None = None,
     fit: dict[str, Any] | None = None,
+    servo: dict[str, float] | None = None,
 ) -> None:
-    """Write a parameter file; ``params`` is validated first, so a bad value never reaches disk."""
+    """Write a parameter file; ``params`` (and ``servo``) are validated first, so a bad value
+    never reaches disk."""
     path = Path(path)
     clean = validate_params(params, where=str(path))
     model = dict(model or {})
     _check_model(model, path)
     doc: dict[str, Any] = {"model": model, "params": clean}
+    if servo is not None:
+        doc["servo"] = validate_servo(servo, where=str(path))
     if fit:
         doc["fit"] = _toml_safe(fit)
     try:
@@ -107,6 +126,27 @@ def validate_params(params: dict[str, Any], where: str = "params") -> dict[str, 
             raise ConfigError(f"{where}: [params] {key}: value must be finite, got {value!r}")
         out[key] = float(value)
     return {name: out[name] for name in PARAM_NAMES if name in out}
+
+
+def validate_servo(servo: dict[str, Any], where: str = "servo") -> dict[str, float]:
+    """Check a ``[servo]`` table: exactly the five names, finite numbers within their domains."""
+    for key in servo:
+        if key not in SERVO_BOUNDS:
+            raise ConfigError(f"{where}: [servo] {key}: unknown servo parameter (known: {', '.join(SERVO_PARAM_NAMES)})")
+    out: dict[str, float] = {}
+    for key in SERVO_PARAM_NAMES:
+        if key not in servo:
+            raise ConfigError(f"{where}: [servo] {key}: required (a servo model has all of "
+                              f"{', '.join(SERVO_PARAM_NAMES)})")
+        value = servo[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{where}: [servo] {key}: expected a finite number, got {value!r}")
+        lo, hi = SERVO_BOUNDS[key]
+        if not (lo < value if key == "time_constant" else lo <= value) or value > hi:
+            raise ConfigError(f"{where}: [servo] {key}: must be in {'(' if key == 'time_constant' else '['}"
+                              f"{lo:g}, {hi:g}], got {value!r}")
+        out[key] = float(value)
+    return out
 
 
 def full_vector(params: dict[str, float]) -> list[float]:

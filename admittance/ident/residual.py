@@ -33,7 +33,7 @@ from admittance.ident.sensor import (
 
 N_BINS = 5
 UNITS = {"speed": "rad/s", "angle": "rad", "direction": "", "time": "s", "load": "N·m"}
-__all__ = ["WHITE_P", "analyse", "binned_rms", "ljung_box", "noise_estimate", "summary", "where_it_lives"]
+__all__ = ["WHITE_P", "analyse", "binned_rms", "ljung_box", "noise_estimate", "summary", "verdict", "where_it_lives"]
 
 
 def noise_estimate(residuals: Sequence[np.ndarray]) -> float:
@@ -116,7 +116,7 @@ def analyse(sim: Simulator, fit: FitResult, sensor: Sensor | None = None) -> dic
     noise = noise_of(sim, fit, sensor, states)
     bins = where_it_lives(sim, fit, states)
     rmse = noise.rmse
-    verdict = {
+    out = {
         "rmse": rmse,
         "noise_estimate": noise.floor,
         "rmse_over_noise": rmse / noise.floor if noise.floor > 0 else float("inf"),
@@ -130,8 +130,32 @@ def analyse(sim: Simulator, fit: FitResult, sensor: Sensor | None = None) -> dic
         "bins": bins,
         "largest": _worst_bin(bins, rmse),
     }
-    verdict["summary"] = summary(verdict)
-    return verdict
+    out["summary"] = summary(out)
+    return out
+
+
+def verdict(residuals: Sequence[np.ndarray], by: dict[str, np.ndarray]) -> dict:
+    """Whiteness, distance from the noise floor and the worst bin of a residual (one array per
+    trial) for a continuous sensor (the servo fit of `admittance fidelity`); ``by`` gives, per
+    sample of the concatenated residual, the quantities to bin it by."""
+    residual = np.concatenate(residuals)
+    rmse = float(np.sqrt(np.mean(residual**2)))
+    noise = noise_estimate(residuals)
+    q, p = ljung_box(residuals)
+    bins = {name: binned_rms(values, residual) for name, values in by.items()}
+    out = {
+        "rmse": rmse,
+        "noise_estimate": noise,
+        "rmse_over_noise": rmse / noise if noise > 0 else float("inf"),
+        "ljung_box_q": q,
+        "ljung_box_p": p,
+        "white": bool(p > WHITE_P),
+        "autocorrelation_time": autocorrelation_time(residuals),
+        "bins": bins,
+        "largest": _worst_bin(bins, rmse),
+    }
+    out["summary"] = summary(out)
+    return out
 
 
 def _worst_bin(bins: dict, rmse: float) -> dict:

@@ -19,7 +19,12 @@ from __future__ import annotations
 import json
 import math
 import sys
+import tempfile
 from pathlib import Path
+
+from admittance import outfolder
+
+PREDICT_FILES = ("metrics.json", "*.png")
 
 
 def register(subparsers) -> None:
@@ -31,66 +36,93 @@ def register(subparsers) -> None:
 
 
 def _register_thesis(subparsers) -> None:
-    thesis = subparsers.add_parser("thesis",
-                                   help="reproduce the thesis's per-trial alternating LM fit (tables 3.2-3.4)")
-    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR")
-    thesis.add_argument("--out", type=Path, help="write thesis_table.md and thesis_table.csv here")
-    thesis.add_argument("--cycles", type=int, default=5, help="(I,B)/F alternations (default 5, as appendix C.3)")
-    thesis.add_argument("--initial-friction", type=float, help="initial F in N·m (default: table 3.1 for the motor)")
-    thesis.add_argument("--initial-inertia", type=float, default=0.0385,
+    thesis = subparsers.add_parser(
+        "thesis", help="reproduce the thesis's per-trial alternating LM fit (tables 3.2-3.4)",
+        description="Fit each trial as the thesis did (appendix C.3): Levenberg-Marquardt on (I, B), then on F, "
+                    "alternated; print the per-trial table in the layout of tables 3.2-3.4.")
+    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    thesis.add_argument("--out", type=Path, metavar="DIR",
+                        help="also write thesis_table.md and thesis_table.csv into DIR (default: print only)")
+    thesis.add_argument("--cycles", type=int, default=5, metavar="N",
+                        help="(I,B)/F alternations (default 5, as appendix C.3)")
+    thesis.add_argument("--initial-friction", type=float, metavar="NM",
+                        help="initial F in N·m (default: table 3.1 for the motor)")
+    thesis.add_argument("--initial-inertia", type=float, default=0.0385, metavar="KGM2",
                         help="initial total inertia in kg·m² (default 0.0385, appendix C.3)")
-    thesis.add_argument("--initial-damping", type=float, default=0.0286,
+    thesis.add_argument("--initial-damping", type=float, default=0.0286, metavar="NMS",
                         help="initial damping in N·m·s/rad (default 0.0286, appendix C.3)")
     thesis.add_argument("--x0", choices=("rest", "data"), default="rest",
-                        help="initial state: first angle at rest (the thesis) or velocity from the data")
+                        help="initial state: first angle at rest (the thesis) or velocity from the data (default rest)")
     thesis.set_defaults(func=_run_thesis)
 
 
 def _register_breakaway(subparsers) -> None:
-    brk = subparsers.add_parser("breakaway", help="breakaway friction torque of slow force-ramp trials (table 3.1)")
-    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR")
-    brk.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
+    brk = subparsers.add_parser(
+        "breakaway", help="breakaway friction torque of slow force-ramp trials (table 3.1)",
+        description="For each trial, find where the angle leaves its rest band under a slow torque ramp and read "
+                    "the torque there (thesis section 2.3, table 3.1). Every trial needs a tau column (N·m), and "
+                    "tau must ramp steadily up to the breakaway: a step, hold or oscillation is refused.")
+    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    brk.add_argument("--json", type=Path, metavar="FILE.json", help="also write the results as JSON (default: print only)")
     brk.set_defaults(func=_run_breakaway)
 
 
 def _register_predict(subparsers) -> None:
     pred = subparsers.add_parser(
-        "predict", help="test fitted parameters on recorded trials: predicted position, calculated torque (thesis 3.3)")
-    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR")
+        "predict", help="test fitted parameters on recorded trials: predicted position, calculated torque (thesis 3.3)",
+        description="Thesis section 3.3: simulate each trial's position from its torque with the given parameters, "
+                    "and compute the torque from its position; print the errors, and with --out write "
+                    "metrics.json and appendix-B-style plots.")
+    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
     pred.add_argument("--params", type=Path, required=True, metavar="FILE.toml", help="a Contract 2 parameter file")
-    pred.add_argument("--out", type=Path, help="write metrics.json and the appendix-B plots here")
-    pred.add_argument("--thesis-k", type=float,
-                      help="k of the thesis formula's tanh(k*vel) (default: the file's tanh_k; appendix C.4 used 1)")
+    pred.add_argument("--out", type=Path, metavar="DIR", help="write metrics.json and the appendix-B plots into DIR "
+                      "(new or empty unless --force; default: print only; needs admittance[plots])")
+    pred.add_argument("--force", action="store_true", help="write into a non-empty DIR, replacing its metrics.json "
+                      "and plots")
+    pred.add_argument("--thesis-k", type=float, metavar="S/RAD",
+                      help="k of the thesis formula's tanh(k*vel) in s/rad (default: the file's tanh_k; appendix C.4 used 1)")
     pred.add_argument("--x0", choices=("fit", "data"), default="fit",
-                      help="initial state: fitted to the trial (as identify scores) or from its first 50 ms")
+                      help="initial state: fitted to the trial (as identify scores) or from its first 50 ms (default fit)")
     pred.set_defaults(func=_run_predict)
 
 
 def _register_ladder(subparsers) -> None:
-    lad = subparsers.add_parser("ladder", help="score chosen effect sets by cross-validation, with identify's verdict")
-    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR")
+    lad = subparsers.add_parser(
+        "ladder", help="score chosen effect sets by cross-validation, with identify's verdict",
+        description="Fit each rung (a set of effects) on identify's cross-validation folds (whole trials, or time "
+                    "segments when there are few) and score it on the data left out, with identify's admission "
+                    "verdict: for asking about effects identify did not try or did not admit.")
+    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
     lad.add_argument("--rung", action="append", required=True, metavar="EFFECTS",
                      help="comma-separated effect names ('' = the base model); repeat for each model")
     lad.add_argument("--start", action="append", default=[], metavar="NAME=VALUE",
-                     help="starting value of an effect parameter, e.g. cogging_period=8 (repeatable)")
-    lad.add_argument("--friction", choices=("stick", "tanh"), default="stick")
-    lad.add_argument("--json", type=Path, metavar="OUT", help="write the ladder as JSON")
-    lad.add_argument("--params-dir", type=Path, metavar="DIR", help="write each rung's parameters (Contract 2) here")
+                     help="starting value of an effect parameter in its unit, e.g. cogging_period=8 (repeatable; "
+                     "default: the fit's own start)")
+    lad.add_argument("--friction", choices=("stick", "tanh"), default="stick",
+                     help="Coulomb law: exact stick-slip or the thesis's tanh (default stick)")
+    lad.add_argument("--json", type=Path, metavar="FILE.json", help="also write the ladder as JSON (default: print only)")
+    lad.add_argument("--params-dir", type=Path, metavar="DIR",
+                     help="write each rung's parameters (Contract 2) into DIR (default: not written)")
     lad.set_defaults(func=_run_ladder)
 
 
 def _register_convert(subparsers) -> None:
-    conv = subparsers.add_parser("convert", help="turn Motive / Dynamixel / DFKI recordings into a dataset folder")
-    conv.add_argument("format", choices=("motive", "dynamixel", "dfki"))
-    conv.add_argument("files", type=Path, nargs="+", metavar="FILE")
-    conv.add_argument("--out", type=Path, required=True, help="the dataset folder to write")
-    conv.add_argument("--motor", default="", help="motor label for the manifest")
+    conv = subparsers.add_parser(
+        "convert", help="turn Motive / Dynamixel / DFKI recordings or a session.mcap into a dataset folder",
+        description="Read recordings in a foreign format (Motive CSV, Dynamixel/BAM logs, DFKI CSV, a daemon's session.mcap) and write "
+                    "a dataset folder (shared/contracts/datasets.md) that identify, thesis and predict read.")
+    conv.add_argument("format", choices=("motive", "dynamixel", "dfki", "mcap"), help="the recordings' format")
+    conv.add_argument("files", type=Path, nargs="+", metavar="FILE", help="the recordings, one trial each")
+    conv.add_argument("--out", type=Path, required=True, metavar="DIR",
+                      help="the dataset folder to write (new or empty unless --force)")
+    conv.add_argument("--force", action="store_true", help="write into a non-empty DIR, replacing its manifest and CSVs")
+    conv.add_argument("--motor", default="", metavar="LABEL", help="motor label for the manifest (default: none)")
     conv.add_argument("--rod", type=float, nargs=2, metavar=("MASS", "LENGTH"),
-                      help="a uniform rod pivoted at one end (kg, m): geometry mode")
+                      help="a uniform rod pivoted at one end (kg, m): geometry mode (default: none)")
     conv.add_argument("--bob", type=float, nargs=2, metavar=("MASS", "DISTANCE"),
-                      help="a point bob (kg) at DISTANCE (m) from the axis: geometry mode")
+                      help="a point bob (kg) at DISTANCE (m) from the axis: geometry mode (default: none)")
     conv.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                      help="a loader option, e.g. segment=all, axes=x,z, zero_tick=2048 (repeatable)")
+                      help="a loader option, e.g. segment=all, axes=x,z, zero_tick=2048 (repeatable; default: none)")
     conv.set_defaults(func=_run_convert)
 
 
@@ -143,10 +175,16 @@ def _run_predict(args) -> int:
         from admittance.errors import ConfigError
 
         raise ConfigError(f"--thesis-k must be a finite number > 0, got {args.thesis_k}")
+    if args.out:
+        from admittance.extras import require
+
+        require("matplotlib", "predict --out")
+        outfolder.check(args.out, args.force, "--out", PREDICT_FILES)
     dataset = load_dataset(args.dataset)
     predictions = predict.predict_dataset(dataset, args.params, args.thesis_k, args.x0)
     print(predict.metrics_table(predictions), end="")
     if args.out:
+        outfolder.clear(args.out, "--out", PREDICT_FILES)
         _write(args.out, {"metrics.json": json.dumps(predict.metrics_dicts(predictions), indent=2)})
         for p in predictions:
             predict.plot_trial(p, args.out)
@@ -174,6 +212,10 @@ def _run_ladder(args) -> int:
 def _run_convert(args) -> int:
     from admittance.ident import loaders
 
+    if args.format == "mcap":  # a recording holds its own geometry and trials
+        out = loaders.convert_recording(args.files, args.out)
+        print(f"wrote {out}")
+        return 0
     options = dict(_parse_option(item) for item in args.option)
     header: dict = {"motor": args.motor} if args.motor else {}
     extra = {}
@@ -187,9 +229,22 @@ def _run_convert(args) -> int:
     if args.bob:
         header["bob"] = {"mass": args.bob[0]}
         extra["bob_distance"] = args.bob[1]
-    out = loaders.convert_files(args.files, args.format, args.out, header=header, extra=extra, **options)
+    outfolder.check(args.out, args.force, "--out")
+    with tempfile.TemporaryDirectory(dir=_existing_parent(args.out)) as tmp:  # a bad input leaves DIR as it was
+        loaders.convert_files(args.files, args.format, tmp, header=header, extra=extra, **options)
+        out = outfolder.clear(args.out, "--out")
+        for path in Path(tmp).iterdir():
+            path.replace(out / path.name)
     print(f"wrote {len(args.files)} trial(s) to {out}")
     return 0
+
+
+def _existing_parent(path: Path) -> Path:
+    """The nearest existing folder above ``path`` (a temporary folder there renames into it)."""
+    for parent in Path(path).resolve().parents:
+        if parent.is_dir():
+            return parent
+    return Path.cwd()
 
 
 def _parse_start(item: str) -> tuple[str, float]:

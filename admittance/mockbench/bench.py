@@ -2,7 +2,7 @@
 
 The servos are the simulated Dynamixel bus of the Rust core (``_rtcore.MockBus``, Contract 4):
 each one is a plant (Contract 1) with the fitted parameters of its model, read from
-``config/params/<model>.toml`` (Contract 2), so the mock moves as the identified servo does.
+the packaged ``params/<model>.toml`` (Contract 2), so the mock moves as the identified servo does.
 An *effect* (``cogging_amplitude=0.02``...) changes the simulated truth without changing the
 configuration the daemon reads: that is how a test checks what an unmodelled effect does to
 the loop, or whether identification finds it.
@@ -11,11 +11,23 @@ The force sensor is a :mod:`admittance.mockbench.sensor` mock. One hand-torque p
 both: the hand pushes on the sensor mounted on the horn, so at each sensor sample the same τ(t)
 goes to the sensor (as F = τ / lever_arm) and to the horn (``bus.set_external_torque``). Doing
 both in the sensor's thread keeps them consistent without a second 1 kHz thread.
+
+Two options change the simulated truth for fidelity checks (docs/fidelity.md): ``hand`` =
+(inertia, damping, stiffness) makes the hand grip the horn, so the sensor reads the torque it
+transmits (the profile is then the muscle's torque), and a servo's ``first_order_lag`` (s)
+replaces its firmware and motor by a horn that lags its goal.
+
+Stable paths: a pty's number changes when it is unplugged and replugged, so the bench also
+offers each pty at a symlink in a directory of its own (``links``: ``<dir>/dxl`` and
+``<dir>/sensor``), re-pointed at every replug and removed while unplugged, as udev's
+/dev/serial/by-id links behave for a real adapter. Faults are injected with the bus's and the
+sensor's methods or with :meth:`MockBench.command` (:mod:`admittance.mockbench.faults`).
 """
 
 from __future__ import annotations
 
-import re
+import shutil
+import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,12 +43,12 @@ from admittance.mockbench.sensor import (
     SimulatedSlcanOptoForce,
 )
 
-PARAMS_DIR = Path(__file__).resolve().parents[2] / "config" / "params"
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
 SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
-MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name")
+MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
+                            "reboot_time_s", "overload_time_s", "first_order_lag")
 
 
 @dataclass
@@ -67,11 +79,16 @@ class BenchConfig:
     can_channel: str = "admittance-mock"
     can_id: int = 0x100
     seed: int = 0
+    # A hand gripping the horn: (inertia kg·m², damping N·m·s/rad, stiffness N·m/rad); None = a pure torque.
+    hand: tuple[float, float, float] | None = None
+    first_order_lag: float | None = None  # s: every servo lags its goal instead of firmware + motor
 
 
 def params_path(model: str) -> Path:
-    """config/params/<model>.toml, the model name lower-cased without punctuation (MX-64 → mx64)."""
-    return PARAMS_DIR / (re.sub(r"[^a-z0-9]", "", model.lower()) + ".toml")
+    """The shipped fit of ``model``: params/<model>.toml in the package (MX-64 → mx64.toml)."""
+    from admittance import data
+
+    return data.params_file(model)
 
 
 def load_plant(model: str, params_file: str | None, effects: Mapping[str, float]) -> tuple[dict[str, float], str]:
@@ -108,6 +125,8 @@ def _servo_spec(servo: Mapping[str, Any], config: BenchConfig) -> dict[str, Any]
     model = servo.get("model", config.model)
     params, friction = load_plant(model, servo.get("params_file", config.params_file), config.effects)
     extra = {key: servo[key] for key in MOCKBUS_PASSTHROUGH_KEYS if key in servo}
+    if config.first_order_lag is not None:
+        extra.setdefault("first_order_lag", config.first_order_lag)
     return extra | {
         "id": int(servo["id"]),
         "model": model,
@@ -150,14 +169,27 @@ class MockBench:
             bias_n=cfg.bias_n,
             noise_std_n=cfg.noise_std_n,
         )
-        self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay)
-        self.sensor = self._make_sensor()
+        self._link_dir = tempfile.mkdtemp(prefix="admittance-bench-")
+        try:
+            self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay, f"{self._link_dir}/dxl")
+            if cfg.hand is not None:
+                try:
+                    self.bus.set_hand(self.hand_servo_id, *cfg.hand)
+                except (TypeError, ValueError) as exc:
+                    raise ConfigError(f"MockBench: hand: {exc}") from None
+            self.sensor = self._make_sensor()
+        except BaseException:
+            shutil.rmtree(self._link_dir, ignore_errors=True)
+            raise
         self._running = False
 
     def _make_sensor(self) -> SimulatedOptoForce | SimulatedCanOptoForce | SimulatedSlcanOptoForce:
         cfg = self.config
+        link = f"{self._link_dir}/sensor"
         if cfg.sensor == "slcan":
-            return SimulatedSlcanOptoForce(self._hand_torque, self.force_model, can_id=cfg.can_id, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed)
+            return SimulatedSlcanOptoForce(
+                self._hand_torque, self.force_model, can_id=cfg.can_id, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed, link=link
+            )
         if cfg.sensor == "can":
             return SimulatedCanOptoForce(
                 self._hand_torque,
@@ -168,12 +200,15 @@ class MockBench:
                 rate_hz=cfg.sensor_rate_hz,
                 seed=cfg.seed,
             )
-        return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed)
+        return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed, link=link)
 
     def _hand_torque(self, t: float) -> float:
+        """The torque the sensor reads: the profile's, or with a gripping hand what it transmits."""
         tau = self.profile(t)
         self.bus.set_external_torque(self.hand_servo_id, tau)
-        return tau
+        if self.config.hand is None:
+            return tau
+        return self.bus.servo_state(self.hand_servo_id)["hand_torque"]
 
     @property
     def bus_port(self) -> str:
@@ -206,6 +241,18 @@ class MockBench:
         self._running = False
         self.sensor.stop()
         self.bus.stop()
+        shutil.rmtree(self._link_dir, ignore_errors=True)
+
+    @property
+    def links(self) -> dict[str, str | None]:
+        """The stable paths of the bus and the sensor (None for a sensor without a pty)."""
+        return {"bus": self.bus.link_path, "sensor": getattr(self.sensor, "link_path", None)}
+
+    def command(self, line: str) -> dict[str, Any]:
+        """Run one fault command (:mod:`admittance.mockbench.faults`); its reply."""
+        from admittance.mockbench.faults import run_command
+
+        return run_command(self, line)
 
     def __enter__(self) -> MockBench:
         self.start()
@@ -214,9 +261,12 @@ class MockBench:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def ports(self) -> dict[str, Any]:
-        """The JSON object that ``admittance mock-bench --print-ports`` prints."""
+    def ports(self, links: bool = False) -> dict[str, Any]:
+        """The JSON object that ``admittance mock-bench --print-ports`` prints (``links``: with
+        the stable paths too, as it does when faults can be injected)."""
         ports: dict[str, Any] = {"bus": self.bus_port, "sensor": self.sensor_port}
+        if links:
+            ports["links"] = self.links
         if self.can_interface is not None:
             ports["can"] = {"interface": self.can_interface, "channel": self.can_channel, "can_id": self.config.can_id}
         return ports
@@ -231,12 +281,12 @@ def _per_axis(counts_per_newton: float | Sequence[float]) -> tuple[float, ...]:
     return tuple(float(c) for c in counts_per_newton)
 
 
-def _mock_bus(specs: list[dict[str, Any]], baudrate: int, wire_delay: bool) -> Any:
+def _mock_bus(specs: list[dict[str, Any]], baudrate: int, wire_delay: bool, link: str) -> Any:
     from admittance import _rtcore
 
     if not hasattr(_rtcore, "MockBus"):
         raise DeviceError("this build of admittance._rtcore has no MockBus: rebuild it with `make ext`")
     try:
-        return _rtcore.MockBus(servos=specs, baudrate=baudrate, wire_delay=wire_delay)
+        return _rtcore.MockBus(servos=specs, baudrate=baudrate, wire_delay=wire_delay, link_path=link)
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"the simulated bus refused the servos: {exc}") from None

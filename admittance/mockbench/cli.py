@@ -4,12 +4,19 @@ With ``--print-ports`` the first line on stdout is one JSON object,
 ``{"bus": "/dev/pts/N", "sensor": "/dev/pts/M"}`` (flushed at once; with a CAN sensor it adds
 ``"can": {"interface", "channel", "can_id"}``), so a test or a script
 can start the bench as a subprocess and read where to connect; nothing else goes to stdout.
+With ``--control`` or ``--faults`` the object also has ``"links"``, the bus's and the
+sensor's stable paths, which survive an unplug and replug (and ``"control"``, the socket).
 The bench then runs until SIGINT or SIGTERM (or ``--duration``) and exits 0.
+
+Faults (:mod:`admittance.mockbench.faults`): ``--control PATH`` takes commands from another
+process on a Unix socket, one line each with a JSON reply; ``--faults FILE`` plays a timed
+script of the same commands (``SECONDS COMMAND`` per line, seconds after the bench started).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import sys
@@ -28,27 +35,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--print-ports", action="store_true", help='first print {"bus": ..., "sensor": ...} as one JSON line')
     parser.add_argument("--servos", type=int, default=1, metavar="N", help="number of servos, IDs 1..N (default 1)")
-    parser.add_argument("--model", default="MX-64", help="servo model (default MX-64)")
+    parser.add_argument("--model", default="MX-64", metavar="MODEL", help="servo model (default MX-64)")
     parser.add_argument("--protocol", type=int, choices=(1, 2), default=2, help="firmware protocol (default 2)")
-    parser.add_argument("--params", metavar="FILE", help="fitted parameter file (default config/params/<model>.toml)")
-    parser.add_argument("--baudrate", type=int, default=1_000_000)
-    parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau")
+    parser.add_argument("--params", metavar="FILE.toml", help="fitted parameter file (default: the shipped params/<model>.toml)")
+    parser.add_argument("--baudrate", type=int, default=1_000_000, metavar="BIT/S",
+                        help="bus rate in bit/s: the simulated wire's timing (default 1000000)")
+    parser.add_argument("--profile", default="push-release", metavar="NAME|FILE", help="hand profile: push-release, sine, ramp, steps, still (NAME:key=value,...) or a CSV of t,tau (default push-release)")
     parser.add_argument(
         "--sensor",
         choices=("optoforce", "can", "slcan"),
         default="optoforce",
-        help="optoforce: serial frames on a pty; can: python-can (--can-interface); slcan: a USB-CAN adapter in slcan mode on a pty",
+        help="optoforce: serial frames on a pty; can: python-can (--can-interface); slcan: a USB-CAN adapter in slcan mode on a pty (default optoforce)",
     )
-    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate (default 1000)")
-    parser.add_argument("--noise", type=float, default=0.0, metavar="N", help="sensor noise std in N (default 0)")
-    parser.add_argument("--bias", type=float, default=0.0, metavar="N", help="sensor bias in N (default 0)")
+    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sensor sample rate in Hz (default 1000)")
+    parser.add_argument("--noise", type=float, default=0.0, metavar="NEWTON", help="sensor noise std in N (default 0)")
+    parser.add_argument("--bias", type=float, default=0.0, metavar="NEWTON", help="sensor bias in N (default 0)")
     parser.add_argument("--lever-arm", type=float, default=0.105, metavar="M", help="hand-to-axis distance in m (default 0.105)")
-    parser.add_argument("--can-interface", default="virtual", help="python-can interface of the CAN sensor (virtual is in-process only)")
-    parser.add_argument("--can-channel", default="admittance-mock")
+    parser.add_argument("--can-interface", default="virtual", metavar="NAME",
+                        help="python-can interface of the CAN sensor (default virtual: in-process only)")
+    parser.add_argument("--can-channel", default="admittance-mock", metavar="CHANNEL",
+                        help="python-can channel of the CAN sensor (default admittance-mock)")
     parser.add_argument("--can-id", type=parse_can_id, default=0x100, metavar="ID", help="CAN identifier of the data frames (default 0x100; configuration on ID+1)")
-    parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones (repeatable)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="plant parameter laid over the fitted ones, in its unit (repeatable; default: none)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the sensor noise (default 0)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
+    parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply; default: none)")
+    parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line (default: none)")
     parser.set_defaults(func=run)
 
 
@@ -75,7 +87,15 @@ def parse_can_id(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from admittance.mockbench.bench import BenchConfig, MockBench
+    from admittance.mockbench.control import ControlServer
+    from admittance.mockbench.faults import FaultScript
 
+    script = FaultScript.load(args.faults) if args.faults else None
+
+    if args.sensor == "can":
+        from admittance.extras import require
+
+        require("can", "mock-bench --sensor can")
     config = BenchConfig(
         servos=args.servos,
         model=args.model,
@@ -97,15 +117,25 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with MockBench(config) as bench:
+    with MockBench(config) as bench, contextlib.ExitStack() as stack:
+        ports = bench.ports(links=bool(args.control or args.faults))
+        if args.control:
+            server = ControlServer(bench, args.control)
+            stack.callback(server.close)
+            server.start()
+            ports["control"] = args.control
         if args.print_ports:
-            print(json.dumps(bench.ports()), flush=True)
+            print(json.dumps(ports), flush=True)
         else:
             _describe(bench)
+        if script is not None:
+            player = threading.Thread(target=script.play, args=(bench, stop), name="fault-script", daemon=True)
+            player.start()
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while not stop.wait(0.2):
             if deadline is not None and time.monotonic() >= deadline:
                 break
+        stop.set()  # ends the script's thread too
     return 0
 
 

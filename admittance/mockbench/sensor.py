@@ -26,11 +26,20 @@ Both streaming mocks honour a configuration packet from the host (sample rate, t
 stops the stream) and answer it with an acknowledgement. Samples come from one thread on
 absolute deadlines; if the machine stalls the thread catches up with a burst (as a USB DAQ
 delivers a backlog) and, after 100 ms behind, skips ahead instead of flooding.
+
+Fault modes, for tests of the readers and the daemon (each a method of the streaming mocks):
+``silence`` (the DAQ stops sending, the port stays), ``saturate`` (the hand's axis reads the
+int16 limit with its overload flag, as a DAQ does beyond its range), ``set_status`` (DAQ or
+sensor error bits in every frame), ``inject_garbage`` and ``corrupt`` (noise before the next
+frame; the next frames with a wrong checksum), and on the pty outputs ``unplug``/``replug``:
+the pty closes (the reader's descriptor hangs up, the device node goes) and a new one opens,
+reachable at the same path through the port's ``link``, as through /dev/serial/by-id.
 """
 
 from __future__ import annotations
 
 import abc
+import contextlib
 import logging
 import math
 import os
@@ -122,6 +131,13 @@ class _StreamingSensor(abc.ABC):
         self.configs_received = 0
         self.late_skips = 0
         self.last_torque = 0.0
+        # Fault modes (set from any thread; read once per sample).
+        self.silent = False
+        self.saturated = False
+        self.fault_status = 0
+        self._garbage = 0
+        self._corrupt = 0
+        self.faulty_frames = 0
 
     # -- output contract ------------------------------------------------------------------------
 
@@ -178,16 +194,67 @@ class _StreamingSensor(abc.ABC):
         self.last_torque = tau
         counts, status = self.model.counts(tau, self._rng)
         self._last_counts = counts
-        if not self.streaming:
+        if not self.streaming or self.silent:
             return
         if self._tare_counts is not None:
             counts = [c - z for c, z in zip(counts, self._tare_counts)]
-        frame = of.encode_sample(self._counter, status, counts)
+        frame = self._faulty(of.encode_sample(self._counter, *self._saturation(counts, status)))
         self._counter = (self._counter + 1) & 0xFFFF
         if self._send(frame):
             self.samples_sent += 1
         else:
             self.samples_dropped += 1
+
+    def _saturation(self, counts: list[int], status: int) -> tuple[int, list[int]]:
+        """The status word and counts, with the fault modes' flags and the saturated axis."""
+        status |= self.fault_status
+        if self.saturated:
+            i = self.model.axis_index
+            counts = list(counts)
+            counts[i] = INT16_MAX if counts[i] >= 0 else -INT16_MAX
+            status |= 1 << of.STATUS_OVERLOAD_BITS[AXES[i]]
+        return status, counts
+
+    def _faulty(self, frame: bytes) -> bytes:
+        """Garbage before the frame, or a wrong checksum, while those faults are pending."""
+        if self._corrupt > 0:
+            self._corrupt -= 1
+            self.faulty_frames += 1
+            frame = frame[:-1] + bytes([frame[-1] ^ 0x5A])
+        if self._garbage > 0:
+            # No 0xAA in the noise: it must not be able to start a frame of its own.
+            noise = bytes(self._rng.choice(range(0x00, 0xAA)) for _ in range(self._garbage))
+            self._garbage = 0
+            frame = noise + frame
+        return frame
+
+    # -- fault modes -------------------------------------------------------------------------------
+
+    def silence(self, on: bool = True) -> None:
+        """The DAQ stops sending (the port stays open); ``silence(False)`` resumes."""
+        self.silent = bool(on)
+
+    def saturate(self, on: bool = True) -> None:
+        """The hand's axis reads the int16 limit with its overload flag set, until turned off."""
+        self.saturated = bool(on)
+
+    def set_status(self, bits: int) -> None:
+        """DAQ or sensor status bits (e.g. 0x2000 DAQ error) in every frame; 0 clears them."""
+        if not 0 <= bits <= 0xFFFF:
+            raise ConfigError(f"an OptoForce status word is 16 bits, got {bits:#x}")
+        self.fault_status = bits
+
+    def inject_garbage(self, n_bytes: int) -> None:
+        """``n_bytes`` of noise (never a header byte) before the next frame."""
+        if not 0 < n_bytes <= 4096:
+            raise ConfigError(f"garbage is 1..4096 bytes, got {n_bytes}")
+        self._garbage = n_bytes
+
+    def corrupt(self, n_frames: int) -> None:
+        """The next ``n_frames`` frames go out with a wrong checksum."""
+        if not 0 < n_frames <= 100_000:
+            raise ConfigError(f"corrupt 1..100000 frames, got {n_frames}")
+        self._corrupt = n_frames
 
     def _handle_host_bytes(self) -> None:
         data = self._receive()
@@ -218,25 +285,70 @@ class _StreamingSensor(abc.ABC):
             "samples_dropped": self.samples_dropped,
             "configs_received": self.configs_received,
             "late_skips": self.late_skips,
+            "silent": self.silent,
+            "saturated": self.saturated,
+            "fault_status": self.fault_status,
+            "faulty_frames": self.faulty_frames,
         }
 
 
 class PtyPort:
     """The device end of a pseudo-terminal, as protocols.md §6 asks of a mock serial device.
 
-    The slave is in raw mode and stays open for the port's whole life (so a host that closes
-    and reopens ``path`` never makes the master see EIO), and writes are non-blocking.
+    The slave is in raw mode and stays open while plugged in (so a host that closes and
+    reopens ``path`` never makes the master see EIO), and writes are non-blocking. With
+    ``link``, a symlink there points at the pty; ``unplug`` closes the pty (a host's
+    descriptor hangs up, the node and the link disappear) and ``replug`` opens a new one and
+    points the link at it.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, link: str | None = None) -> None:
+        self.link = link
+        self._lock = threading.Lock()
+        self._master = self._slave = -1
+        self._plug()
+        self.unplugs = self.replugs = 0
+
+    def _plug(self) -> None:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
         self._backlog = b""
+        if self.link:
+            point_link(self.link, self.path)
+
+    @property
+    def plugged(self) -> bool:
+        return self._master >= 0
+
+    def unplug(self) -> bool:
+        """Pull the cable: False if it was out already."""
+        with self._lock:
+            if not self.plugged:
+                return False
+            self._close_fds()
+            if self.link:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(self.link)
+            self.unplugs += 1
+            return True
+
+    def replug(self) -> bool:
+        """Put it back (a new pty, the link pointed at it): False if it was plugged in."""
+        with self._lock:
+            if self.plugged:
+                return False
+            self._plug()
+            self.replugs += 1
+            return True
 
     def send(self, data: bytes) -> bool:
-        """Write one whole frame; False if it had to be dropped because the pty is full."""
+        """Write one whole frame; False if it had to be dropped (pty full, or unplugged)."""
+        with self._lock:
+            return self.plugged and self._send(data)
+
+    def _send(self, data: bytes) -> bool:
         # A frame cut short by a full pty is finished before anything new is written, so the
         # stream stays whole frames; a new frame that does not fit at all is dropped.
         if self._backlog:
@@ -255,25 +367,71 @@ class PtyPort:
 
     def receive(self) -> bytes:
         """What the host wrote since the last call (non-blocking)."""
-        try:
-            return os.read(self._master, 4096)
-        except (BlockingIOError, OSError):
-            return b""
+        with self._lock:
+            if not self.plugged:
+                return b""
+            try:
+                return os.read(self._master, 4096)
+            except (BlockingIOError, OSError):
+                return b""
 
     def close(self) -> None:
+        with self._lock:
+            self._close_fds()
+            if self.link:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(self.link)
+
+    def _close_fds(self) -> None:
         for fd in (self._master, self._slave):
             if fd >= 0:
                 os.close(fd)
         self._master = self._slave = -1
 
 
-class SimulatedOptoForce(_StreamingSensor):
-    """OptoForce frames on a pseudo-terminal: open ``port_path`` as you would /dev/ttyACM0."""
+def point_link(link: str, target: str) -> None:
+    """Point the symlink ``link`` at ``target`` atomically (a new link renamed over the old)."""
+    temporary = f"{link}.{os.getpid()}.new"
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(temporary)
+    os.symlink(target, temporary)
+    os.replace(temporary, link)
 
-    def __init__(self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0):
+
+class _PtyOutput:
+    """The unplug/replug of the streaming mocks that live on a :class:`PtyPort`."""
+
+    _pty: PtyPort
+
+    @property
+    def port_path(self) -> str:
+        """The pty a host opens now (a new one after each replug)."""
+        return self._pty.path
+
+    @property
+    def link_path(self) -> str | None:
+        """The stable path to it (None without a link)."""
+        return self._pty.link
+
+    def unplug(self) -> bool:
+        return self._pty.unplug()
+
+    def replug(self) -> bool:
+        return self._pty.replug()
+
+    def _port_stats(self) -> dict[str, Any]:
+        return {"plugged": self._pty.plugged, "unplugs": self._pty.unplugs, "replugs": self._pty.replugs}
+
+
+class SimulatedOptoForce(_PtyOutput, _StreamingSensor):
+    """OptoForce frames on a pseudo-terminal: open ``port_path`` (or ``link_path``, stable
+    across replugs) as you would /dev/ttyACM0."""
+
+    def __init__(
+        self, torque_source: Profile, model: ForceModel, *, rate_hz: float = 1000.0, seed: int = 0, link: str | None = None
+    ):
         super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
-        self._pty = PtyPort()
-        self.port_path = self._pty.path
+        self._pty = PtyPort(link)
 
     def _send(self, data: bytes) -> bool:
         return self._pty.send(data)
@@ -284,8 +442,11 @@ class SimulatedOptoForce(_StreamingSensor):
     def _release(self) -> None:
         self._pty.close()
 
+    def stats(self) -> dict[str, Any]:
+        return super().stats() | self._port_stats()
 
-class SimulatedSlcanOptoForce(_StreamingSensor):
+
+class SimulatedSlcanOptoForce(_PtyOutput, _StreamingSensor):
     """The CAN sensor behind a simulated USB-CAN adapter in slcan mode, on a pseudo-terminal.
 
     Open ``port_path`` with python-can's ``slcan`` interface as you would /dev/ttyACM0 with a
@@ -295,14 +456,22 @@ class SimulatedSlcanOptoForce(_StreamingSensor):
     :class:`SimulatedCanOptoForce`.
     """
 
-    def __init__(self, torque_source: Profile, model: ForceModel, *, can_id: int = 0x100, rate_hz: float = 1000.0, seed: int = 0):
+    def __init__(
+        self,
+        torque_source: Profile,
+        model: ForceModel,
+        *,
+        can_id: int = 0x100,
+        rate_hz: float = 1000.0,
+        seed: int = 0,
+        link: str | None = None,
+    ):
         super().__init__(torque_source, model, rate_hz=rate_hz, seed=seed)
         if not 0 <= can_id < slcan.EXTENDED_ID_MAX:
             raise ConfigError(f"the simulated sensor's CAN identifier must be in 0..0x1FFFFFFE, got {can_id:#x}")
         self.can_id = can_id
         self.adapter = slcan.SlcanAdapter()
-        self._pty = PtyPort()
-        self.port_path = self._pty.path
+        self._pty = PtyPort(link)
 
     def _send(self, data: bytes) -> bool:
         if not self.adapter.is_open:
@@ -320,7 +489,7 @@ class SimulatedSlcanOptoForce(_StreamingSensor):
         self._pty.close()
 
     def stats(self) -> dict[str, Any]:
-        return super().stats() | self.adapter.stats()
+        return super().stats() | self.adapter.stats() | self._port_stats()
 
 
 class SimulatedCanOptoForce(_StreamingSensor):

@@ -10,9 +10,17 @@
 //!   [`OpenReport`] instead of failing, so the mock bench runs on ptys.
 //! - `read` polls (`ppoll`, nanosecond timeout) until an absolute deadline; `write_all` loops
 //!   on short writes. Both retry on `EINTR` and allocate nothing.
+//! - Exclusive: right after `open`, before any setting or byte can disturb another user of the
+//!   line, the port takes `flock(LOCK_EX|LOCK_NB)` on the device (the lock pyserial's
+//!   `exclusive=True` takes, so the Python readers and this port exclude each other) and sets
+//!   `TIOCEXCL` (the kernel then refuses any further `open` by an unprivileged process). A
+//!   port already held fails with one line naming the holder's pid, read from /proc/locks.
+//!   `TIOCEXCL` outlives our descriptor on a tty that stays open elsewhere (a mock's pty), so
+//!   `Drop` clears it (`TIOCNXCL`) before closing.
 use std::ffi::CString;
 use std::io;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::os::unix::fs::MetadataExt;
 use std::time::{Duration, Instant};
 
 /// The kernel's `struct serial_struct` (linux/serial.h); libc does not declare it.
@@ -60,6 +68,14 @@ pub struct SerialPort {
     report: OpenReport,
 }
 
+impl Drop for SerialPort {
+    fn drop(&mut self) {
+        // SAFETY: an ioctl without argument on our own descriptor; fails harmlessly (EIO) on a
+        // device that is gone. The flock goes with the descriptor.
+        unsafe { libc::ioctl(self.fd.as_raw_fd(), libc::TIOCNXCL as _) };
+    }
+}
+
 fn errno() -> io::Error {
     io::Error::last_os_error()
 }
@@ -87,9 +103,14 @@ impl SerialPort {
     pub fn open(path: &str, baud: u32) -> io::Result<SerialPort> {
         let c_path = CString::new(path).map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path contains NUL"))?;
         let raw = retry(|| unsafe { libc::open(c_path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC) })
-            .map_err(|e| with_context(e, "cannot open", path))?;
+            .map_err(|e| match e.raw_os_error() {
+                // TIOCEXCL set by another process: the kernel refuses the open itself.
+                Some(libc::EBUSY) => busy_error(path),
+                _ => with_context(e, "cannot open", path),
+            })?;
         // SAFETY: `raw` is a freshly opened descriptor that nothing else owns.
         let fd = unsafe { OwnedFd::from_raw_fd(raw) };
+        claim_exclusive(fd.as_raw_fd(), path)?;
         set_raw_8n1(fd.as_raw_fd()).map_err(|e| with_context(e, "cannot configure", path))?;
         let (baud_actual, baud_error) = match set_baud(fd.as_raw_fd(), baud) {
             Ok(actual) => (Some(actual), None),
@@ -200,6 +221,49 @@ impl AsRawFd for SerialPort {
     }
 }
 
+/// Takes the device for this descriptor alone: `flock` (advisory, shared with pyserial's
+/// `exclusive=True`), then `TIOCEXCL` (kernel-enforced for unprivileged openers; a non-tty
+/// refuses it, which is not an error).
+fn claim_exclusive(fd: RawFd, path: &str) -> io::Result<()> {
+    if let Err(e) = retry(|| unsafe { libc::flock(fd, libc::LOCK_EX | libc::LOCK_NB) }) {
+        return Err(if e.raw_os_error() == Some(libc::EWOULDBLOCK) { busy_error(path) } else { with_context(e, "cannot lock", path) });
+    }
+    // SAFETY: an ioctl without argument on our own descriptor.
+    unsafe { libc::ioctl(fd, libc::TIOCEXCL as _) };
+    Ok(())
+}
+
+/// "… is in use by another process (pid N)": the one line a second daemon on the same bus gets.
+fn busy_error(path: &str) -> io::Error {
+    let holder = lock_holder(path).map_or_else(String::new, |pid| format!(" (pid {pid})"));
+    let message = format!("cannot open {path}: it is in use by another process{holder}; is another daemon running on it?");
+    io::Error::new(io::Error::from_raw_os_error(libc::EBUSY).kind(), message)
+}
+
+/// The pid holding a `flock` on `path`'s device node, from /proc/locks (`N: FLOCK ADVISORY
+/// WRITE pid MAJ:MIN:INODE 0 EOF`, device numbers in hex); `None` when nobody does or it
+/// cannot be told.
+pub fn lock_holder(path: &str) -> Option<u32> {
+    let meta = std::fs::metadata(path).ok()?;
+    let (major, minor, inode) = (libc::major(meta.dev()), libc::minor(meta.dev()), meta.ino());
+    let text = std::fs::read_to_string("/proc/locks").ok()?;
+    text.lines().find_map(|line| {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        // A waiter's line has "->" after the number; holders have FLOCK in the second field.
+        if fields.get(1) != Some(&"FLOCK") {
+            return None;
+        }
+        let mut id = fields.get(5)?.split(':');
+        let maj = u32::from_str_radix(id.next()?, 16).ok()?;
+        let min = u32::from_str_radix(id.next()?, 16).ok()?;
+        let ino: u64 = id.next()?.parse().ok()?;
+        if (maj, min, ino) != (major, minor, inode) {
+            return None;
+        }
+        fields.get(4)?.parse().ok()
+    })
+}
+
 fn set_raw_8n1(fd: RawFd) -> io::Result<()> {
     // SAFETY: termios is plain data; tcgetattr fills it.
     let mut t: libc::termios = unsafe { std::mem::zeroed() };
@@ -278,6 +342,24 @@ mod tests {
         let port = SerialPort::open(&path, 1_000_000).unwrap();
         let mut buf = [0u8; 4];
         assert_eq!(port.read_timeout_us(&mut buf, 200).unwrap(), 0);
+    }
+
+    #[test]
+    fn a_second_open_fails_naming_the_holder_and_leaves_the_first_untouched() {
+        let (master, path) = pty();
+        let first = SerialPort::open(&path, 1_000_000).unwrap();
+        let err = SerialPort::open(&path, 1_000_000).err().expect("the second open must fail");
+        let text = err.to_string();
+        assert!(text.contains(&path) && text.contains("in use"), "{text}");
+        assert!(text.contains(&format!("pid {}", std::process::id())), "{text}");
+        assert_eq!(lock_holder(&path), Some(std::process::id()));
+        // The first port still works, and once it is closed the device can be opened again.
+        first.write_all(&[0x42]).unwrap();
+        let mut got = [0u8; 4];
+        assert_eq!(unsafe { libc::read(master.as_raw_fd(), got.as_mut_ptr().cast(), 4) }, 1);
+        drop(first);
+        assert_eq!(lock_holder(&path), None);
+        SerialPort::open(&path, 1_000_000).unwrap();
     }
 
     #[test]

@@ -26,7 +26,7 @@ fn bus(wire_delay: bool, return_delay: i64) -> MockBus {
 /// Round-trip times (µs) of `n` pings, sorted.
 fn round_trips(mock: &MockBus, n: usize) -> std::io::Result<Vec<f64>> {
     mock.start()?;
-    let port = SerialPort::open(mock.port_path(), BAUD)?;
+    let port = SerialPort::open(&mock.port_path(), BAUD)?;
     let mut ping = [0u8; 16];
     let len = protocol2::encode_ping(&mut ping, 1).expect("ping fits");
     let mut reply = [0u8; 64];

@@ -7,7 +7,11 @@
 //! - broadcast (0xFE) gets answers only for PING (every servo, ascending ID) and Sync/Bulk
 //!   Read (the listed servos, in listed order; absent ones are skipped);
 //! - Status Return Level: PING is always answered, READ from level 1, everything else at 2;
-//! - bad CRC / checksum: see `Bus::handle_corrupt`.
+//! - bad CRC / checksum: see `Bus::handle_corrupt`;
+//! - a booting servo (after REBOOT or a brown-out, `Servo::is_silent`) is off the bus: it
+//!   answers nothing and executes nothing, broadcasts and Sync/Bulk records included;
+//! - a status packet carries the servo's hardware state as it was when the instruction came
+//!   (a REBOOT is answered, with its alert bit, before the servo boots).
 use dxl::{protocol1, protocol2, Protocol};
 
 use crate::request::{parse, ParseError, ReadSlot, Request, WriteSlot};
@@ -49,6 +53,8 @@ pub struct Counters {
     pub malformed: u64,
     pub table_errors: u64,
     pub absent_ids: u64,
+    /// Instructions (or Sync/Bulk records) addressed to a servo while it was booting.
+    pub silent_drops: u64,
 }
 
 /// How much a servo's Status Return Level lets it answer.
@@ -117,29 +123,38 @@ impl Bus {
     /// a timeout, and a client that ignores the reply just retries.
     pub fn handle_corrupt(&mut self, id: u8) -> Vec<Reply> {
         self.counters.crc_errors += 1;
+        if id == BROADCAST_ID {
+            return Vec::new();
+        }
         let protocol = self.protocol;
-        match self.servo(id) {
+        match self.awake(id).map(|k| &self.servos[k]) {
             Some(servo) if servo.status_return_level() >= Needs::AllLevel as i64 => {
                 vec![status(protocol, servo, Some(Fault::Crc), &[])]
             }
-            Some(_) => Vec::new(),
-            None if id == BROADCAST_ID => Vec::new(),
-            None => {
-                self.counters.absent_ids += 1;
-                Vec::new()
-            }
+            _ => Vec::new(),
         }
+    }
+
+    /// The index of the servo answering to `id`, unless it is absent or booting (counted).
+    fn awake(&mut self, id: u8) -> Option<usize> {
+        let Some(index) = self.servos.iter().position(|s| s.id() == id) else {
+            self.counters.absent_ids += 1;
+            return None;
+        };
+        if self.servos[index].is_silent() {
+            self.counters.silent_drops += 1;
+            return None;
+        }
+        Some(index)
     }
 
     /// The reply follows the Status Return Level and ID the servo had when the instruction
     /// arrived: a WRITE that changes either is answered as the servo was addressed.
     fn unicast(&mut self, id: u8, request: Result<Request, ParseError>) -> Vec<Reply> {
         let protocol = self.protocol;
-        let Some(index) = self.servos.iter().position(|s| s.id() == id) else {
-            self.counters.absent_ids += 1;
-            return Vec::new();
-        };
+        let Some(index) = self.awake(id) else { return Vec::new() };
         let level = self.servos[index].status_return_level();
+        let hardware_error = self.servos[index].hardware_error();
         let (outcome, needs) = match request {
             Ok(request) => self.execute(index, request),
             Err(e) => (Err(self.parse_fault(e)), Needs::AllLevel),
@@ -148,7 +163,7 @@ impl Bus {
             return Vec::new();
         }
         let servo = &self.servos[index];
-        let error = |fault| error_byte(protocol, fault, servo.hardware_error());
+        let error = |fault| error_byte(protocol, fault, hardware_error);
         let reply = match outcome {
             Ok(data) => encode(protocol, id, error(None), &data, servo.return_delay_us()),
             Err(fault) => encode(protocol, id, error(Some(fault)), &[], servo.return_delay_us()),
@@ -206,9 +221,11 @@ impl Bus {
             }
             Ok(Request::FactoryReset { option: 0xFF }) if self.protocol == Protocol::V2 => Vec::new(),
             Ok(request) => {
-                // Every servo executes it; none answers a broadcast, errors included.
+                // Every awake servo executes it; none answers a broadcast, errors included.
                 for index in 0..self.servos.len() {
-                    let _ = self.execute(index, request.clone());
+                    if !self.servos[index].is_silent() {
+                        let _ = self.execute(index, request.clone());
+                    }
                 }
                 Vec::new()
             }
@@ -220,7 +237,7 @@ impl Bus {
     }
 
     fn broadcast_ping(&self) -> Vec<Reply> {
-        let mut order: Vec<&Servo> = self.servos.iter().collect();
+        let mut order: Vec<&Servo> = self.servos.iter().filter(|s| !s.is_silent()).collect();
         order.sort_by_key(|s| s.id());
         order.into_iter().map(|s| status(self.protocol, s, None, &ping_data(self.protocol, s))).collect()
     }
@@ -228,10 +245,7 @@ impl Bus {
     fn multi_read(&mut self, slots: &[ReadSlot]) -> Vec<Reply> {
         let mut replies = Vec::new();
         for slot in slots {
-            let Some(index) = self.servos.iter().position(|s| s.id() == slot.id) else {
-                self.counters.absent_ids += 1;
-                continue;
-            };
+            let Some(index) = self.awake(slot.id) else { continue };
             let outcome = self.read(index, slot.address, slot.length);
             let servo = &self.servos[index];
             if servo.status_return_level() < Needs::ReadLevel as i64 {
@@ -247,11 +261,8 @@ impl Bus {
 
     fn multi_write(&mut self, slots: &[WriteSlot]) {
         for slot in slots {
-            match self.servos.iter().position(|s| s.id() == slot.id) {
-                Some(index) => {
-                    let _ = self.write(index, slot.address, &slot.data);
-                }
-                None => self.counters.absent_ids += 1,
+            if let Some(index) = self.awake(slot.id) {
+                let _ = self.write(index, slot.address, &slot.data);
             }
         }
     }
@@ -447,13 +458,79 @@ mod tests {
         assert_eq!(p.kind, Kind::Status(dxl::ServoError::V1(protocol1::ErrorBits(0x08))));
     }
 
+    /// Steps the physics by `seconds` (the clock a booting servo waits on).
+    fn run(b: &mut Bus, seconds: f64) {
+        for _ in 0..(seconds / 5e-4).round() as usize {
+            b.step(5e-4);
+        }
+    }
+
     #[test]
-    fn hardware_errors_set_the_alert_bit() {
+    fn hardware_errors_set_the_alert_bit_until_a_reboot_which_is_answered_then_silent() {
         let mut b = bus(Protocol::V2, &[1]);
         b.servo_mut(1).unwrap().set_hardware_error(0x04);
         assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x80);
-        b.handle(1, ins::REBOOT, &[]);
+        assert_eq!(statuses(&b.handle(1, ins::REBOOT, &[]))[0].1, 0x80, "answered as it was, before booting");
+        assert!(b.handle(1, ins::PING, &[]).is_empty(), "silent while it boots");
+        assert_eq!(b.counters.silent_drops, 1);
+        run(&mut b, 0.41);
         assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0x00);
+    }
+
+    #[test]
+    fn a_shutdown_keeps_torque_off_until_a_reboot() {
+        let mut b = bus(Protocol::V2, &[1]);
+        b.handle(1, ins::WRITE, &[64, 0, 1]);
+        b.servo_mut(1).unwrap().set_hardware_error(0x20);
+        let torque = |b: &mut Bus| statuses(&b.handle(1, ins::READ, &[64, 0, 1, 0]))[0].clone();
+        assert_eq!(torque(&mut b), (1, 0x80, vec![0]), "overload is in the default Shutdown mask");
+        assert_eq!(statuses(&b.handle(1, ins::WRITE, &[64, 0, 1]))[0].1, 0x80);
+        assert_eq!(torque(&mut b).2, vec![0], "Torque Enable = 1 is undone while the error stands");
+        assert_eq!(statuses(&b.handle(1, ins::READ, &[70, 0, 1, 0]))[0].2, vec![0x20]);
+        b.handle(1, ins::REBOOT, &[]);
+        run(&mut b, 0.41);
+        b.handle(1, ins::WRITE, &[64, 0, 1]);
+        assert_eq!(torque(&mut b), (1, 0x00, vec![1]));
+    }
+
+    #[test]
+    fn p1_status_carries_the_hardware_bits_and_alarm_shutdown_turns_torque_off() {
+        let mut b = bus(Protocol::V1, &[1]);
+        b.handle(1, ins::WRITE, &[24, 1]);
+        b.servo_mut(1).unwrap().set_hardware_error(0x20);
+        let replies = b.handle(1, ins::READ, &[24, 1]);
+        let mut decoder = protocol1::Decoder::new(protocol1::Expect::Status);
+        decoder.push(&replies[0].bytes);
+        let Some(Ok(p)) = decoder.next() else { panic!("no P1 status") };
+        assert_eq!((p.kind, p.params), (Kind::Status(dxl::ServoError::V1(protocol1::ErrorBits(0x20))), &[0u8][..]));
+        // Electrical shock and encoder have no P1 bit.
+        b.servo_mut(1).unwrap().set_hardware_error(0x18);
+        assert_eq!(b.handle(1, ins::PING, &[])[0].bytes[4], 0x00);
+    }
+
+    #[test]
+    fn a_brown_out_resets_ram_and_silences_the_servo_for_a_while() {
+        let mut b = bus(Protocol::V2, &[1, 2]);
+        b.handle(1, ins::WRITE, &[9, 0, 0]); // Return Delay Time is EEPROM: it survives
+        b.handle(1, ins::WRITE, &[64, 0, 1]);
+        b.handle(1, ins::WRITE, &[65, 0, 1]); // LED is RAM: it does not
+        b.servo_mut(1).unwrap().brown_out(0.2);
+        assert!(b.handle(1, ins::READ, &[64, 0, 1, 0]).is_empty());
+        let sync = b.handle(BROADCAST_ID, ins::SYNC_READ, &[64, 0, 1, 0, 1, 2]);
+        assert_eq!(statuses(&sync).iter().map(|s| s.0).collect::<Vec<_>>(), [2], "the booting servo is skipped");
+        b.handle(BROADCAST_ID, ins::SYNC_WRITE, &[65, 0, 1, 0, 1, 1]);
+        run(&mut b, 0.21);
+        let servo = b.servo(1).unwrap();
+        assert_eq!((servo.table.get("Torque Enable"), servo.table.get("LED"), servo.table.get("Return Delay Time")), (Some(0), Some(0), Some(0)));
+        assert_eq!(statuses(&b.handle(1, ins::PING, &[]))[0].1, 0);
+    }
+
+    #[test]
+    fn torque_found_off_has_no_error_bit() {
+        let mut b = bus(Protocol::V2, &[1]);
+        b.handle(1, ins::WRITE, &[64, 0, 1]);
+        b.servo_mut(1).unwrap().torque_off();
+        assert_eq!(statuses(&b.handle(1, ins::READ, &[64, 0, 1, 0]))[0], (1, 0x00, vec![0]));
     }
 
     #[test]

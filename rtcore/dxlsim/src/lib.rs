@@ -5,6 +5,8 @@
 //! - `table`: control-table memory with a real servo's access rules; `catalog` builds one from
 //!   the `dxl` model table (the one source of addresses, shared with the driver);
 //! - `motor`, `firmware`, `servo`: BAM's PWM/DC-motor model driving `plant::step`;
+//! - `hand`: a hand gripping the horn (its impedance, what the sensor reads) and a horn that
+//!   simply lags its goal (the bench's other servo);
 //! - `request`, `bus`: packets → requests → replies, with Status Return Level, broadcast and
 //!   error semantics; pure logic, no clock;
 //! - `pty`, `server`: the pseudo-terminal and the thread that times replies and physics;
@@ -16,6 +18,7 @@
 pub mod bus;
 pub mod catalog;
 pub mod firmware;
+pub mod hand;
 pub mod motor;
 pub mod pty;
 pub mod registers;

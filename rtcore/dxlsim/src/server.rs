@@ -16,8 +16,16 @@
 //! timeout (≤ 1 ms) and before a packet is answered, so reads see current positions. If the
 //! thread was starved for more than `MAX_CATCH_UP`, the lost time is skipped (and counted)
 //! rather than simulated in one burst that would starve it again.
+//!
+//! Unplug and replug (the USB adapter pulled out and put back): `unplug` closes the pty, so a
+//! client's descriptor hangs up as on a real unplug (reads return end-of-file, writes EIO) and
+//! its device node disappears; the servos keep their power and state. `replug` opens a new pty.
+//! A pty's number changes with it, so a client that must find the bus again uses the stable
+//! path of `set_link`: a symlink that `unplug` removes and `replug` points at the new pty, as
+//! udev's /dev/serial/by-id links do for a real adapter.
 use std::collections::VecDeque;
 use std::io;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -61,6 +69,8 @@ pub struct IoCounters {
     pub truncated_packets: u64,
     pub physics_steps: u64,
     pub skipped_steps: u64,
+    pub unplugs: u64,
+    pub replugs: u64,
 }
 
 /// The state the thread and Python share.
@@ -81,11 +91,21 @@ pub struct Stats {
 /// Every method takes `&self` (the thread handle sits behind its own mutex), so one thread
 /// may stop the bus while another still sets a hand torque: Python's bench does exactly that.
 pub struct MockBus {
-    pty: Arc<Pty>,
+    port: Arc<Mutex<Port>>,
     shared: Arc<Mutex<Shared>>,
     config: BusConfig,
     stop: Arc<AtomicBool>,
     thread: Mutex<Option<JoinHandle<io::Result<()>>>>,
+}
+
+/// The bus's end of the wire: the pty while plugged in, and the stable link to it.
+struct Port {
+    pty: Option<Arc<Pty>>,
+    /// The device path of the current pty (the last one while unplugged).
+    path: String,
+    link: Option<PathBuf>,
+    /// Bumped at every unplug and replug, so the thread drops what was in flight.
+    generation: u64,
 }
 
 impl MockBus {
@@ -96,8 +116,10 @@ impl MockBus {
             let message = format!("physics rate {} Hz is outside 1..=1e6", config.physics_rate_hz);
             return Err(io::Error::new(io::ErrorKind::InvalidInput, message));
         }
+        let pty = Pty::open()?;
+        let port = Port { path: pty.path().to_string(), pty: Some(Arc::new(pty)), link: None, generation: 0 };
         Ok(MockBus {
-            pty: Arc::new(Pty::open()?),
+            port: Arc::new(Mutex::new(port)),
             shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default() })),
             config,
             stop: Arc::new(AtomicBool::new(false)),
@@ -105,8 +127,82 @@ impl MockBus {
         })
     }
 
-    pub fn port_path(&self) -> &str {
-        self.pty.path()
+    fn port(&self) -> MutexGuard<'_, Port> {
+        self.port.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// The device a client opens now, e.g. `/dev/pts/7` (the last one while unplugged).
+    pub fn port_path(&self) -> String {
+        self.port().path.clone()
+    }
+
+    /// The stable path (see `set_link`), if one was set.
+    pub fn link_path(&self) -> Option<PathBuf> {
+        self.port().link.clone()
+    }
+
+    pub fn is_plugged(&self) -> bool {
+        self.port().pty.is_some()
+    }
+
+    /// Makes `link` a symlink to the bus's pty, kept pointing at it across replugs and removed
+    /// while unplugged and when the bus is dropped. An existing file at `link` is replaced.
+    pub fn set_link(&self, link: &Path) -> io::Result<()> {
+        let mut port = self.port();
+        if let Some(old) = port.link.take() {
+            let _ = std::fs::remove_file(old);
+        }
+        if port.pty.is_some() {
+            point_link(link, &port.path)?;
+        }
+        port.link = Some(link.to_path_buf());
+        Ok(())
+    }
+
+    /// Pulls the adapter out: the pty closes (a client's descriptor hangs up) and the link goes.
+    /// Returns once the pty is closed; false if it was unplugged already.
+    pub fn unplug(&self) -> bool {
+        let mut pty = {
+            let mut port = self.port();
+            let Some(pty) = port.pty.take() else { return false };
+            port.generation += 1;
+            if let Some(link) = &port.link {
+                let _ = std::fs::remove_file(link);
+            }
+            pty
+        };
+        // The thread holds its own reference for one iteration at most (≤ MAX_WAIT): wait for
+        // it, so that the pty really is closed when this returns.
+        loop {
+            match Arc::try_unwrap(pty) {
+                Ok(closed) => break drop(closed),
+                Err(shared) => {
+                    pty = shared;
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+            }
+        }
+        self.lock().io.unplugs += 1;
+        true
+    }
+
+    /// Puts the adapter back: a new pty (a new `/dev/pts/N`), the link pointed at it. Returns
+    /// false if it was plugged in already.
+    pub fn replug(&self) -> io::Result<bool> {
+        let mut port = self.port();
+        if port.pty.is_some() {
+            return Ok(false);
+        }
+        let pty = Pty::open()?;
+        if let Some(link) = &port.link {
+            point_link(link, pty.path())?;
+        }
+        port.path = pty.path().to_string();
+        port.pty = Some(Arc::new(pty));
+        port.generation += 1;
+        drop(port);
+        self.lock().io.replugs += 1;
+        Ok(true)
     }
 
     pub fn is_running(&self) -> bool {
@@ -124,7 +220,7 @@ impl MockBus {
             return Ok(());
         }
         self.stop.store(false, Ordering::SeqCst);
-        let mut worker = Worker::new(self.pty.clone(), self.shared.clone(), self.config, self.stop.clone());
+        let mut worker = Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone());
         *handle = Some(std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?);
         Ok(())
     }
@@ -154,7 +250,21 @@ impl MockBus {
 impl Drop for MockBus {
     fn drop(&mut self) {
         let _ = self.stop();
+        if let Some(link) = self.port().link.take() {
+            let _ = std::fs::remove_file(link);
+        }
     }
+}
+
+/// Points the symlink `link` at `target`, atomically (a new link renamed over the old one), so
+/// a client never finds the path missing while the bus is plugged in.
+fn point_link(link: &Path, target: &str) -> io::Result<()> {
+    let mut temporary = link.as_os_str().to_owned();
+    temporary.push(format!(".{}.new", std::process::id()));
+    let temporary = PathBuf::from(temporary);
+    let _ = std::fs::remove_file(&temporary);
+    std::os::unix::fs::symlink(target, &temporary)?;
+    std::fs::rename(&temporary, link)
 }
 
 /// A packet decoder for the bus's protocol (the two decoders are different types).
@@ -209,7 +319,9 @@ impl Decoder {
 
 /// The thread's own state.
 struct Worker {
-    pty: Arc<Pty>,
+    port: Arc<Mutex<Port>>,
+    /// The generation of the pty the buffers below belong to.
+    generation: u64,
     shared: Arc<Mutex<Shared>>,
     stop: Arc<AtomicBool>,
     decoder: Decoder,
@@ -228,11 +340,13 @@ struct Worker {
 }
 
 impl Worker {
-    fn new(pty: Arc<Pty>, shared: Arc<Mutex<Shared>>, config: BusConfig, stop: Arc<AtomicBool>) -> Worker {
+    fn new(port: Arc<Mutex<Port>>, shared: Arc<Mutex<Shared>>, config: BusConfig, stop: Arc<AtomicBool>) -> Worker {
         let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
+        let generation = port.lock().unwrap_or_else(|p| p.into_inner()).generation;
         let now = Instant::now();
         Worker {
-            pty,
+            port,
+            generation,
             shared,
             stop,
             decoder: Decoder::new(protocol),
@@ -254,15 +368,34 @@ impl Worker {
         let mut buf = [0u8; 4096];
         while !self.stop.load(Ordering::SeqCst) {
             self.advance_physics();
-            self.flush_due()?;
-            if self.pty.wait_readable(self.wait_time())? {
-                let n = self.pty.read(&mut buf)?;
+            // This iteration's reference to the pty; `unplug` waits until it is dropped.
+            let Some(pty) = self.current_pty() else {
+                std::thread::sleep(MAX_WAIT);
+                continue;
+            };
+            self.flush_due(&pty)?;
+            if pty.wait_readable(self.wait_time())? {
+                let n = pty.read(&mut buf)?;
                 self.receive(&buf[..n]);
             } else {
                 self.drop_stale_partial();
             }
         }
         Ok(())
+    }
+
+    /// The pty plugged in now, if any; after an unplug or replug, what was in flight on the
+    /// old wire (a partial packet, replies not yet sent) is gone with it.
+    fn current_pty(&mut self) -> Option<Arc<Pty>> {
+        let port = self.port.lock().unwrap_or_else(|p| p.into_inner());
+        if port.generation != self.generation {
+            self.generation = port.generation;
+            self.decoder.clear();
+            self.schedule.clear();
+            self.output.clear();
+            self.bus_free = Instant::now();
+        }
+        port.pty.clone()
     }
 
     fn lock(&self) -> MutexGuard<'_, Shared> {
@@ -373,7 +506,7 @@ impl Worker {
     }
 
     /// Writes every reply whose time has come, then whatever the pty accepts.
-    fn flush_due(&mut self) -> io::Result<()> {
+    fn flush_due(&mut self, pty: &Pty) -> io::Result<()> {
         let now = Instant::now();
         while self.schedule.front().is_some_and(|(due, _)| *due <= now) {
             let Some((_, bytes)) = self.schedule.pop_front() else { break };
@@ -385,7 +518,7 @@ impl Worker {
         }
         while !self.output.is_empty() {
             let (front, _) = self.output.as_slices();
-            let n = self.pty.write(front)?;
+            let n = pty.write(front)?;
             if n == 0 {
                 break;
             }

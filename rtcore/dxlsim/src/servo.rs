@@ -9,12 +9,20 @@
 //! Hardware errors use the P2 Hardware Error Status bit layout (bit 0 input voltage, 2
 //! overheating, 3 encoder, 4 electrical shock, 5 overload). P1's error byte has voltage,
 //! overheating and overload at the same bit positions, so one value serves both protocols.
+//! A bit in the Shutdown mask (P1: Alarm Shutdown) turns torque off and keeps it off: a write
+//! of Torque Enable = 1 is taken and undone at once, until a REBOOT (P2) or until the cause is
+//! gone (P1, which has no reboot).
+//!
+//! Silence: after a REBOOT (once its status packet is sent) and after a brown-out, the servo
+//! boots for a while and neither answers nor executes anything (`is_silent`); its horn keeps
+//! moving under the physics meanwhile.
 use std::collections::VecDeque;
 
 use dxl::packet::Protocol;
 use plant::{FrictionLaw, Load, Params, State};
 
 use crate::firmware::{Gains, Mode, PositionController};
+use crate::hand::{follow_lag, Hand};
 use crate::motor::{clip_duty, Motor, MAX_PWM};
 use crate::registers::Registers;
 use crate::table::{ControlTable, TableError};
@@ -24,6 +32,11 @@ use crate::units::*;
 pub const HW_INPUT_VOLTAGE: u8 = 0x01;
 /// Hardware Error Status bit: overheating.
 pub const HW_OVERHEATING: u8 = 0x04;
+/// Hardware Error Status bit: overload (a persistent load above the motor's output).
+pub const HW_OVERLOAD: u8 = 0x20;
+/// How long a servo is silent after a REBOOT by default: an XC330 answers again after about
+/// 0.4 s (ROBOTIS-GIT/emanual issue 1698); the e-manual gives no figure for MX servos.
+pub const DEFAULT_REBOOT_TIME_S: f64 = 0.4;
 /// The hardware bits P1's error byte can carry (voltage, overheating, overload).
 pub const P1_HARDWARE_BITS: u8 = 0x25;
 /// Moving threshold (rad/s) when the model has no Moving Threshold item: P2's default of
@@ -46,6 +59,12 @@ pub struct ServoSpec {
     pub motor: Motor,
     pub initial_theta: f64,
     pub ambient_temperature: f64,
+    /// s: the horn follows its goal as a first-order lag instead of by firmware and motor.
+    pub first_order_lag: Option<f64>,
+    /// Seconds a REBOOT keeps the servo silent after its status packet.
+    pub reboot_time_s: f64,
+    /// Seconds of stall at the duty limit before the overload bit sets (None: never).
+    pub overload_time_s: Option<f64>,
 }
 
 /// What Python's `servo_state` reports.
@@ -59,9 +78,13 @@ pub struct Snapshot {
     pub duty: f64,
     pub motor_torque: f64,
     pub external_torque: f64,
+    /// What a sensor between the hand and the horn reads (the external torque without a hand).
+    pub hand_torque: f64,
     pub temperature: f64,
     pub hardware_error: u8,
     pub time: f64,
+    /// Booting (after a REBOOT or a brown-out): no answers, no instructions executed.
+    pub silent: bool,
 }
 
 pub struct Servo {
@@ -78,6 +101,9 @@ pub struct Servo {
     current: f64,
     temperature: f64,
     hardware_error: u8,
+    /// Bits raised by `set_hardware_error`: their cause is the injection, so P1 keeps them
+    /// until they are cleared the same way (P2 until a REBOOT).
+    injected: u8,
     time: f64,
     /// A REG_WRITE waiting for ACTION: (address, data).
     pub registered: Option<(u16, Vec<u8>)>,
@@ -85,6 +111,11 @@ pub struct Servo {
     torque_history: VecDeque<f64>,
     /// Whole turns CLEAR removed from the reported position (ticks): reported = encoder + this.
     tick_offset: i64,
+    hand: Option<Hand>,
+    /// Simulated time until which the servo boots (silent).
+    silent_until: f64,
+    /// Seconds the motor has stalled at its duty limit (the overload detector).
+    stalled_s: f64,
 }
 
 impl Servo {
@@ -110,10 +141,14 @@ impl Servo {
             current: 0.0,
             temperature,
             hardware_error: 0,
+            injected: 0,
             time: 0.0,
             registered: None,
             torque_history: VecDeque::new(),
             tick_offset: 0,
+            hand: None,
+            silent_until: 0.0,
+            stalled_s: 0.0,
         };
         servo.publish();
         servo.hold_present_position();
@@ -160,6 +195,11 @@ impl Servo {
         self.hardware_error
     }
 
+    /// Booting after a REBOOT or a brown-out: the servo neither answers nor executes.
+    pub fn is_silent(&self) -> bool {
+        self.time < self.silent_until
+    }
+
     fn torque_enabled(&self) -> bool {
         self.reg.torque_enable.is_some_and(|k| self.table.value(k) != 0)
     }
@@ -169,7 +209,10 @@ impl Servo {
     pub fn write(&mut self, address: u16, data: &[u8]) -> Result<(), TableError> {
         self.check_limits(address, data)?;
         let locked = self.eeprom_locked();
-        self.table.write(address, data, locked)
+        self.table.write(address, data, locked)?;
+        // Torque Enable = 1 during a shutdown is taken and undone at once.
+        self.enforce_shutdown();
+        Ok(())
     }
 
     /// Whether `write` would accept this now, without writing (REG_WRITE checks up front).
@@ -226,16 +269,45 @@ impl Servo {
     /// Raises hardware error bits (P2 layout); a bit in the Shutdown mask turns torque off.
     pub fn set_hardware_error(&mut self, bits: u8) {
         self.hardware_error = bits;
+        self.injected = bits;
         self.enforce_shutdown();
         self.publish();
     }
 
     /// REBOOT: RAM back to defaults (torque off), hardware errors cleared, EEPROM and the
-    /// horn's physical state kept.
+    /// horn's physical state kept; silent for `reboot_time_s` (the caller has queued the
+    /// status packet already: a servo answers REBOOT, then boots).
     pub fn reboot(&mut self) {
+        self.reset_ram();
+        self.silent_until = self.time + self.spec.reboot_time_s;
+    }
+
+    /// A brown-out: the supply dipped and the servo reset as at power-up (RAM back to
+    /// defaults, torque off, errors cleared, the position folded into one turn), then boots
+    /// for `seconds` in silence.
+    pub fn brown_out(&mut self, seconds: f64) {
+        let tick = rad_to_tick(self.state.theta) + self.tick_offset;
+        self.tick_offset -= 4096 * tick.div_euclid(4096);
+        self.reset_ram();
+        self.silent_until = self.time + seconds.max(0.0);
+    }
+
+    /// Torque Enable cleared with no error bit: torque found off (another client's write, a
+    /// firmware that does not flag it).
+    pub fn torque_off(&mut self) {
+        if let Some(k) = self.reg.torque_enable {
+            self.table.store(k, 0);
+        }
+        self.torque_was_on = false;
+    }
+
+    fn reset_ram(&mut self) {
         self.table.reload_ram();
         self.hardware_error = 0;
+        self.injected = 0;
         self.registered = None;
+        self.stalled_s = 0.0;
+        self.torque_was_on = false;
         self.publish();
         self.hold_present_position();
     }
@@ -256,6 +328,10 @@ impl Servo {
     pub fn step(&mut self, h: f64) {
         self.update_alarms();
         self.enforce_shutdown();
+        if let Some(tc) = self.spec.first_order_lag.filter(|_| self.torque_enabled() && self.mode() == Mode::Position) {
+            self.step_lagging(tc, h);
+            return;
+        }
         let duty = if self.torque_enabled() { self.firmware_duty(h) } else { 0.0 };
         let omega = self.state.omega;
         self.duty = duty;
@@ -267,10 +343,59 @@ impl Servo {
         };
         self.motor_torque = torque;
         self.current = current;
-        let tau = self.delayed(torque + self.external_torque, h);
-        plant::step(&mut self.state, &self.spec.params, &self.spec.load, self.spec.friction, tau, self.time, h);
+        let (applied, hand_inertia) = self.hand_applied();
+        let tau = self.delayed(torque + applied, h);
+        let load = Load { inertia: self.spec.load.inertia + hand_inertia, ..self.spec.load };
+        let before = self.state.omega;
+        plant::step(&mut self.state, &self.spec.params, &load, self.spec.friction, tau, self.time, h);
+        self.record_hand(applied, (self.state.omega - before) / h);
         self.heat(h);
+        self.detect_overload(h);
         self.time += h;
+    }
+
+    /// `first_order_lag`: the horn follows its goal, whatever pushes on it (hand.rs).
+    fn step_lagging(&mut self, time_constant: f64, h: f64) {
+        let (applied, _) = self.hand_applied();
+        let before = self.state.omega;
+        let goal = self.position_goal();
+        follow_lag(&mut self.state, goal, time_constant, h);
+        self.record_hand(applied, (self.state.omega - before) / h);
+        (self.duty, self.motor_torque, self.current) = (0.0, 0.0, 0.0);
+        self.time += h;
+    }
+
+    /// A hand on the horn (`None`: the scripted torque alone, a pure force source).
+    pub fn set_hand(&mut self, hand: Option<Hand>) {
+        self.hand = hand;
+    }
+
+    /// The hand's torque on the horn besides its inertia, and that inertia.
+    fn hand_applied(&self) -> (f64, f64) {
+        match &self.hand {
+            Some(hand) => (hand.applied(self.external_torque, &self.state), hand.inertia),
+            None => (self.external_torque, 0.0),
+        }
+    }
+
+    fn record_hand(&mut self, applied: f64, alpha: f64) {
+        if let Some(hand) = &mut self.hand {
+            hand.record(applied, alpha);
+        }
+    }
+
+    /// The overload detector (when configured): a motor held at its duty limit without moving
+    /// for `overload_time_s` sets the overload bit (a shutdown bit by default).
+    fn detect_overload(&mut self, h: f64) {
+        let Some(limit_s) = self.spec.overload_time_s else { return };
+        let saturated = self.torque_enabled() && self.duty.abs() >= self.duty_limit() * 0.999 && self.duty != 0.0;
+        let stalled = self.state.omega.abs() <= self.moving_threshold();
+        self.stalled_s = if saturated && stalled { self.stalled_s + h } else { 0.0 };
+        if self.stalled_s >= limit_s {
+            self.hardware_error |= HW_OVERLOAD;
+        } else if self.spec.protocol == Protocol::V1 && self.stalled_s == 0.0 {
+            self.hardware_error &= !(HW_OVERLOAD & !self.injected); // P1 clears a bit once its cause is gone
+        }
     }
 
     /// The applied torque of `time_delay` ago (Contract 1: τ(t − time_delay)); before that much
@@ -397,7 +522,7 @@ impl Servo {
             if active {
                 self.hardware_error |= bit;
             } else if self.spec.protocol == Protocol::V1 {
-                self.hardware_error &= !bit;
+                self.hardware_error &= !(bit & !self.injected);
             }
         }
     }
@@ -466,9 +591,11 @@ impl Servo {
             duty: self.duty,
             motor_torque: self.motor_torque,
             external_torque: self.external_torque,
+            hand_torque: self.hand.map_or(self.external_torque, |hand| hand.sensed),
             temperature: self.temperature,
             hardware_error: self.hardware_error,
             time: self.time,
+            silent: self.is_silent(),
         }
     }
 }
@@ -583,6 +710,31 @@ mod tests {
     }
 
     #[test]
+    fn a_stall_at_the_duty_limit_trips_the_overload_shutdown_when_configured() {
+        let stall = |overload_time_s: Option<f64>, protocol: Protocol| {
+            let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
+            let config = ServoConfig { overload_time_s, protocol, ..ServoConfig::new(1, params) };
+            let mut bus = build_bus(vec![config], 1_000_000).unwrap();
+            let s = servo(&mut bus);
+            // A goal far away saturates the duty (4.74 N·m at 12 V); a hand pushing back with
+            // 4.7 N·m holds the horn where it is: a stall at the duty limit.
+            set(s, "Goal Position", 2048 + 1000);
+            set(s, "Torque Enable", 1);
+            s.set_external_torque(-4.7);
+            run(s, 1.0);
+            s.snapshot()
+        };
+        let tripped = stall(Some(0.3), Protocol::V2);
+        assert_eq!(tripped.hardware_error, HW_OVERLOAD);
+        assert!(!tripped.torque_enabled, "overload is in the default Shutdown mask");
+        let p1 = stall(Some(0.3), Protocol::V1);
+        assert!(!p1.torque_enabled, "P1 Alarm Shutdown has overload too");
+        let off = stall(None, Protocol::V2);
+        assert_eq!(off.hardware_error, 0, "no detector configured: no overload");
+        assert!(off.torque_enabled);
+    }
+
+    #[test]
     fn a_supply_outside_the_voltage_limits_raises_the_voltage_bit() {
         let params = Params { motor_inertia: 0.0147, ..Params::default() };
         let config = ServoConfig { input_voltage: 18.0, ..ServoConfig::new(1, params) };
@@ -645,5 +797,40 @@ mod tests {
         assert_eq!(s.table.get("Present Position"), Some(rad_to_tick(s.snapshot().theta)));
         assert_eq!(s.table.get("Present Input Voltage"), Some(120));
         assert_eq!(s.table.get("Realtime Tick"), Some(500));
+    }
+
+    #[test]
+    fn a_first_order_lag_servo_follows_its_goal_whatever_pushes_it() {
+        let params = Params { motor_inertia: 0.0147, ..Params::default() };
+        let config = ServoConfig { first_order_lag: Some(0.025), ..ServoConfig::new(1, params) };
+        let mut bus = build_bus(vec![config], 1_000_000).unwrap();
+        let s = servo(&mut bus);
+        set(s, "Torque Enable", 1);
+        set(s, "Goal Position", 2048 + 512);
+        s.set_external_torque(2.0); // ignored: the horn only follows the goal
+        run(s, 0.025);
+        let quarter = std::f64::consts::FRAC_PI_4;
+        assert!((s.snapshot().theta - quarter * (1.0 - (-1.0f64).exp())).abs() < 1e-6, "{:?}", s.snapshot());
+        run(s, 1.0);
+        assert!((s.snapshot().theta - quarter).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_gripping_hand_adds_its_inertia_and_the_sensor_reads_what_it_transmits() {
+        let spin = |hand: Option<Hand>| {
+            let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 0.0);
+            let s = servo(&mut bus);
+            s.set_hand(hand);
+            s.set_external_torque(0.5);
+            run(s, 0.05);
+            s.snapshot()
+        };
+        let free = spin(None);
+        let held = spin(Some(Hand::new(0.0147, 0.0, 0.0, 0.0).unwrap()));
+        assert_eq!(free.hand_torque, 0.5, "no hand: the sensor reads the script");
+        assert!(held.omega < 0.6 * free.omega, "twice the inertia: {} vs {}", held.omega, free.omega);
+        // Equal inertias: the hand's takes half of what accelerates the pair (push − Coulomb −
+        // damping), so the sensor reads 0.5 − (0.5 − 0.084 − B·ω)/2 ≈ 0.29 + B·ω/2.
+        assert!((held.hand_torque - 0.5 * (0.5 + 0.084)).abs() < 0.02, "{}", held.hand_torque);
     }
 }

@@ -9,7 +9,7 @@ use plant::{FrictionLaw, Load, Params};
 use crate::bus::Bus;
 use crate::catalog::{control_table, find_model};
 use crate::motor::Motor;
-use crate::servo::{Servo, ServoSpec};
+use crate::servo::{Servo, ServoSpec, DEFAULT_REBOOT_TIME_S};
 
 /// One servo as a configuration gives it.
 #[derive(Clone, Debug)]
@@ -28,6 +28,12 @@ pub struct ServoConfig {
     pub ambient_temperature: f64,
     /// Initial register values by item name (e.g. "Return Delay Time" = 0), range-checked.
     pub registers: Vec<(String, i64)>,
+    /// s: a horn that lags its goal instead of the firmware and motor model (hand.rs).
+    pub first_order_lag: Option<f64>,
+    /// Seconds a REBOOT keeps the servo silent (0..=10).
+    pub reboot_time_s: f64,
+    /// Seconds of stall at the duty limit before the overload bit sets; None: never.
+    pub overload_time_s: Option<f64>,
 }
 
 impl ServoConfig {
@@ -46,6 +52,9 @@ impl ServoConfig {
             initial_theta: 0.0,
             ambient_temperature: 25.0,
             registers: Vec::new(),
+            first_order_lag: None,
+            reboot_time_s: DEFAULT_REBOOT_TIME_S,
+            overload_time_s: None,
         }
     }
 }
@@ -106,6 +115,9 @@ fn build_servo(config: ServoConfig, baudrate: u32) -> Result<Servo, String> {
         motor,
         initial_theta: config.initial_theta,
         ambient_temperature: config.ambient_temperature,
+        first_order_lag: config.first_order_lag,
+        reboot_time_s: config.reboot_time_s,
+        overload_time_s: config.overload_time_s,
     };
     Ok(Servo::new(spec, table))
 }
@@ -119,6 +131,9 @@ fn check_physical(id: u8, c: &ServoConfig) -> Result<(), String> {
         ("resistance", c.resistance.unwrap_or(1.0), c.resistance.unwrap_or(1.0) > 0.0),
         ("initial_theta", c.initial_theta, true),
         ("ambient_temperature", c.ambient_temperature, true),
+        ("first_order_lag", c.first_order_lag.unwrap_or(1.0), c.first_order_lag.unwrap_or(1.0) > 0.0),
+        ("reboot_time_s", c.reboot_time_s, (0.0..=10.0).contains(&c.reboot_time_s)),
+        ("overload_time_s", c.overload_time_s.unwrap_or(1.0), c.overload_time_s.unwrap_or(1.0) > 0.0),
     ];
     for (name, value, ok) in checks {
         if !value.is_finite() || !ok {

@@ -10,6 +10,8 @@
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
 //! - `inverse`: the model read backwards (the torque a recorded motion needs), for `predict`.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
+//! - `servo`: how a position servo's horn follows its goal (fitted by `fidelity`, inverted by
+//!   the RT loop's compensation).
 //!
 //! ```
 //! use plant::{step, FrictionLaw, Load, Params, State};
@@ -31,6 +33,7 @@ pub mod friction;
 pub mod inverse;
 pub mod model;
 pub mod params;
+pub mod servo;
 pub mod trial;
 
 pub use batch::{Batch, Output};

@@ -128,8 +128,9 @@ impl<'a> TorqueSeries<'a> {
     }
 }
 
-/// Linear interpolation in a time series whose queries mostly move forward.
-struct TorqueCursor<'a> {
+/// Linear interpolation in a time series whose queries mostly move forward (the applied torque
+/// here; the servo model's goal and torque in `crate::servo`).
+pub(crate) struct TorqueCursor<'a> {
     t: &'a [f64],
     tau: &'a [f64],
     j: usize,
@@ -139,7 +140,7 @@ struct TorqueCursor<'a> {
 }
 
 impl<'a> TorqueCursor<'a> {
-    fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
+    pub(crate) fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
         let mut cursor = TorqueCursor { t, tau, j: 0, slope: 0.0 };
         cursor.update_slope();
         cursor
@@ -153,7 +154,7 @@ impl<'a> TorqueCursor<'a> {
     }
 
     #[inline]
-    fn at(&mut self, q: f64) -> f64 {
+    pub(crate) fn at(&mut self, q: f64) -> f64 {
         let (t, tau) = (self.t, self.tau);
         let last = t.len() - 1;
         if q <= t[0] {
@@ -220,17 +221,35 @@ fn integrate<T: FnMut(f64) -> f64, F: FnMut(usize, &State)>(
     mut applied_at: T,
     mut record: F,
 ) {
-    let t = &trial.t;
+    let t0 = trial.t[0];
     let mut state = x0;
-    record(0, &state);
+    walk(&trial.t, max_step, |event| match event {
+        Walk::Substep { t, h } => step(&mut state, p, &trial.load, law, applied_at(t), t - t0, h),
+        Walk::Sample(i) => record(i, &state),
+    });
+}
+
+/// One event of a walk through sample times (`walk`).
+pub(crate) enum Walk {
+    /// A substep that starts at `t` and lasts `h`.
+    Substep { t: f64, h: f64 },
+    /// Sample `i` is reached (0 first, before any substep).
+    Sample(usize),
+}
+
+/// Walks the intervals between consecutive times of `t` in equal substeps of at most
+/// `max_step` (`substep_count`), telling `visit` each substep and each sample reached: the one
+/// stepping scheme of the plant's and the servo's simulators.
+#[inline(always)]
+pub(crate) fn walk(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk)) {
+    visit(Walk::Sample(0));
     for i in 1..t.len() {
         let n = substep_count(t[i] - t[i - 1], max_step);
         let h = (t[i] - t[i - 1]) / n as f64;
         for k in 0..n {
-            let tk = t[i - 1] + k as f64 * h;
-            step(&mut state, p, &trial.load, law, applied_at(tk), tk - t[0], h);
+            visit(Walk::Substep { t: t[i - 1] + k as f64 * h, h });
         }
-        record(i, &state);
+        visit(Walk::Sample(i));
     }
 }
 

@@ -16,7 +16,7 @@ use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
-const SERVO_KEYS: [&str; 14] = [
+const SERVO_KEYS: [&str; 17] = [
     "id",
     "model",
     "protocol",
@@ -31,6 +31,9 @@ const SERVO_KEYS: [&str; 14] = [
     "ambient_temperature",
     "registers",
     "name",
+    "first_order_lag",
+    "reboot_time_s",
+    "overload_time_s",
 ];
 
 /// `key` of a servo dict as `T`, or `default` when absent.
@@ -87,6 +90,9 @@ fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
         initial_theta: field(d, "initial_theta", defaults.initial_theta)?,
         ambient_temperature: field(d, "ambient_temperature", defaults.ambient_temperature)?,
         registers: registers.into_iter().collect(),
+        first_order_lag: field(d, "first_order_lag", None)?,
+        reboot_time_s: field(d, "reboot_time_s", defaults.reboot_time_s)?,
+        overload_time_s: field(d, "overload_time_s", None)?,
     })
 }
 
@@ -118,9 +124,11 @@ fn snapshot_dict<'py>(py: Python<'py>, s: &Snapshot) -> PyResult<Bound<'py, PyDi
     d.set_item("duty", s.duty)?;
     d.set_item("motor_torque", s.motor_torque)?;
     d.set_item("external_torque", s.external_torque)?;
+    d.set_item("hand_torque", s.hand_torque)?;
     d.set_item("temperature", s.temperature)?;
     d.set_item("hardware_error", s.hardware_error)?;
     d.set_item("time", s.time)?;
+    d.set_item("silent", s.silent)?;
     Ok(d)
 }
 
@@ -143,8 +151,15 @@ impl PyMockBus {
 #[pymethods]
 impl PyMockBus {
     #[new]
-    #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0))]
-    fn new(py: Python<'_>, servos: &Bound<'_, PyAny>, baudrate: i64, wire_delay: bool, physics_rate_hz: f64) -> PyResult<Self> {
+    #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0, link_path=None))]
+    fn new(
+        py: Python<'_>,
+        servos: &Bound<'_, PyAny>,
+        baudrate: i64,
+        wire_delay: bool,
+        physics_rate_hz: f64,
+        link_path: Option<std::path::PathBuf>,
+    ) -> PyResult<Self> {
         if !(physics_rate_hz.is_finite() && (100.0..=100_000.0).contains(&physics_rate_hz)) {
             return Err(config_error(py, format!("physics_rate_hz must be within 100..=100000, got {physics_rate_hz}")));
         }
@@ -157,13 +172,43 @@ impl PyMockBus {
         let config = BusConfig { baudrate, wire_delay, physics_rate_hz };
         let inner = MockBus::new(bus, config)
             .map_err(|e| device_error(py, format!("cannot open a pseudo-terminal for the mock bus: {e}")))?;
+        if let Some(link) = link_path {
+            inner
+                .set_link(&link)
+                .map_err(|e| device_error(py, format!("cannot make the mock bus's link {}: {e}", link.display())))?;
+        }
         Ok(PyMockBus { inner })
     }
 
-    /// The device a client opens, e.g. "/dev/pts/7".
+    /// The device a client opens now, e.g. "/dev/pts/7" (a new one after each replug).
     #[getter]
     fn port_path(&self) -> String {
-        self.inner.port_path().to_string()
+        self.inner.port_path()
+    }
+
+    /// The stable symlink to the pty (None unless `link_path` was given): the same across
+    /// replugs, absent while unplugged.
+    #[getter]
+    fn link_path(&self) -> Option<String> {
+        self.inner.link_path().map(|p| p.to_string_lossy().into_owned())
+    }
+
+    #[getter]
+    fn plugged(&self) -> bool {
+        self.inner.is_plugged()
+    }
+
+    /// Pulls the USB adapter out: the pty closes, so a client's open descriptor hangs up (reads
+    /// end, writes fail with EIO) and the device node and the link disappear. The servos keep
+    /// their power and state. False if it was unplugged already.
+    fn unplug(&self, py: Python<'_>) -> bool {
+        let inner = &self.inner;
+        py.detach(|| inner.unplug())
+    }
+
+    /// Puts the adapter back: a new pty, the link pointed at it. False if plugged in already.
+    fn replug(&self, py: Python<'_>) -> PyResult<bool> {
+        self.inner.replug().map_err(|e| device_error(py, format!("cannot replug the mock bus: {e}")))
     }
 
     #[getter]
@@ -206,10 +251,39 @@ impl PyMockBus {
         self.with_servo(py, id, |s| s.set_external_torque(tau))
     }
 
+    /// A hand grips the horn where it is now: its inertia (kg·m²) rides with the horn, its
+    /// damping (N·m·s/rad) and stiffness (N·m/rad) pull it back; `set_external_torque` is then the
+    /// muscle's torque and `servo_state(id)["hand_torque"]` what a sensor between them reads.
+    /// All zero lets go (the external torque acts alone again).
+    #[pyo3(signature = (id, inertia=0.0, damping=0.0, stiffness=0.0))]
+    fn set_hand(&self, py: Python<'_>, id: u8, inertia: f64, damping: f64, stiffness: f64) -> PyResult<()> {
+        let off = inertia == 0.0 && damping == 0.0 && stiffness == 0.0;
+        let result = self.with_servo(py, id, |s| {
+            let hand = if off { None } else { Some(dxlsim::hand::Hand::new(inertia, damping, stiffness, s.snapshot().theta)?) };
+            s.set_hand(hand);
+            Ok::<(), String>(())
+        })?;
+        result.map_err(|e| config_error(py, e))
+    }
+
     /// Raises Hardware Error Status bits (P2 layout: 0x01 voltage, 0x04 overheating, 0x08
     /// encoder, 0x10 electrical shock, 0x20 overload); 0 clears them (P1 has no reboot).
     fn set_hardware_error(&self, py: Python<'_>, id: u8, bits: u8) -> PyResult<()> {
         self.with_servo(py, id, |s| s.set_hardware_error(bits))
+    }
+
+    /// A brown-out: the servo resets as at power-up (RAM registers back to their defaults,
+    /// torque off, errors cleared) and stays silent for `seconds` while it boots.
+    fn brown_out(&self, py: Python<'_>, id: u8, seconds: f64) -> PyResult<()> {
+        if !(seconds.is_finite() && (0.0..=60.0).contains(&seconds)) {
+            return Err(config_error(py, format!("a brown-out lasts 0..=60 s, got {seconds}")));
+        }
+        self.with_servo(py, id, |s| s.brown_out(seconds))
+    }
+
+    /// Torque Enable cleared with no error bit (torque found off).
+    fn torque_off(&self, py: Python<'_>, id: u8) -> PyResult<()> {
+        self.with_servo(py, id, |s| s.torque_off())
     }
 
     /// The horn's simulated state: theta, omega, goal_tick, present_tick and more.
@@ -236,6 +310,9 @@ impl PyMockBus {
             ("malformed", s.bus.malformed),
             ("table_errors", s.bus.table_errors),
             ("absent_ids", s.bus.absent_ids),
+            ("silent_drops", s.bus.silent_drops),
+            ("unplugs", s.io.unplugs),
+            ("replugs", s.io.replugs),
             ("bytes_in", s.io.bytes_in),
             ("bytes_out", s.io.bytes_out),
             ("garbage_bytes", s.io.garbage_bytes),
@@ -253,6 +330,32 @@ impl PyMockBus {
     }
 }
 
+/// The motor constants the simulated servos of `model` use: `kt` (N·m/A at the output shaft),
+/// `resistance` (Ω) and `max_pwm` (the duty cap); None for a model without them. The bring-up
+/// wizard turns Present Current / Load into torque with them.
+#[pyfunction]
+fn motor_constants<'py>(py: Python<'py>, model: &str) -> PyResult<Option<Bound<'py, PyDict>>> {
+    let Some(motor) = dxlsim::motor::Motor::for_model(model, 12.0) else { return Ok(None) };
+    let d = PyDict::new(py);
+    d.set_item("kt", motor.kt)?;
+    d.set_item("resistance", motor.resistance)?;
+    d.set_item("max_pwm", dxlsim::motor::MAX_PWM)?;
+    Ok(Some(d))
+}
+
+/// The Baud Rate register value of `baudrate` on a firmware protocol (1 or 2), None if it has none.
+#[pyfunction]
+fn baud_code(py: Python<'_>, protocol: u8, baudrate: u32) -> PyResult<Option<i64>> {
+    let protocol = match protocol {
+        1 => Protocol::V1,
+        2 => Protocol::V2,
+        p => return Err(config_error(py, format!("Dynamixel protocol is 1 or 2, not {p}"))),
+    };
+    Ok(dxlsim::setup::baud_code(protocol, baudrate))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(motor_constants, m)?)?;
+    m.add_function(wrap_pyfunction!(baud_code, m)?)?;
     m.add_class::<PyMockBus>()
 }

@@ -3,6 +3,7 @@
 //! Each area registers its own classes and functions from its own file, so the binding layer
 //! stays a thin newtype shell over the pure-Rust crates (pydantic-core/polars style):
 //! - `plant.rs`: simulator (`Trial`, `simulate_batch`, ...)
+//! - `servo.rs`: the servo's tracking dynamics (`ServoTrial`, `servo_simulate_batch`, `servo_lead`)
 //! - `dxl.rs`: Dynamixel codec, model table, serial port
 //! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
 //! - `rt.rs`: the real-time admittance loop
@@ -15,6 +16,7 @@ mod dxlsim;
 mod errors;
 mod plant;
 mod rt;
+mod servo;
 
 #[pymodule]
 fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -24,5 +26,6 @@ fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     dxl::register(m)?;
     dxlsim::register(m)?;
     rt::register(m)?;
+    servo::register(m)?;
     Ok(())
 }

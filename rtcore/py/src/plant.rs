@@ -11,12 +11,12 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
-fn value_error(e: PlantError) -> PyErr {
+pub(crate) fn value_error(e: PlantError) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
 /// Copies an array-like of numbers with exactly `ndim` dimensions; returns data and shape.
-fn f64_array(obj: &Bound<'_, PyAny>, name: &str, ndim: usize) -> PyResult<(Vec<f64>, Vec<usize>)> {
+pub(crate) fn f64_array(obj: &Bound<'_, PyAny>, name: &str, ndim: usize) -> PyResult<(Vec<f64>, Vec<usize>)> {
     let arr: PyArrayLikeDyn<'_, f64, AllowTypeChange> = obj
         .extract()
         .map_err(|e| PyValueError::new_err(format!("{name} must be an array of numbers: {e}")))?;

@@ -9,16 +9,18 @@ use dxl::Protocol;
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
+use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
+use rtloop::fault::{FaultKind, LoopMode};
 use rtloop::histogram::Percentiles;
 use rtloop::params::{joint_value, LoopParams};
 use rtloop::sched::{Policy, RtRequest};
 use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
-use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
+use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
 use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
-const LOOP_KEYS: [&str; 19] = [
+const LOOP_KEYS: [&str; 21] = [
     "port",
     "baudrate",
     "protocol",
@@ -38,9 +40,11 @@ const LOOP_KEYS: [&str; 19] = [
     "telemetry_capacity",
     "start_timeout_ms",
     "torque_on_start",
+    "trigger",
+    "phase_lock",
 ];
 
-const JOINT_KEYS: [&str; 18] = [
+const JOINT_KEYS: [&str; 20] = [
     "id",
     "model",
     "goal_address",
@@ -59,6 +63,8 @@ const JOINT_KEYS: [&str; 18] = [
     "axis",
     "lever_arm",
     "limits",
+    "servo",
+    "servo_compensation",
 ];
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
@@ -125,7 +131,24 @@ fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult
         set(&limits, "velocity_max", &where_, &mut l.velocity_max)?;
         set(&limits, "acceleration_max", &where_, &mut l.acceleration_max)?;
     }
+    if let Some(servo) = opt::<Bound<'_, PyDict>>(d, "servo", &where_)? {
+        j.servo = Some(servo_model(&servo, &format!("{where_}.servo"))?);
+    }
+    // On by default when the joint has a servo model.
+    j.compensation = if j.servo.is_some() { 1.0 } else { 0.0 };
+    set(d, "servo_compensation", &where_, &mut j.compensation)?;
     Ok(j)
+}
+
+/// A `[servo]` table: every one of `SERVO_PARAM_NAMES`, numbers.
+fn servo_model(d: &Bound<'_, PyDict>, where_: &str) -> PyResult<ServoModel> {
+    check_keys(d, &SERVO_PARAM_NAMES, where_)?;
+    let mut values = [0.0; SERVO_PARAM_NAMES.len()];
+    for (value, name) in values.iter_mut().zip(SERVO_PARAM_NAMES) {
+        *value = opt(d, name, where_)?
+            .ok_or_else(|| config_error(d.py(), format!("{where_}: \"{name}\" is required")))?;
+    }
+    ServoModel::from_slice(&values).map_err(|e| config_error(d.py(), format!("{where_}: {e}")))
 }
 
 fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
@@ -143,6 +166,18 @@ fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
     Ok(rt)
 }
 
+/// `trigger` ("sample" or "schedule") and `phase_lock` (sample only).
+fn trigger_mode(d: &Bound<'_, PyDict>) -> PyResult<TriggerMode> {
+    let py = d.py();
+    let phase_lock: bool = opt(d, "phase_lock", "config")?.unwrap_or(true);
+    let name: String = opt(d, "trigger", "config")?.unwrap_or_else(|| "sample".into());
+    match name.as_str() {
+        "sample" => Ok(TriggerMode::Sample { phase_lock }),
+        "schedule" => Ok(TriggerMode::Schedule),
+        _ => Err(config_error(py, format!("config.trigger: {name:?} is not \"sample\" or \"schedule\""))),
+    }
+}
+
 fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let py = d.py();
     check_keys(d, &LOOP_KEYS, "config")?;
@@ -155,6 +190,7 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
         .ok_or_else(|| config_error(py, format!("config.protocol: must be 1 or 2, got {protocol}")))?;
     set(d, "rate_hz", "config", &mut c.rate_hz)?;
     c.rt = rt_request(d)?;
+    c.trigger = trigger_mode(d)?;
     set(d, "sync_read_divisor", "config", &mut c.sync_read_divisor)?;
     set(d, "stale_timeout_ms", "config", &mut c.sensor.stale_timeout_ms)?;
     set(d, "deadband", "config", &mut c.sensor.deadband)?;
@@ -199,14 +235,24 @@ fn params_dict<'py>(py: Python<'py>, p: &LoopParams, ids: &[u8]) -> PyResult<Bou
     Ok(d)
 }
 
-/// A set_params value: a number, or a list of 6 numbers (bias).
+/// At most `n` characters of `text`, marked when cut: a reason never echoes a megabyte of input.
+fn truncated(text: &str, n: usize) -> String {
+    match text.char_indices().nth(n) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_string(),
+    }
+}
+
+/// A set_params value: a number, or a list of 6 numbers (bias). A Python int too large for a
+/// float (OverflowError) is refused here like any other bad value.
 fn param_value(name: &str, v: &Bound<'_, PyAny>) -> Result<ParamValue, String> {
     if let Ok(x) = v.extract::<f64>() {
         return Ok(ParamValue::Scalar(x));
     }
-    v.extract::<[f64; 6]>()
-        .map(ParamValue::Vector)
-        .map_err(|_| format!("'{name}' must be a number (or, for bias, 6 numbers), got {v}"))
+    v.extract::<[f64; 6]>().map(ParamValue::Vector).map_err(|_| {
+        let shown = v.str().map(|s| truncated(&s.to_string_lossy(), 40)).unwrap_or_default();
+        format!("'{}' must be a number (or, for bias, 6 numbers), got {shown}", truncated(name, 40))
+    })
 }
 
 fn start_error(py: Python<'_>, e: StartError) -> PyErr {
@@ -282,7 +328,8 @@ impl PyAdmittanceLoop {
         let mut parsed = Vec::with_capacity(changes.len());
         for (name, value) in changes.iter() {
             let Ok(name) = name.extract::<String>() else {
-                return Ok((false, format!("parameter names must be strings, got {name}")));
+                let shown = name.str().map(|s| truncated(&s.to_string_lossy(), 40)).unwrap_or_default();
+                return Ok((false, format!("parameter names must be strings, got {shown}")));
             };
             match param_value(&name, &value) {
                 Ok(v) => parsed.push((name, v)),
@@ -323,7 +370,8 @@ impl PyAdmittanceLoop {
         telemetry_dtype(py)
     }
 
-    /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads).
+    /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads,
+    /// faults: events per fault kind, and mode: "running", "holding" or "faulted").
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.stats();
         let d = PyDict::new(py);
@@ -338,12 +386,19 @@ impl PyAdmittanceLoop {
         d.set_item("sensor_stale_events", s.sensor_stale_events)?;
         d.set_item("telemetry_drops", s.telemetry_drops)?;
         d.set_item("sync_reads", s.sync_reads)?;
+        let faults = PyDict::new(py);
+        for (name, events) in &s.faults {
+            faults.set_item(*name, *events)?;
+        }
+        d.set_item("faults", faults)?;
+        d.set_item("mode", s.mode.name())?;
         let rt = PyDict::new(py);
         rt.set_item("policy", s.rt.policy)?;
         rt.set_item("priority", s.rt.priority)?;
         rt.set_item("memory_locked", s.rt.memory_locked)?;
         rt.set_item("cpu", s.rt.cpu)?;
         d.set_item("rt", rt)?;
+        d.set_item("trigger", trigger_dict(py, &self.inner)?)?;
         Ok(d)
     }
 
@@ -373,6 +428,24 @@ impl PyAdmittanceLoop {
     }
 }
 
+/// How the cycles started: counts per cause, the arrival period seen, the phase lock's error.
+fn trigger_dict<'py>(py: Python<'py>, inner: &LoopHandle) -> PyResult<Bound<'py, PyDict>> {
+    let (mode, s) = inner.trigger_stats();
+    let d = PyDict::new(py);
+    d.set_item("mode", mode.name())?;
+    d.set_item("phase_lock", matches!(mode, TriggerMode::Sample { phase_lock: true }))?;
+    let starts = PyDict::new(py);
+    starts.set_item("schedule", s.schedule)?;
+    starts.set_item("open", s.open)?;
+    starts.set_item("arrival", s.arrival)?;
+    starts.set_item("fallback", s.fallback)?;
+    d.set_item("starts", starts)?;
+    d.set_item("sensor_interval_us", s.sensor_interval_us)?;
+    d.set_item("sensor_jitter_us", s.sensor_jitter_us)?;
+    d.set_item("phase_error_us", s.phase_error_us)?;
+    Ok(d)
+}
+
 fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     let fields: Vec<(&str, &str)> = RECORD_FIELDS.to_vec();
     py.import("numpy")?.call_method1("dtype", (fields,))
@@ -381,5 +454,8 @@ fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyAdmittanceLoop>()?;
     m.add_class::<PyForceSink>()?;
+    // The telemetry's `mode` codes and `fault` bits, by name: LOOP_MODES[mode], FAULT_KINDS[bit].
+    m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
+    m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     Ok(())
 }

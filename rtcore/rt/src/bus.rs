@@ -11,7 +11,14 @@
 //!
 //! Present positions: Protocol 2.0 uses SYNC_READ; Protocol 1.0 has none, so it uses BULK_READ
 //! (which the MX series supports). Replies arrive in request order within one deadline.
-use dxl::{protocol1, protocol2, AnyDecoder, BulkEntry, DecodeError, EncodeError, Kind, Packet, Protocol};
+//!
+//! Servo health: every status packet a joint's servo sends carries an error byte, and the bus
+//! keeps per joint the last one and counters (`ServoHealth`): the hardware alert (P2 bit 7;
+//! P1's voltage, overheating and overload bits) says the servo shut down, however the read
+//! itself went. `read_register` reads one item of one servo (Torque Enable, Hardware Error
+//! Status) through the same buffers. This layer only observes: what to do about an alert is
+//! the loop's policy.
+use dxl::{protocol1, protocol2, AnyDecoder, BulkEntry, DecodeError, EncodeError, Kind, Packet, Protocol, ServoError};
 use std::fmt;
 use std::io;
 
@@ -43,6 +50,9 @@ pub enum BusError {
     Timeout { missing: usize },
     /// A servo reported that the instruction failed.
     Servo { id: u8, raw: u8 },
+    /// A single-servo read named a joint index the bus does not have, or an item size other
+    /// than 1..=4 bytes.
+    BadRequest { index: usize, size: u16 },
 }
 
 impl fmt::Display for BusError {
@@ -53,11 +63,50 @@ impl fmt::Display for BusError {
             BusError::Decode(e) => write!(f, "bad reply: {e}"),
             BusError::Timeout { missing } => write!(f, "{missing} servo(s) did not answer in time"),
             BusError::Servo { id, raw } => write!(f, "servo {id} reported error 0x{raw:02X}"),
+            BusError::BadRequest { index, size } => write!(f, "no joint {index}, or an item of {size} bytes, to read"),
         }
     }
 }
 
 impl std::error::Error for BusError {}
+
+/// Hardware Error Status on every Protocol 2.0 model of the table (MX(2.0), XM430, XL330).
+/// Protocol 1.0 has no such item: its status error byte carries the bits instead.
+pub const P2_HARDWARE_ERROR_ADDRESS: u16 = 70;
+/// The hardware bits of a P1 error byte (voltage 0x01, overheating 0x04, overload 0x20): the
+/// same positions as in P2's Hardware Error Status, so one layout serves both.
+pub const P1_HARDWARE_BITS: u8 = 0x25;
+
+/// What the status packets of one joint's servo said so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ServoHealth {
+    /// The error byte of its last status packet (0: all well).
+    pub last_error: u8,
+    /// Status packets received from it.
+    pub statuses: u64,
+    /// Status packets with a non-zero error byte.
+    pub errors: u64,
+    /// Status packets with the hardware alert set.
+    pub alerts: u64,
+}
+
+impl ServoHealth {
+    fn note(&mut self, error: ServoError) {
+        let raw = error.raw();
+        self.last_error = raw;
+        self.statuses += 1;
+        self.errors += u64::from(raw != 0);
+        self.alerts += u64::from(error.alert());
+    }
+
+    /// The last status packet had the hardware alert set.
+    pub fn alert(&self, protocol: Protocol) -> bool {
+        match protocol {
+            Protocol::V2 => self.last_error & 0x80 != 0,
+            Protocol::V1 => self.last_error & P1_HARDWARE_BITS != 0,
+        }
+    }
+}
 
 pub struct JointBus {
     protocol: Protocol,
@@ -70,6 +119,7 @@ pub struct JointBus {
     decoder: AnyDecoder,
     present: Vec<i64>,
     answered: Vec<bool>,
+    health: Vec<ServoHealth>,
 }
 
 /// Little-endian two's complement of `value` in `out` (1, 2 or 4 bytes).
@@ -106,12 +156,19 @@ impl JointBus {
             decoder,
             present: vec![-1; n],
             answered: vec![false; n],
+            health: vec![ServoHealth::default(); n],
         }
     }
 
     pub fn ids(&self) -> &[u8] {
         &self.ids
     }
+
+    /// Per joint (in joint order), what its servo's status packets said.
+    pub fn health(&self) -> &[ServoHealth] {
+        &self.health
+    }
+
 
     fn sync_write(&mut self, t: &mut dyn Transport, address: u16, size: u16) -> Result<(), BusError> {
         let data = &self.data[..self.ids.len() * usize::from(size)];
@@ -162,6 +219,7 @@ impl JointBus {
             }
             self.decoder.push(&self.rx[..got]);
             while let Some(item) = self.decoder.next() {
+                note_status(&mut self.health, &self.ids, &item);
                 match accept(item, &self.ids, usize::from(self.regs.present_size)) {
                     Ok(Some((k, tick))) if !self.answered[k] => {
                         self.answered[k] = true;
@@ -179,11 +237,74 @@ impl JointBus {
         }
     }
 
+    /// Reads one item (`size` 1, 2 or 4 bytes at `address`) of joint `k`'s servo before
+    /// `deadline_ns`; 4-byte items are signed. Allocates nothing, so the loop may call it.
+    pub fn read_register(&mut self, t: &mut dyn Transport, k: usize, address: u16, size: u16, deadline_ns: u64) -> Result<i64, BusError> {
+        let Some(&id) = self.ids.get(k).filter(|_| (1..=4).contains(&size)) else {
+            return Err(BusError::BadRequest { index: k, size });
+        };
+        self.discard_input(t)?;
+        let n = match self.protocol {
+            Protocol::V1 => match (u8::try_from(address), u8::try_from(size)) {
+                (Ok(a), Ok(l)) => protocol1::encode_read(&mut self.packet, id, a, l),
+                _ => Err(EncodeError::FieldRange { field: "P1 address", value: u32::from(address), maximum: 255 }),
+            },
+            Protocol::V2 => protocol2::encode_read(&mut self.packet, id, address, size),
+        }
+        .map_err(BusError::Encode)?;
+        t.write_all(&self.packet[..n]).map_err(BusError::Io)?;
+        let mut first_error = None;
+        loop {
+            let got = t.read_until(&mut self.rx, deadline_ns).map_err(BusError::Io)?;
+            if got == 0 {
+                return Err(first_error.unwrap_or(BusError::Timeout { missing: 1 }));
+            }
+            self.decoder.push(&self.rx[..got]);
+            while let Some(item) = self.decoder.next() {
+                note_status(&mut self.health, &self.ids, &item);
+                match accept(item, &self.ids[k..=k], usize::from(size)) {
+                    Ok(Some((_, value))) => return Ok(value),
+                    Ok(None) => {}
+                    // The servo answered and refused: no other reply will come.
+                    Err(e @ BusError::Servo { .. }) => return Err(e),
+                    Err(e) => first_error = first_error.or(Some(e)),
+                }
+            }
+        }
+    }
+
+    /// Torque Enable of joint `k`'s servo (true: on).
+    pub fn read_torque_enable(&mut self, t: &mut dyn Transport, k: usize, deadline_ns: u64) -> Result<bool, BusError> {
+        self.read_register(t, k, self.regs.torque_enable_address, 1, deadline_ns).map(|v| v != 0)
+    }
+
+    /// The hardware error bits of joint `k`'s servo, in P2's Hardware Error Status layout (0x01
+    /// input voltage, 0x04 overheating, 0x08 encoder, 0x10 electrical shock, 0x20 overload).
+    /// Protocol 1.0 has no such item: its bits come from the error byte of a Torque Enable read.
+    pub fn read_hardware_error(&mut self, t: &mut dyn Transport, k: usize, deadline_ns: u64) -> Result<u8, BusError> {
+        match self.protocol {
+            Protocol::V2 => self.read_register(t, k, P2_HARDWARE_ERROR_ADDRESS, 1, deadline_ns).map(|v| v as u8),
+            Protocol::V1 => {
+                self.read_register(t, k, self.regs.torque_enable_address, 1, deadline_ns)?;
+                Ok(self.health[k].last_error & P1_HARDWARE_BITS)
+            }
+        }
+    }
+
     /// Drops bytes left over from an earlier, late reply so they cannot pass for this one.
     fn discard_input(&mut self, t: &mut dyn Transport) -> Result<(), BusError> {
         self.decoder.clear();
         while t.read_until(&mut self.rx, 0).map_err(BusError::Io)? > 0 {}
         Ok(())
+    }
+}
+
+/// Notes the error byte of a status packet from one of our servos in its joint's health.
+fn note_status(health: &mut [ServoHealth], ids: &[u8], item: &Result<Packet<'_>, DecodeError>) {
+    if let Ok(Packet { id, kind: Kind::Status(error), .. }) = item {
+        if let Some(k) = ids.iter().position(|i| i == id) {
+            health[k].note(*error);
+        }
     }
 }
 
@@ -216,6 +337,10 @@ pub(crate) mod memory {
         pub replies: VecDeque<u8>,
         pub fail_writes: bool,
         pub protocol2: bool,
+        /// The error byte of every status packet.
+        pub error: u8,
+        /// One-byte items a READ answers: (id, address, value).
+        pub items: Vec<(u8, u16, u8)>,
     }
 
     #[derive(Clone, Default)]
@@ -231,19 +356,36 @@ pub(crate) mod memory {
         }
     }
 
+    fn status(wire: &mut Wire, id: u8, data: &[u8]) {
+        let mut buf = [0u8; 64];
+        let n = if wire.protocol2 {
+            protocol2::encode_status(&mut buf, id, wire.error, data).unwrap()
+        } else {
+            protocol1::encode_status(&mut buf, id, wire.error, data).unwrap()
+        };
+        wire.replies.extend(&buf[..n]);
+    }
+
     fn reply(wire: &mut Wire, request: &[u8]) {
-        let instruction = if wire.protocol2 { request[7] } else { request[4] };
+        let (id, instruction, params) =
+            if wire.protocol2 { (request[4], request[7], &request[8..]) } else { (request[2], request[4], &request[5..]) };
+        if instruction == 0x02 {
+            let address = if wire.protocol2 { u16::from_le_bytes([params[0], params[1]]) } else { u16::from(params[0]) };
+            let found = wire.items.iter().find(|(i, a, _)| *i == id && *a == address).map(|item| item.2);
+            if let Some(value) = found {
+                status(wire, id, &[value]);
+            }
+            return;
+        }
         if instruction != 0x82 && instruction != 0x92 {
             return;
         }
-        let mut buf = [0u8; 64];
         for (id, tick) in wire.present.clone() {
-            let n = if wire.protocol2 {
-                protocol2::encode_status(&mut buf, id, 0, &(tick as i32).to_le_bytes()).unwrap()
+            if wire.protocol2 {
+                status(wire, id, &(tick as i32).to_le_bytes());
             } else {
-                protocol1::encode_status(&mut buf, id, 0, &(tick as u16).to_le_bytes()).unwrap()
-            };
-            wire.replies.extend(&buf[..n]);
+                status(wire, id, &(tick as u16).to_le_bytes());
+            }
         }
     }
 
@@ -329,6 +471,89 @@ mod tests {
             let mut bytes = [0u8; 2];
             put_le(&mut bytes, value);
             proptest::prop_assert_eq!(get_le(&bytes), value);
+        }
+    }
+
+    fn regs1() -> Registers {
+        Registers { goal_address: 30, goal_size: 2, present_address: 36, present_size: 2, torque_enable_address: 24 }
+    }
+
+    #[test]
+    fn an_alert_is_counted_and_the_positions_still_arrive() {
+        let mut t = MemoryTransport::new(true, &[(1, 100), (2, 200)]);
+        t.0.lock().unwrap().error = 0x80;
+        let mut bus = JointBus::new(Protocol::V2, regs2(), &[1, 2]);
+        assert_eq!(bus.read_present(&mut t, 0).unwrap(), &[100, 200], "an alert alone fails no read");
+        assert_eq!(bus.health()[1], ServoHealth { last_error: 0x80, statuses: 1, errors: 1, alerts: 1 });
+        assert!(bus.health()[0].alert(Protocol::V2));
+        t.0.lock().unwrap().error = 0;
+        bus.read_present(&mut t, 0).unwrap();
+        assert_eq!(bus.health()[0], ServoHealth { last_error: 0, statuses: 2, errors: 1, alerts: 1 });
+        assert!(!bus.health()[0].alert(Protocol::V2));
+    }
+
+    #[test]
+    fn p1_hardware_bits_are_alerts_and_its_failure_bits_are_not() {
+        let mut t = MemoryTransport::new(false, &[(3, 7)]);
+        let mut bus = JointBus::new(Protocol::V1, regs1(), &[3]);
+        t.0.lock().unwrap().error = 0x20; // overload
+        assert_eq!(bus.read_present(&mut t, 0).unwrap(), &[7]);
+        assert_eq!(bus.health()[0].alerts, 1);
+        t.0.lock().unwrap().error = 0x08; // range: the read itself failed
+        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Servo { id: 3, raw: 0x08 })));
+        assert_eq!(bus.health()[0], ServoHealth { last_error: 0x08, statuses: 2, errors: 2, alerts: 1 });
+    }
+
+    #[test]
+    fn torque_enable_and_hardware_error_are_read_per_servo() {
+        let mut t = MemoryTransport::new(true, &[]);
+        t.0.lock().unwrap().items = vec![(2, 64, 1), (2, 70, 0x24), (1, 64, 0)];
+        let mut bus = JointBus::new(Protocol::V2, regs2(), &[1, 2]);
+        assert!(bus.read_torque_enable(&mut t, 1, 0).unwrap());
+        assert!(!bus.read_torque_enable(&mut t, 0, 0).unwrap());
+        assert_eq!(bus.read_hardware_error(&mut t, 1, 0).unwrap(), 0x24);
+        assert!(matches!(bus.read_hardware_error(&mut t, 0, 0), Err(BusError::Timeout { missing: 1 })));
+        assert!(matches!(bus.read_register(&mut t, 2, 64, 1, 0), Err(BusError::BadRequest { index: 2, .. })));
+        assert!(matches!(bus.read_register(&mut t, 0, 64, 5, 0), Err(BusError::BadRequest { size: 5, .. })));
+        let mut want = [0u8; 16];
+        let n = protocol2::encode_read(&mut want, 2, 70, 1).unwrap();
+        assert!(t.written().contains(&want[..n].to_vec()), "a READ of Hardware Error Status went out");
+        // Protocol 1.0: the bits ride on the status error byte of any read.
+        let mut t1 = MemoryTransport::new(false, &[]);
+        t1.0.lock().unwrap().items = vec![(4, 24, 0)];
+        t1.0.lock().unwrap().error = 0x24;
+        let mut bus1 = JointBus::new(Protocol::V1, regs1(), &[4]);
+        assert_eq!(bus1.read_hardware_error(&mut t1, 0, 0).unwrap(), 0x24);
+        assert!(!bus1.read_torque_enable(&mut t1, 0, 0).unwrap());
+    }
+
+    #[test]
+    fn hardware_error_status_sits_at_70_on_every_p2_model() {
+        for model in dxl::models::MODELS.iter().filter(|m| m.protocol == Protocol::V2) {
+            let item = model.item("Hardware Error Status").expect(model.name);
+            assert_eq!((item.address, item.size), (P2_HARDWARE_ERROR_ADDRESS, 1), "{}", model.name);
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn every_status_error_byte_is_kept_and_counted(errors in proptest::collection::vec(proptest::prelude::any::<u8>(), 1..12), p2 in proptest::prelude::any::<bool>()) {
+            let protocol = if p2 { Protocol::V2 } else { Protocol::V1 };
+            let mut t = MemoryTransport::new(p2, &[(5, 9)]);
+            let regs = if p2 { regs2() } else { regs1() };
+            let mut bus = JointBus::new(protocol, regs, &[5]);
+            let mut want = ServoHealth::default();
+            for &raw in &errors {
+                // P1 status bytes never have bit 7 (the SDK rejects them; our decoder too).
+                let raw = if p2 { raw } else { raw & 0x7F };
+                t.0.lock().unwrap().error = raw;
+                let error = if p2 { ServoError::V2(protocol2::StatusError::from_raw(raw)) } else { ServoError::V1(protocol1::ErrorBits(raw)) };
+                let result = bus.read_present(&mut t, 0).map(|p| p.to_vec());
+                proptest::prop_assert_eq!(result.is_ok(), !error.is_failure());
+                want.note(error);
+                proptest::prop_assert_eq!(bus.health()[0], want);
+                proptest::prop_assert_eq!(bus.health()[0].alert(protocol), error.alert());
+            }
         }
     }
 

@@ -8,8 +8,9 @@
 use crate::bus::Registers;
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
-use crate::params::{JointGains, JointParams, Limits, LoopParams, SensorParams};
+use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
 use crate::sched::RtRequest;
+use crate::trigger::TriggerMode;
 use dxl::Protocol;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -23,6 +24,10 @@ pub struct JointConfig {
     pub axis: usize,
     pub gains: JointGains,
     pub limits: Limits,
+    /// The servo's tracking dynamics (the parameter file's `[servo]`), if identified.
+    pub servo: Option<plant::servo::ServoModel>,
+    /// Weight of the servo compensation in [0, 1]; needs `servo`.
+    pub compensation: f64,
 }
 
 impl JointConfig {
@@ -42,6 +47,8 @@ impl JointConfig {
             axis: 0,
             gains: JointGains { inertia: 0.01467, damping: 0.03471, coulomb: 0.08426, lever_arm: 0.1 },
             limits: Limits { position_min, position_max, velocity_max: std::f64::consts::TAU, acceleration_max: 200.0 },
+            servo: None,
+            compensation: 0.0,
         }
     }
 }
@@ -53,6 +60,8 @@ pub struct LoopConfig {
     pub protocol: Protocol,
     pub rate_hz: f64,
     pub rt: RtRequest,
+    /// What starts a cycle: a force sample's arrival (default) or the fixed schedule.
+    pub trigger: TriggerMode,
     pub joints: Vec<JointConfig>,
     /// Read present positions every N cycles; 0 = never.
     pub sync_read_divisor: u64,
@@ -77,6 +86,7 @@ impl Default for LoopConfig {
             protocol: Protocol::V2,
             rate_hz: 1000.0,
             rt: RtRequest::default(),
+            trigger: TriggerMode::default(),
             joints: Vec::new(),
             sync_read_divisor: 10,
             sensor: SensorParams { deadband: 0.0, lowpass_hz: 0.0, stale_timeout_ms: 50.0 },
@@ -95,9 +105,25 @@ impl LoopConfig {
         self.joints.iter().map(|j| j.id).collect()
     }
 
+    /// Each joint's id and the angles its goal range reaches, in joint order (what the
+    /// position limits are checked against).
+    pub fn reach(&self) -> Vec<Reach> {
+        self.joints
+            .iter()
+            .map(|j| {
+                let (theta_min, theta_max) = j.ticks.theta_range();
+                Reach { id: j.id, theta_min, theta_max }
+            })
+            .collect()
+    }
+
     pub fn initial_params(&self) -> LoopParams {
         LoopParams {
-            joints: self.joints.iter().map(|j| JointParams { gains: j.gains, limits: j.limits }).collect(),
+            joints: self
+                .joints
+                .iter()
+                .map(|j| JointParams { gains: j.gains, limits: j.limits, servo: j.servo, compensation: j.compensation })
+                .collect(),
             sensor: self.sensor,
             ramp_time_s: self.ramp_time_s,
             bias: self.bias,
@@ -145,7 +171,7 @@ impl LoopConfig {
                 ));
             }
         }
-        self.initial_params().validate(&ids, self.rate_hz)
+        self.initial_params().validate(&self.reach(), self.rate_hz)
     }
 }
 

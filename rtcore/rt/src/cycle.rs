@@ -7,18 +7,29 @@
 //!    accepted sets is itself stable. The position state is never touched, so nothing jumps.
 //! 2. `take_force`: drain the sample ring to the newest sample (stale check, tare feed).
 //! 3. `condition_force`: bias, deadband, low-pass.
-//! 4. `step_joints`: torque = force[axis] × lever_arm, one admittance step with limited state,
-//!    or a hold (velocity zero, no integration) while the force is stale.
+//! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
+//!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
+//!    deadlines' time; the deadline is the grid point, never the cycle's start, which a sample
+//!    may trigger anywhere in the window), or a hold (velocity zero, no integration) while the
+//!    force is stale.
+//!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
+//!    step is guarded: gains that are not usable, a state that is not finite or leaves the
+//!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
+//!    with the goal it already has and raise `FaultKind::ModelStateInvalid` (see `fault`), so
+//!    nothing but a valid state ever becomes a goal.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
-//! 7. `publish`: telemetry records and counters.
+//! 7. `publish`: telemetry records (with the model's time, each joint's fault bits and the
+//!    loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::Clock;
+use crate::compensation::Compensation;
+use crate::fault::{FaultKind, Faults, LoopMode};
 use crate::filter::{deadband, LowPass, TareAverager};
-use crate::joint::{integrate, user_torque, TickMap};
+use crate::joint::{integrate, state_in_envelope, user_torque, TickMap};
 use crate::params::{JointGains, Limits, LoopParams, SensorParams};
 use crate::sensor::{ForceIntake, Intake};
 use crate::shared::Shared;
@@ -39,6 +50,10 @@ pub struct JointWiring {
 struct JointSlot {
     wiring: JointWiring,
     state: State,
+    /// The last state that passed the guard: where a fault holds the joint.
+    good: State,
+    /// This joint's faults this cycle.
+    faults: Faults,
     limits: Limits,
     ramp_from: JointGains,
     ramp_to: JointGains,
@@ -46,7 +61,12 @@ struct JointSlot {
     force: f64,
     torque: f64,
     present: i64,
+    compensation: Compensation,
 }
+
+/// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
+/// longer stall loses the rest of its time rather than jumping the goal by that much motion.
+const MAX_CATCH_UP_STEPS: u64 = 10;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
@@ -74,10 +94,19 @@ pub struct Controller {
     bias: [f64; 6],
     bias_generation: u64,
     intake: ForceIntake,
+    /// Faults of the loop as a whole this cycle (none raised yet: the bus and sensor kinds go here).
+    loop_faults: Faults,
+    /// The joints held this cycle by policy (stale force).
+    holding: bool,
     params: triple_buffer::Output<LoopParams>,
     bus: JointBus,
     sync_read_divisor: u64,
+    /// A due read failed last cycle: try once more now (a recording's row, and the rendering
+    /// error, would otherwise wait a whole divisor).
+    read_retry: bool,
     cycle: u64,
+    /// The deadline the model has been integrated up to.
+    model_ns: Option<u64>,
     latency_from_ns: Option<u64>,
     telemetry: rtrb::Producer<Record>,
     shared: Arc<Shared>,
@@ -94,6 +123,8 @@ impl Controller {
             .map(|(wiring, jp)| JointSlot {
                 wiring: *wiring,
                 state: State::default(),
+                good: State::default(),
+                faults: Faults::NONE,
                 limits: jp.limits,
                 ramp_from: jp.gains,
                 ramp_to: jp.gains,
@@ -101,6 +132,7 @@ impl Controller {
                 force: 0.0,
                 torque: 0.0,
                 present: -1,
+                compensation: Compensation::new(jp.servo, jp.compensation),
             })
             .collect::<Vec<_>>();
         let mut lowpass = LowPass::default();
@@ -119,10 +151,14 @@ impl Controller {
             bias: p.bias,
             bias_generation: p.bias_generation,
             intake: ForceIntake::new(parts.force_ring),
+            loop_faults: Faults::NONE,
+            holding: false,
             params: parts.params,
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
+            read_retry: false,
             cycle: 0,
+            model_ns: None,
             latency_from_ns: None,
             telemetry: parts.telemetry,
             shared: parts.shared,
@@ -140,6 +176,7 @@ impl Controller {
         let ticks = self.bus.read_present(t, deadline_ns)?;
         for ((slot, goal), &tick) in self.joints.iter_mut().zip(self.goals.iter_mut()).zip(ticks) {
             slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+            slot.good = slot.state;
             slot.present = tick;
             *goal = tick;
         }
@@ -165,18 +202,24 @@ impl Controller {
         self.joints.iter().map(|j| j.gains)
     }
 
-    /// Runs the cycle whose deadline was `deadline_ns`.
-    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64) {
+    /// Runs the cycle of the grid point `grid_ns`, due at `due_ns`.
+    ///
+    /// The two differ when a sample starts the cycle (`trigger`): the grid point (the window's
+    /// opening) is what the model's clock counts its steps against; the due time (the opening,
+    /// the sample's push or the window's end) is what the wake-up's lateness and the read's
+    /// deadline are measured from. On the schedule both are the deadline.
+    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, grid_ns: u64, due_ns: u64) {
         let wake_ns = clock.now_ns();
         self.adopt_params();
         self.advance_ramp();
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
-        self.step_joints(&force, intake.stale);
+        let steps = self.steps_due(grid_ns);
+        self.step_joints(&force, intake.stale, steps);
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
-        let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
-        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
+        let read = self.read_present(t, due_ns + self.period_ns - self.period_ns / 10);
+        self.publish(wake_ns, wake_ns.saturating_sub(due_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
     }
 
@@ -189,6 +232,7 @@ impl Controller {
             slot.ramp_from = slot.gains;
             slot.ramp_to = jp.gains;
             slot.limits = jp.limits;
+            slot.compensation.retarget(jp.servo, jp.compensation);
         }
         self.ramp_progress = 0.0;
         self.ramp_time_s = p.ramp_time_s;
@@ -241,16 +285,48 @@ impl Controller {
         self.lowpass.apply(&f)
     }
 
-    fn step_joints(&mut self, force: &[f64; 6], hold: bool) {
+    /// Model steps due at this deadline: as many as bring the model's own time (whole steps
+    /// of one period) nearest to the deadline, so the model keeps the deadlines' time through
+    /// an overrun (recordings and `identify` rely on it). Counted against the model's time,
+    /// not the previous deadline, so a grid that shifts or stretches by a bounded amount (a
+    /// phase-locked clock) keeps the two within half a period instead of drifting apart; a
+    /// grid that moved back gives a cycle of no step. A stall longer than the catch-up cap
+    /// loses the rest of its time (the model's time restarts at this deadline).
+    fn steps_due(&mut self, deadline_ns: u64) -> u64 {
+        let Some(model_ns) = self.model_ns else {
+            self.model_ns = Some(deadline_ns);
+            return 1;
+        };
+        let due = deadline_ns.saturating_sub(model_ns).saturating_add(self.period_ns / 2) / self.period_ns;
+        let steps = due.min(MAX_CATCH_UP_STEPS);
+        self.model_ns = Some(if due > MAX_CATCH_UP_STEPS { deadline_ns } else { model_ns + steps * self.period_ns });
+        steps
+    }
+
+    fn step_joints(&mut self, force: &[f64; 6], hold: bool, steps: u64) {
+        self.holding = hold;
+        let h = self.h;
         for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
             slot.force = force[slot.wiring.axis];
             slot.torque = user_torque(force, slot.wiring.axis, &slot.gains);
+            slot.faults = Faults::NONE;
+            let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
             } else {
-                integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, self.h);
+                for _ in 0..steps {
+                    alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, h);
+                }
             }
-            *goal = slot.wiring.ticks.goal_tick(slot.state.theta);
+            slot.compensation.advance(h, self.ramp_time_s);
+            // No step (a hold, or a grid that moved back): the lead stays, so the goal does.
+            match state_usable(slot).then(|| compensated_goal(slot, alpha, hold || steps == 0, h)).flatten() {
+                Some(tick) => {
+                    slot.good = slot.state;
+                    *goal = tick;
+                }
+                None => hold_at_good(slot), // and the goal it already has
+            }
         }
     }
 
@@ -281,17 +357,22 @@ impl Controller {
         }
     }
 
-    /// Reads the present positions when due; true if this cycle read them.
+    /// Reads the present positions when due, or once more the cycle after a due read failed;
+    /// true if this cycle read them. A silent servo so costs at most two reads per divisor.
     fn read_present(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> bool {
-        if self.sync_read_divisor == 0 || !self.cycle.is_multiple_of(self.sync_read_divisor) {
+        let due = self.sync_read_divisor > 0 && self.cycle.is_multiple_of(self.sync_read_divisor);
+        let retry = std::mem::take(&mut self.read_retry);
+        if !due && !retry {
             return false;
         }
+        self.read_retry = due && self.sync_read_divisor > 1;
         match self.bus.read_present(t, deadline_ns) {
             Ok(ticks) => {
                 for (slot, &tick) in self.joints.iter_mut().zip(ticks) {
                     slot.present = tick;
                 }
                 LoopStats::add(&self.shared.stats.sync_reads, 1);
+                self.read_retry = false;
                 true
             }
             Err(_) => {
@@ -303,10 +384,14 @@ impl Controller {
 
     fn publish(&mut self, wake_ns: u64, period_error_ns: u64, latency_ns: i64, read: bool) {
         let stats = &self.shared.stats;
+        let active = self.joints.iter().fold(self.loop_faults, |all, slot| all.union(slot.faults));
+        let mode = LoopMode::of(active, self.holding);
+        stats.faults.record(active, mode);
         for (slot, &goal) in self.joints.iter().zip(&self.goals) {
             let record = Record {
                 cycle: self.cycle,
                 t_ns: wake_ns,
+                deadline_ns: self.model_ns.unwrap_or(wake_ns),
                 id: slot.wiring.id as i64,
                 force: slot.force,
                 torque: slot.torque,
@@ -316,6 +401,8 @@ impl Controller {
                 present_tick: if read { slot.present } else { -1 },
                 period_error_ns: period_error_ns as i64,
                 latency_ns,
+                fault: slot.faults.union(self.loop_faults).bits(),
+                mode: mode as i64,
             };
             if self.telemetry.push(record).is_err() {
                 LoopStats::add(&stats.telemetry_drops, 1);
@@ -332,6 +419,41 @@ impl Controller {
     }
 }
 
+/// The state guard's test, after a joint's step: gains the loop can integrate with and a state
+/// that is finite and inside the envelope.
+fn state_usable(slot: &JointSlot) -> bool {
+    slot.gains.usable() && state_in_envelope(&slot.state, &slot.wiring.ticks)
+}
+
+/// The goal tick of a usable state: the model's angle plus the compensation's lead, which may
+/// not carry the goal past a position limit (a state already outside a narrowed range stays
+/// where it is, as the integrator lets it). None when the led angle is not finite: it would
+/// reach the bus as tick 0, a jump across the range.
+fn compensated_goal(slot: &mut JointSlot, alpha: f64, hold: bool, h: f64) -> Option<i64> {
+    let State { theta, omega } = slot.state;
+    // A model brought to rest within one step (a stick, a position limit) decelerated by ω/h:
+    // the reference stops, and the servo is to hold, not to brake that hard.
+    let alpha = if omega == 0.0 { 0.0 } else { alpha };
+    let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, h);
+    if !led.is_finite() {
+        return None; // checked before the limits: max/min would turn a NaN into a bound
+    }
+    // min/max, not clamp: clamp panics on crossed or NaN bounds, and the RT thread never panics.
+    Some(slot.wiring.ticks.goal_tick(led.max(slot.limits.position_min.min(theta)).min(slot.limits.position_max.max(theta))))
+}
+
+/// The guard's policy when a state or its goal is not usable: the joint holds at its last good
+/// state (velocity zero; its goal is left as it is) and the fault is raised for this cycle; the
+/// next cycle tries again from that good state.
+fn hold_at_good(slot: &mut JointSlot) {
+    slot.faults.insert(FaultKind::ModelStateInvalid);
+    slot.state = State { theta: slot.good.theta, omega: 0.0 };
+    slot.compensation.hold();
+    if !slot.torque.is_finite() {
+        slot.torque = 0.0; // the record shows the hand's torque, unless the gains made it NaN
+    }
+}
+
 #[cfg(test)]
 #[path = "cycle_tests.rs"]
-mod tests;
+pub(crate) mod tests;

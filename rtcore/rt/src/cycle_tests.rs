@@ -4,6 +4,7 @@ use super::*;
 use crate::bus::memory::MemoryTransport;
 use crate::bus::Registers;
 use crate::clock::fake::FakeClock;
+use crate::fault::LoopMode;
 use crate::params::tests::params;
 use crate::sensor::ForceSample;
 use dxl::Protocol;
@@ -63,7 +64,7 @@ impl Rig {
             self.force.push(ForceSample { t_ns: self.clock.now_ns(), forces: [fx, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         }
         let mut bus = self.bus.clone();
-        self.ctl.run_cycle(&mut bus, &self.clock, deadline);
+        self.ctl.run_cycle(&mut bus, &self.clock, deadline, deadline);
         self.telemetry.pop().unwrap()
     }
 
@@ -133,6 +134,7 @@ fn stale_force_holds_position_and_counts_one_event() {
     }
     let first_hold = held.iter().position(|rec| rec.omega == 0.0).unwrap();
     assert!(first_hold >= 49, "held too early: {first_hold}");
+    assert!(held.iter().enumerate().all(|(k, rec)| (rec.mode == LoopMode::Holding as i64) == (k >= first_hold)));
     let hold_theta = held[first_hold].theta;
     assert!(held[first_hold..].iter().all(|rec| rec.theta == hold_theta && rec.omega == 0.0));
     assert_eq!(r.shared.stats.sensor_stale_events.load(Ordering::Relaxed), 1);
@@ -205,6 +207,17 @@ fn present_positions_are_read_every_divisor_cycles() {
     r.ctl.begin(r.clock.now_ns());
     let present: Vec<i64> = (0..8).map(|_| r.cycle_with(Some(0.0)).present_tick).collect();
     assert_eq!(present, vec![2100, -1, -1, -1, 2100, -1, -1, -1]);
+    // A due read that fails is tried once more on the next cycle (and no more after that).
+    let servos = r.bus.0.lock().unwrap().present.clone();
+    let run = |r: &mut Rig, answering: bool| {
+        r.bus.0.lock().unwrap().present = if answering { servos.clone() } else { Vec::new() };
+        r.cycle_with(Some(0.0)).present_tick
+    };
+    let silent_twice: Vec<i64> = [false, false, true, true, true].iter().map(|&a| run(&mut r, a)).collect();
+    assert_eq!(silent_twice, vec![-1, -1, -1, -1, 2100], "cycles 8 (due), 9 (retry), 10, 11, 12 (due)");
+    let _ = [true, true, true].map(|a| run(&mut r, a)); // cycles 13..15
+    let retried: Vec<i64> = [false, true, true].iter().map(|&a| run(&mut r, a)).collect();
+    assert_eq!(retried, vec![-1, 2100, -1], "cycle 16 fails, 17 retries, 18 is not due");
 }
 
 /// A bus whose writes take `cost_ns` of fake time: a slow cycle.
@@ -227,33 +240,188 @@ impl Transport for SlowBus {
     }
 }
 
-#[test]
-fn overruns_are_counted_and_skipped_on_the_grid() {
+/// Ten cycles through the runner in `mode`, a fresh sample pushed into the ring before each
+/// (bypassing the doorbell, so sample-mode cycles start at their windows' ends); the 5th
+/// cycle's write takes 2.5 periods. Returns the rig, its start time and the records.
+fn run_with_an_overrun(mode: crate::trigger::TriggerMode) -> (Rig, u64, Vec<Record>) {
     let mut r = rig(free_joint(), &[(1, 2048)]);
     let cost = std::rc::Rc::new(std::cell::Cell::new(100_000));
     let mut bus = SlowBus { inner: r.bus.clone(), clock: r.clock.clone(), cost_ns: cost.clone() };
     let start = r.clock.now_ns();
     let mut clock = r.clock.clone();
     let mut n = 0;
-    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), || {
+    let now = r.clock.clone();
+    let bell = crate::doorbell::Doorbell::default();
+    let (shared, force) = (r.shared.clone(), &mut r.force);
+    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &shared, &bell, mode, || {
         n += 1;
-        if n == 5 {
-            cost.set(2_500_000); // this cycle's write takes 2.5 periods
-        } else {
-            cost.set(100_000);
-        }
+        cost.set(if n == 5 { 2_500_000 } else { 100_000 }); // this cycle's write takes 2.5 periods
+        force.push(ForceSample { t_ns: now.now_ns(), forces: [2.0, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         n <= 10
     });
+    let records = std::iter::from_fn(|| r.telemetry.pop().ok()).collect();
+    (r, start, records)
+}
+
+#[test]
+fn overruns_are_counted_and_skipped_on_the_grid() {
+    let (r, start, records) = run_with_an_overrun(crate::trigger::TriggerMode::Schedule);
     let stats = &r.shared.stats;
     assert_eq!(stats.cycles.load(Ordering::Relaxed), 10);
     assert_eq!(stats.overruns.load(Ordering::Relaxed), 2, "deadlines 6 and 7 were lost");
-    let wakes: Vec<u64> = std::iter::from_fn(|| r.telemetry.pop().ok()).map(|rec| rec.t_ns - start).collect();
+    let wakes: Vec<u64> = records.iter().map(|rec| rec.t_ns - start).collect();
     let expected: Vec<u64> = [1, 2, 3, 4, 5, 8, 9, 10, 11, 12].iter().map(|k| k * PERIOD).collect();
     assert_eq!(wakes, expected, "every wake is on the grid, none is doubled up");
 }
 
+#[test]
+fn an_overrun_is_integrated_so_the_model_keeps_the_deadlines_time() {
+    // On the schedule, and with the sample trigger (cycles at their windows' ends here): either
+    // way the steps follow the grid, not the starts.
+    for mode in [crate::trigger::TriggerMode::Schedule, crate::trigger::TriggerMode::default()] {
+        let (_, start, records) = run_with_an_overrun(mode);
+        // 10 cycles on 12 deadlines (6 and 7 lost): the model took 12 steps of h, θ_n = a·h²·n(n+1)/2.
+        let a = 2.0 * 0.1 / 0.02;
+        let steps = 12.0;
+        let expected = a * 1e-6 * steps * (steps + 1.0) / 2.0;
+        let last = records.last().unwrap();
+        assert!((last.theta - expected).abs() < 1e-12, "{mode:?}: {} vs {expected}", last.theta);
+        // Each record's deadline is the model's time: the grid point, the lost ones stepped over.
+        let deadlines: Vec<u64> = records.iter().map(|rec| (rec.deadline_ns - start) / PERIOD).collect();
+        assert_eq!(deadlines, [1, 2, 3, 4, 5, 8, 9, 10, 11, 12], "{mode:?}");
+    }
+}
+
+fn lagging_servo() -> plant::servo::ServoModel {
+    plant::servo::ServoModel { time_constant: 0.025, inertial_time: 0.0, dead_time: 0.002, compliance: 0.01, deadband: 0.0 }
+}
+
+#[test]
+fn turning_the_compensation_on_and_off_never_steps_the_goal() {
+    // A damped joint under a constant push moves at a constant 1 rad/s: its lead is 27 mrad, 17 ticks.
+    let mut p = free_joint();
+    p.joints[0].gains.damping = 0.2;
+    p.joints[0].servo = Some(lagging_servo());
+    p.ramp_time_s = 0.0; // the compensation still blends, over MIN_BLEND_S
+    let mut r = started(p.clone(), &[(1, 2048)]);
+    for _ in 0..1000 {
+        r.cycle_with(Some(2.0));
+    }
+    let tick = 4096.0 / std::f64::consts::TAU;
+    let per_cycle = |w: f64| (w * 1e-3 * tick).ceil() as i64 + 1;
+    let mut goals = vec![r.cycle_with(Some(2.0)).goal_tick];
+    for weight in [1.0, 0.0] {
+        let mut next = p.clone();
+        next.joints[0].compensation = weight;
+        r.params.write(next);
+        for _ in 0..400 {
+            goals.push(r.cycle_with(Some(2.0)).goal_tick);
+        }
+        let rec = r.cycle_with(Some(2.0));
+        let lead = weight * plant::servo::lead(&lagging_servo(), rec.omega, 0.0, rec.torque);
+        assert_eq!(rec.goal_tick, 2048 + ((rec.theta + lead) * tick).round() as i64, "weight {weight}");
+        goals.push(rec.goal_tick);
+    }
+    // Per cycle: the joint's own motion (1 rad/s) plus the blend's share of the 17-tick lead.
+    let limit = per_cycle(1.0) + (0.027 * tick * 1e-3 / crate::compensation::MIN_BLEND_S).ceil() as i64;
+    let worst = goals.windows(2).map(|w| (w[1] - w[0]).abs()).max().unwrap();
+    assert!(worst <= limit, "a step of {worst} ticks (limit {limit})");
+}
+
+#[test]
+fn a_position_limit_stops_the_model_without_kicking_the_goal_back() {
+    let mut p = free_joint();
+    p.joints[0].servo = Some(plant::servo::ServoModel { inertial_time: 0.02, ..lagging_servo() });
+    p.joints[0].compensation = 1.0;
+    p.joints[0].limits.position_max = 0.05;
+    let mut r = started(p, &[(1, 2048)]);
+    let goals: Vec<i64> = (0..400).map(|_| r.cycle_with(Some(2.0)).goal_tick).collect();
+    let limit_tick = 2048 + (0.05 * 4096.0 / std::f64::consts::TAU).round() as i64;
+    assert!(goals.iter().all(|&g| g <= limit_tick), "never past the limit");
+    // At rest against the limit the lead is only the hand's deflection (s·τ = 2 mrad, 1.3 ticks).
+    assert!(goals.windows(2).all(|w| w[1] >= w[0] - 2), "no kick back from it: {goals:?}");
+}
+
+/// Runs one cycle whose deadline is `deadline` (the clock wakes on it), with a fresh sample of `fx`.
+fn cycle_at(r: &mut Rig, deadline: u64, fx: f64) -> Record {
+    let mut clock = r.clock.clone();
+    clock.sleep_until(deadline);
+    r.force.push(ForceSample { t_ns: r.clock.now_ns(), forces: [fx, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
+    let mut bus = r.bus.clone();
+    r.ctl.run_cycle(&mut bus, &r.clock, deadline, deadline);
+    r.telemetry.pop().unwrap()
+}
+
+#[test]
+fn a_grid_that_shifts_or_stretches_keeps_the_model_within_half_a_period_of_it() {
+    // Deadlines from a phase-locked grid: 0.1 % longer than the nominal period, with a bounded
+    // jitter of ±0.3 periods and one phase step of +0.4 periods. The model's time (whole steps)
+    // may lag or lead a deadline by at most half a period, and never drifts away from it.
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    let start = r.clock.now_ns();
+    let mut steps = 0u64;
+    let a = 0.2 * 0.1 / 0.02;
+    for k in 1..=3000u64 {
+        let jitter = ((k * 7919 % 13) as f64 / 12.0 - 0.5) * 0.6;
+        let phase = if k > 1500 { 0.4 } else { 0.0 };
+        let deadline = start + ((k as f64 * 1.001 + jitter + phase) * PERIOD as f64) as u64;
+        let rec = cycle_at(&mut r, deadline, 0.2);
+        steps = ((2.0 * rec.theta / (a * 1e-6) + 0.25).sqrt() - 0.5).round() as u64; // θ_n = a·h²·n(n+1)/2
+        let model_ns = r.ctl.model_ns.unwrap();
+        assert!(model_ns.abs_diff(deadline) <= PERIOD / 2, "cycle {k}: model {model_ns}, deadline {deadline}");
+    }
+    let elapsed = (r.ctl.model_ns.unwrap() - start) as f64 / PERIOD as f64;
+    assert!((steps as f64 - elapsed).abs() <= 1.0, "{steps} steps over {elapsed} periods");
+    assert!(steps > 3000, "the stretched grid's extra time was integrated: {steps}");
+}
+
+/// A damped joint with the lagging servo compensated, pushed to a steady 1 rad/s (its lead is
+/// 17 ticks): the set, the rig and the last (good) record.
+fn pushed_with_compensation() -> (LoopParams, Rig, Record) {
+    let mut p = free_joint();
+    p.joints[0].gains.damping = 0.2;
+    p.joints[0].servo = Some(lagging_servo());
+    p.joints[0].compensation = 1.0;
+    let mut r = started(p.clone(), &[(1, 2048)]);
+    for _ in 0..300 {
+        r.cycle_with(Some(2.0));
+    }
+    let good = r.cycle_with(Some(2.0));
+    assert!(good.goal_tick > 2048 + 10 && good.fault == 0);
+    (p, r, good)
+}
+
+#[test]
+fn a_non_finite_compensated_goal_is_a_fault_and_the_goal_stays() {
+    let (p, mut r, good) = pushed_with_compensation();
+    let mut bad = p.clone();
+    bad.joints[0].compensation = f64::NAN; // the gate refuses this; written straight to the buffer here
+    r.params.write(bad);
+    for _ in 0..20 {
+        let rec = r.cycle_with(Some(2.0));
+        assert_eq!((rec.goal_tick, rec.fault), (good.goal_tick, FaultKind::ModelStateInvalid.bit()));
+        assert_eq!((rec.theta, rec.omega, rec.mode), (good.theta, 0.0, LoopMode::Faulted as i64));
+    }
+    assert_eq!(model_faults(&r), 1);
+    r.params.write(p);
+    let recovered = r.cycle_with(Some(2.0));
+    assert_eq!((recovered.fault, recovered.mode), (0, LoopMode::Running as i64));
+    assert!((recovered.goal_tick - good.goal_tick).abs() <= 20, "within the lead it held with");
+}
+
+#[test]
+fn a_fault_with_compensation_on_keeps_the_led_goal() {
+    let (_, mut r, good) = pushed_with_compensation();
+    r.ctl.joints[0].state.theta = f64::NAN;
+    let held = r.cycle_with(Some(2.0));
+    assert_eq!((held.goal_tick, held.fault), (good.goal_tick, FaultKind::ModelStateInvalid.bit()));
+    let after = r.cycle_with(Some(2.0));
+    assert_eq!(after.fault, 0);
+    assert!((after.goal_tick - good.goal_tick).abs() <= 2, "no jump when it runs again");
+}
+
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
-mod counting {
+pub(crate) mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
     use std::cell::Cell;
 
@@ -309,6 +477,8 @@ fn a_cycle_allocates_nothing() {
     r.ctl.begin(r.clock.now_ns());
     let mut next = p.clone();
     next.joints[1].gains.damping = 0.2;
+    next.joints[2].servo = Some(lagging_servo());
+    next.joints[2].compensation = 1.0;
     next.bias = [0.5; 6];
     next.bias_generation = 1;
     r.params.write(next);
@@ -324,7 +494,7 @@ fn a_cycle_allocates_nothing() {
             r.force.push(ForceSample { t_ns: r.clock.now_ns(), forces: [1.0, 2.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         }
         let before = counting::count();
-        r.ctl.run_cycle(&mut NullBus, &r.clock, deadline);
+        r.ctl.run_cycle(&mut NullBus, &r.clock, deadline, deadline);
         allocations += counting::count() - before;
         while r.telemetry.pop().is_ok() {}
     }
@@ -332,4 +502,128 @@ fn a_cycle_allocates_nothing() {
     assert_eq!(stats.sensor_stale_events.load(Ordering::Relaxed), 1, "the stale path ran");
     assert!(stats.bus_errors.load(Ordering::Relaxed) > 0, "the bus-error path ran");
     assert_eq!(allocations, 0, "a cycle allocated");
+}
+
+fn mode_now(r: &Rig) -> crate::fault::LoopMode {
+    r.shared.stats.faults.mode()
+}
+
+fn model_faults(r: &Rig) -> u64 {
+    r.shared.stats.faults.events(FaultKind::ModelStateInvalid)
+}
+
+/// A free joint pushed for `cycles` cycles; the rig and the last (good) record.
+fn pushed(cycles: usize) -> (Rig, Record) {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    for _ in 0..cycles {
+        r.cycle_with(Some(3.0));
+    }
+    let good = r.cycle_with(Some(3.0));
+    (r, good)
+}
+
+#[test]
+fn an_injected_nan_state_holds_the_last_good_goal_and_raises_a_fault() {
+    let (mut r, good) = pushed(100);
+    assert!(good.goal_tick > 2048 && good.mode == LoopMode::Running as i64 && good.fault == 0);
+    r.ctl.joints[0].state.theta = f64::NAN;
+    let held = r.cycle_with(Some(3.0));
+    assert_eq!(held.goal_tick, good.goal_tick, "the goal stays where it was (NaN as i64 is zero_tick: a jump)");
+    assert_eq!((held.theta, held.omega), (good.theta, 0.0), "the last good state, at rest");
+    assert_eq!(held.fault, FaultKind::ModelStateInvalid.bit());
+    assert_eq!(held.mode, LoopMode::Faulted as i64);
+    assert_eq!((model_faults(&r), mode_now(&r)), (1, LoopMode::Faulted));
+    // The cause is gone (the state was restored): the next cycle runs again, from rest.
+    let after = r.cycle_with(Some(3.0));
+    assert_eq!((after.fault, after.mode), (0, LoopMode::Running as i64));
+    assert!(after.theta > good.theta && (after.goal_tick - good.goal_tick).abs() <= 1);
+    assert_eq!(model_faults(&r), 1);
+}
+
+#[test]
+fn a_state_out_of_the_envelope_is_a_fault_too() {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    let good = r.cycle_with(Some(0.0));
+    r.ctl.joints[0].state.omega = 1e300;
+    let held = r.cycle_with(Some(0.0));
+    assert_eq!((held.goal_tick, held.omega, held.fault), (good.goal_tick, 0.0, FaultKind::ModelStateInvalid.bit()));
+}
+
+#[test]
+fn gains_that_bypassed_the_gate_hold_the_joint_until_a_good_set_arrives() {
+    let (mut r, good) = pushed(50);
+    let mut bad = free_joint();
+    bad.joints[0].gains.inertia = 0.0; // the gate refuses this; written straight to the buffer here
+    r.params.write(bad);
+    for _ in 0..20 {
+        let rec = r.cycle_with(Some(3.0));
+        assert_eq!((rec.goal_tick, rec.omega, rec.mode), (good.goal_tick, 0.0, LoopMode::Faulted as i64));
+        assert!(rec.theta.is_finite());
+    }
+    assert_eq!(model_faults(&r), 1, "one event for the whole episode");
+    r.params.write(free_joint());
+    let recovered = r.cycle_with(Some(3.0));
+    assert_eq!(recovered.mode, LoopMode::Running as i64);
+    assert!((recovered.goal_tick - good.goal_tick).abs() <= 1, "it starts again from where it held");
+}
+
+#[test]
+fn a_stale_hold_is_the_holding_mode_not_a_fault() {
+    let mut r = started(free_joint(), &[(1, 2048)]);
+    r.cycle_with(Some(1.0));
+    let held = (0..60).map(|_| r.cycle_with(None)).last().unwrap();
+    assert_eq!((held.mode, held.fault), (LoopMode::Holding as i64, 0));
+    assert_eq!(model_faults(&r), 0);
+}
+
+/// A set the gate accepts, drawn across the envelope (gains log-uniform, limits anywhere valid).
+fn accepted_set() -> impl proptest::strategy::Strategy<Value = LoopParams> {
+    use crate::params::envelope;
+    use crate::params::tests::{accepted_gains, reach};
+    use proptest::prelude::*;
+    let limits = (-3.1f64..3.1, 0.01f64..3.0, 0.01f64..envelope::VELOCITY_MAX, 1.0f64..envelope::ACCELERATION_MAX);
+    (accepted_gains(), limits, 0.0f64..0.05, proptest::collection::vec(-100.0f64..100.0, 6)).prop_filter_map(
+        "the set must pass the gate",
+        |(gains, (lo, width, v, a), ramp, bias)| {
+            let mut p = params(1);
+            p.joints[0].gains = gains;
+            p.joints[0].limits = Limits { position_min: lo, position_max: (lo + width).min(std::f64::consts::PI), velocity_max: v, acceleration_max: a };
+            p.ramp_time_s = ramp;
+            p.bias.copy_from_slice(&bias);
+            p.bias_generation = 1;
+            p.validate(&reach(1), RATE).ok().map(|_| p)
+        },
+    )
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+    /// Any sequence of accepted sets, each adopted (and ramped into) while a random force
+    /// pushes: every goal stays in the goal range, every state finite, no fault is raised, and
+    /// no cycle moves the goal by more than the fastest accepted speed allows.
+    #[test]
+    fn accepted_sets_keep_the_goals_finite_and_jump_free(
+        sets in proptest::collection::vec((accepted_set(), 1usize..60), 1..6),
+        forces in proptest::collection::vec(-500.0f64..500.0, 8),
+    ) {
+        let mut r = started(params(1), &[(1, 2048)]);
+        let mut previous = r.cycle_with(Some(0.0)).goal_tick;
+        let mut k = 0;
+        for (set, cycles) in sets {
+            // Limits apply at once: |Δθ| ≤ h·velocity_max of this set, plus a tick of rounding.
+            let max_step = set.joints[0].limits.velocity_max / RATE * 4096.0 / std::f64::consts::TAU + 1.0;
+            r.params.write(set);
+            for _ in 0..cycles {
+                let rec = r.cycle_with(Some(forces[k % forces.len()]));
+                k += 1;
+                proptest::prop_assert!(rec.theta.is_finite() && rec.omega.is_finite());
+                proptest::prop_assert!((0..=4095).contains(&rec.goal_tick));
+                proptest::prop_assert!(((rec.goal_tick - previous).abs() as f64) <= max_step,
+                    "goal {} → {}", previous, rec.goal_tick);
+                proptest::prop_assert_eq!(rec.fault, 0);
+                previous = rec.goal_tick;
+            }
+        }
+    }
 }

@@ -7,7 +7,11 @@
 //! limit the velocity into the limit is zeroed, so the state itself never leaves the range and
 //! responds at once when the user pushes back. A state already outside the range (a limit
 //! narrowed live) is not pulled in with a jump: it may only move back towards the range.
-use crate::params::{JointGains, Limits};
+//!
+//! The bounds are applied with `min`/`max`, never `f64::clamp`: clamp panics on a NaN or on
+//! crossed bounds, and the RT thread must not panic whatever reaches it (the parameter gate
+//! keeps such values out; this keeps a bug from becoming a dead loop).
+use crate::params::{envelope, JointGains, Limits};
 use plant::State;
 use std::f64::consts::TAU;
 
@@ -53,8 +57,8 @@ pub fn integrate(state: &mut State, gains: &JointGains, limits: &Limits, tau: f6
     let before = *state;
     plant::admittance::step(state, &gains.admittance(), tau, h);
     let max_dv = limits.acceleration_max * h;
-    let mut omega = before.omega + (state.omega - before.omega).clamp(-max_dv, max_dv);
-    omega = omega.clamp(-limits.velocity_max, limits.velocity_max);
+    let mut omega = before.omega + bound(state.omega - before.omega, max_dv);
+    omega = bound(omega, limits.velocity_max);
     let mut theta = before.theta + h * omega;
     let hi = limits.position_max.max(before.theta);
     let lo = limits.position_min.min(before.theta);
@@ -67,6 +71,24 @@ pub fn integrate(state: &mut State, gains: &JointGains, limits: &Limits, tau: f6
     }
     *state = State { theta, omega };
     (omega - before.omega) / h
+}
+
+/// `x` limited to ±`limit`, without `clamp`'s panic on a NaN or a negative limit.
+pub(crate) fn bound(x: f64, limit: f64) -> f64 {
+    x.min(limit).max(-limit)
+}
+
+/// Whether a model state is one the loop can have reached from accepted parameters: finite, θ
+/// within the goal range's angles (give or take a turn: a state outside the position limits
+/// after they narrowed is legitimate), |ω| within the envelope's speed. Anything else is a
+/// bug or a corruption, and the loop holds rather than turn it into a goal.
+pub fn state_in_envelope(state: &State, ticks: &TickMap) -> bool {
+    let (lo, hi) = ticks.theta_range();
+    state.theta.is_finite()
+        && state.omega.is_finite()
+        && state.theta >= lo - TAU
+        && state.theta <= hi + TAU
+        && state.omega.abs() <= envelope::VELOCITY_MAX
 }
 
 #[cfg(test)]
@@ -128,6 +150,23 @@ mod tests {
         assert_eq!(s, State { theta: 0.1, omega: 0.0 });
         integrate(&mut s, &gains(), &limits, -0.05, 1e-3);
         assert!(s.theta < 0.1 && s.omega < 0.0, "no wind-up to unwind");
+    }
+
+    #[test]
+    fn nan_limits_do_not_panic() {
+        let limits = Limits { velocity_max: f64::NAN, acceleration_max: -1.0, ..wide() };
+        let mut s = State::default();
+        integrate(&mut s, &gains(), &limits, 1.0, 1e-3); // no panic; the loop's guard judges the result
+    }
+
+    #[test]
+    fn the_envelope_takes_legitimate_states_and_refuses_garbage() {
+        let m = TickMap { zero_tick: 2048, direction: 1, ticks_per_rev: 4096.0, tick_min: 0, tick_max: 4095 };
+        assert!(state_in_envelope(&State { theta: 3.1, omega: -20.0 }, &m));
+        for bad in [State { theta: f64::NAN, omega: 0.0 }, State { theta: 0.0, omega: f64::INFINITY },
+                    State { theta: 1e300, omega: 0.0 }, State { theta: 0.0, omega: 1e3 }] {
+            assert!(!state_in_envelope(&bad, &m), "{bad:?}");
+        }
     }
 
     #[test]

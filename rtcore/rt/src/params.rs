@@ -8,10 +8,65 @@
 //!
 //! Names are the configuration's keys: per joint `virtual_inertia`, `virtual_damping`,
 //! `virtual_coulomb`, `lever_arm`, `position_min`, `position_max`, `velocity_max`,
-//! `acceleration_max` (bare = every joint, `"<id>.name"` = one joint, an optional `limits.`
-//! before the limit names); loop-wide `deadband`, `lowpass_hz`, `stale_timeout_ms`,
-//! `ramp_time_s` and `bias` (6 numbers).
+//! `acceleration_max`, `servo_compensation` (bare = every joint, `"<id>.name"` = one joint, an
+//! optional `limits.` before the limit names); loop-wide `deadband`, `lowpass_hz`,
+//! `stale_timeout_ms`, `ramp_time_s` and `bias` (6 numbers).
+//!
+//! This is the second gate. The daemon's schema (`admittance/daemon/config.py`) checks every
+//! live value against its documented, physical bounds before a set reaches the loop; the
+//! [`envelope`] here is wider, and exists so that no caller of the library (the daemon, a
+//! test, a script driving `AdmittanceLoop` directly) can hand the RT thread a value that
+//! makes it panic (`clamp` with a NaN or crossed bounds), divide by zero, or wind a goal past
+//! the servo's range.
 use plant::admittance::{check_stable, AdmittanceParams};
+use plant::servo::ServoModel;
+
+/// The loop's own bounds on every parameter: numerical safety, not taste (see the module doc).
+pub mod envelope {
+    /// kg·m²: a floor far from 0, so a ramp's interpolation can never round to 0.
+    pub const INERTIA: (f64, f64) = (1e-6, 1e3);
+    /// N·m·s/rad
+    pub const DAMPING_MAX: f64 = 1e4;
+    /// N·m
+    pub const COULOMB_MAX: f64 = 1e3;
+    /// m, on |lever_arm|: non-zero, and no longer than a lab.
+    pub const LEVER_ARM: (f64, f64) = (1e-4, 10.0);
+    /// rad/s
+    pub const VELOCITY_MAX: f64 = 100.0;
+    /// rad/s²
+    pub const ACCELERATION_MAX: f64 = 1e5;
+    /// N
+    pub const DEADBAND_MAX: f64 = 1e4;
+    /// ms
+    pub const STALE_TIMEOUT_MS_MAX: f64 = 10_000.0;
+    /// s
+    pub const RAMP_TIME_S_MAX: f64 = 60.0;
+    /// N and N·m, per component
+    pub const BIAS_MAX: f64 = 1e5;
+}
+
+/// A number for a message: a shortest round-trip form in the usual range, else 6 significant
+/// digits in exponent form, so a reason never echoes a 300-digit number.
+pub fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        return format!("{v}");
+    }
+    let text = format!("{v:.5e}");
+    match text.split_once('e') {
+        Some((mantissa, exponent)) if mantissa.contains('.') => {
+            format!("{}e{exponent}", mantissa.trim_end_matches('0').trim_end_matches('.'))
+        }
+        _ => text,
+    }
+}
+
+/// The angles one joint's goal range reaches (the position limits must stay inside).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reach {
+    pub id: u8,
+    pub theta_min: f64,
+    pub theta_max: f64,
+}
 
 /// The gains of one joint that ramp when they change.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,13 +82,29 @@ pub struct JointGains {
 }
 
 impl JointGains {
+    /// What the RT thread checks before it integrates with these gains (no allocation): every
+    /// value finite, I > 0, B and F ≥ 0, a non-zero lever arm. Ramps between two accepted sets
+    /// always pass; this only catches what should never be there.
+    pub fn usable(&self) -> bool {
+        self.inertia.is_finite()
+            && self.inertia > 0.0
+            && self.damping.is_finite()
+            && self.damping >= 0.0
+            && self.coulomb.is_finite()
+            && self.coulomb >= 0.0
+            && self.lever_arm.is_finite()
+            && self.lever_arm != 0.0
+    }
+
     pub fn admittance(&self) -> AdmittanceParams {
         AdmittanceParams { inertia: self.inertia, damping: self.damping, coulomb: self.coulomb }
     }
 
-    /// `self + s·(to − self)`, field by field.
+    /// `(1 − s)·self + s·to`, field by field. The convex form, not `a + s·(b − a)`: at
+    /// s = 1 it gives `to` exactly, and a mix of two positive values never rounds below the
+    /// smaller one (`a + s·(b − a)` rounded 0.02 → 1e-20 to exactly 0, and the model to NaN).
     pub fn lerp(&self, to: &JointGains, s: f64) -> JointGains {
-        let mix = |a: f64, b: f64| a + s * (b - a);
+        let mix = |a: f64, b: f64| (1.0 - s) * a + s * b;
         JointGains {
             inertia: mix(self.inertia, to.inertia),
             damping: mix(self.damping, to.damping),
@@ -56,6 +127,10 @@ pub struct Limits {
 pub struct JointParams {
     pub gains: JointGains,
     pub limits: Limits,
+    /// The servo's identified tracking dynamics (from the joint's parameter file); not settable.
+    pub servo: Option<ServoModel>,
+    /// Weight of the servo compensation in [0, 1] (`servo_compensation`; needs `servo`).
+    pub compensation: f64,
 }
 
 /// Force conditioning shared by all joints.
@@ -88,7 +163,7 @@ pub enum ParamValue {
     Vector([f64; 6]),
 }
 
-const JOINT_KEYS: [&str; 8] = [
+const JOINT_KEYS: [&str; 9] = [
     "virtual_inertia",
     "virtual_damping",
     "virtual_coulomb",
@@ -97,6 +172,7 @@ const JOINT_KEYS: [&str; 8] = [
     "position_max",
     "velocity_max",
     "acceleration_max",
+    "servo_compensation",
 ];
 const LOOP_KEYS: [&str; 5] = ["deadband", "lowpass_hz", "stale_timeout_ms", "ramp_time_s", "bias"];
 
@@ -115,6 +191,7 @@ fn joint_field<'a>(j: &'a mut JointParams, key: &str) -> Option<&'a mut f64> {
         "position_max" => &mut j.limits.position_max,
         "velocity_max" => &mut j.limits.velocity_max,
         "acceleration_max" => &mut j.limits.acceleration_max,
+        "servo_compensation" => &mut j.compensation,
         _ => return None,
     })
 }
@@ -125,11 +202,19 @@ pub fn joint_value(j: &JointParams, key: &str) -> Option<f64> {
     joint_field(&mut copy, key).map(|v| *v)
 }
 
+/// A name for a message: at most 40 characters (a name is remote input and may be a megabyte).
+fn shown(name: &str) -> String {
+    match name.char_indices().nth(40) {
+        Some((cut, _)) => format!("{}…", &name[..cut]),
+        None => name.to_string(),
+    }
+}
+
 /// Splits `"3.limits.position_max"` into (Some(3), "position_max").
 fn split_name(name: &str) -> Result<(Option<u8>, &str), String> {
     let (id, key) = match name.split_once('.') {
         Some((head, rest)) if head.chars().all(|c| c.is_ascii_digit()) && !head.is_empty() => {
-            let id = head.parse::<u8>().map_err(|_| format!("'{name}': joint id {head} is not 0..=253"))?;
+            let id = head.parse::<u8>().map_err(|_| format!("'{}': joint id {} is not 0..=253", shown(name), shown(head)))?;
             (Some(id), rest)
         }
         _ => (None, name),
@@ -140,7 +225,7 @@ fn split_name(name: &str) -> Result<(Option<u8>, &str), String> {
 fn scalar(name: &str, value: ParamValue) -> Result<f64, String> {
     match value {
         ParamValue::Scalar(v) => Ok(v),
-        ParamValue::Vector(_) => Err(format!("'{name}' takes one number, not a list")),
+        ParamValue::Vector(_) => Err(format!("'{}' takes one number, not a list", shown(name))),
     }
 }
 
@@ -154,7 +239,7 @@ impl LoopParams {
                 Some(id) => Some(
                     ids.iter()
                         .position(|&i| i == id)
-                        .ok_or_else(|| format!("'{name}': no joint with id {id} (joints: {ids:?})"))?,
+                        .ok_or_else(|| format!("'{}': no joint with id {id} (joints: {ids:?})", shown(name)))?,
                 ),
                 None => None,
             };
@@ -167,10 +252,10 @@ impl LoopParams {
         }
         if !LOOP_KEYS.contains(&key) {
             let known: Vec<&str> = known_names().collect();
-            return Err(format!("unknown parameter '{name}' (known: {})", known.join(", ")));
+            return Err(format!("unknown parameter '{}' (known: {})", shown(name), known.join(", ")));
         }
         if id.is_some() {
-            return Err(format!("'{name}': '{key}' is loop-wide and takes no joint id"));
+            return Err(format!("'{}': '{key}' is loop-wide and takes no joint id", shown(name)));
         }
         match (key, value) {
             ("bias", ParamValue::Vector(b)) => {
@@ -186,29 +271,34 @@ impl LoopParams {
         Ok(())
     }
 
-    /// Checks the whole set for a loop running at `rate_hz`; the error names the joint and key.
-    pub fn validate(&self, ids: &[u8], rate_hz: f64) -> Result<(), String> {
+    /// Checks the whole set for a loop running at `rate_hz`, each joint against its reach (in
+    /// joint order); the error names the joint and the key.
+    pub fn validate(&self, reach: &[Reach], rate_hz: f64) -> Result<(), String> {
+        use envelope::*;
+        if reach.len() != self.joints.len() {
+            return Err(format!("{} joints, but {} reach ranges", self.joints.len(), reach.len()));
+        }
         let h = 1.0 / rate_hz;
-        for (joint, id) in self.joints.iter().zip(ids) {
-            validate_joint(joint, h).map_err(|reason| format!("joint {id}: {reason}"))?;
+        for (joint, r) in self.joints.iter().zip(reach) {
+            validate_joint(joint, r, h).map_err(|reason| format!("joint {}: {reason}", r.id))?;
         }
         let s = &self.sensor;
-        require(s.deadband.is_finite() && s.deadband >= 0.0, "deadband", s.deadband, "finite and >= 0")?;
+        within("deadband", s.deadband, 0.0, DEADBAND_MAX)?;
         require(
             s.lowpass_hz.is_finite() && s.lowpass_hz >= 0.0 && s.lowpass_hz < rate_hz / 2.0,
             "lowpass_hz",
             s.lowpass_hz,
-            &format!("in [0, {}) (0 = off; below half the loop rate)", rate_hz / 2.0),
+            &format!("in [0, {}) (0 = off; below half the loop rate)", short(rate_hz / 2.0)),
         )?;
         require(
-            s.stale_timeout_ms.is_finite() && s.stale_timeout_ms > 0.0,
+            s.stale_timeout_ms.is_finite() && s.stale_timeout_ms > 0.0 && s.stale_timeout_ms <= STALE_TIMEOUT_MS_MAX,
             "stale_timeout_ms",
             s.stale_timeout_ms,
-            "finite and > 0",
+            &format!("in (0, {}]", short(STALE_TIMEOUT_MS_MAX)),
         )?;
-        require(self.ramp_time_s.is_finite() && self.ramp_time_s >= 0.0, "ramp_time_s", self.ramp_time_s, "finite and >= 0")?;
-        if let Some(b) = self.bias.iter().find(|b| !b.is_finite()) {
-            return Err(format!("bias must be 6 finite numbers, got {b}"));
+        within("ramp_time_s", self.ramp_time_s, 0.0, RAMP_TIME_S_MAX)?;
+        if let Some(b) = self.bias.iter().find(|b| !(b.is_finite() && b.abs() <= BIAS_MAX)) {
+            return Err(format!("bias must be 6 numbers within ±{}, got {}", short(BIAS_MAX), short(*b)));
         }
         Ok(())
     }
@@ -218,29 +308,66 @@ fn require(ok: bool, name: &str, value: f64, what: &str) -> Result<(), String> {
     if ok {
         Ok(())
     } else {
-        Err(format!("{name} must be {what}, got {value}"))
+        Err(format!("{name} must be {what}, got {}", short(value)))
     }
 }
 
-fn validate_joint(j: &JointParams, h: f64) -> Result<(), String> {
-    check_stable(&j.gains.admittance(), h)?;
-    require(j.gains.lever_arm.is_finite(), "lever_arm", j.gains.lever_arm, "finite")?;
+/// `lo <= value <= hi` (so finite).
+fn within(name: &str, value: f64, lo: f64, hi: f64) -> Result<(), String> {
+    require(value >= lo && value <= hi, name, value, &format!("in [{}, {}]", short(lo), short(hi)))
+}
+
+/// `0 < value <= hi`.
+fn positive_up_to(name: &str, value: f64, hi: f64) -> Result<(), String> {
+    require(value > 0.0 && value <= hi, name, value, &format!("in (0, {}]", short(hi)))
+}
+
+fn validate_joint(j: &JointParams, reach: &Reach, h: f64) -> Result<(), String> {
+    use envelope::*;
+    let g = &j.gains;
+    within("virtual_inertia", g.inertia, INERTIA.0, INERTIA.1)?;
+    within("virtual_damping", g.damping, 0.0, DAMPING_MAX)?;
+    within("virtual_coulomb", g.coulomb, 0.0, COULOMB_MAX)?;
+    check_stable(&g.admittance(), h)?;
+    require(
+        g.lever_arm.abs() >= LEVER_ARM.0 && g.lever_arm.abs() <= LEVER_ARM.1,
+        "lever_arm",
+        g.lever_arm,
+        &format!("non-zero, {} to {} m either sign", short(LEVER_ARM.0), short(LEVER_ARM.1)),
+    )?;
     let l = &j.limits;
-    require(l.position_min.is_finite(), "position_min", l.position_min, "finite")?;
-    require(l.position_max.is_finite(), "position_max", l.position_max, "finite")?;
+    // One tick of slack: the reach is computed from ticks, the limits may come from the same
+    // computation done elsewhere (Python) with a different rounding.
+    let slack = 1e-9;
+    let (lo, hi) = (reach.theta_min - slack, reach.theta_max + slack);
+    let range = format!("in [{}, {}] rad (the angles the goal range reaches)", short(reach.theta_min), short(reach.theta_max));
+    require(l.position_min >= lo && l.position_min <= hi, "position_min", l.position_min, &range)?;
+    require(l.position_max >= lo && l.position_max <= hi, "position_max", l.position_max, &range)?;
     if l.position_min >= l.position_max {
         return Err(format!(
             "position_min ({}) must be below position_max ({})",
-            l.position_min, l.position_max
+            short(l.position_min),
+            short(l.position_max)
         ));
     }
-    require(l.velocity_max.is_finite() && l.velocity_max > 0.0, "velocity_max", l.velocity_max, "finite and > 0")?;
-    require(
-        l.acceleration_max.is_finite() && l.acceleration_max > 0.0,
-        "acceleration_max",
-        l.acceleration_max,
-        "finite and > 0",
-    )
+    positive_up_to("velocity_max", l.velocity_max, VELOCITY_MAX)?;
+    positive_up_to("acceleration_max", l.acceleration_max, ACCELERATION_MAX)?;
+    validate_compensation(j)
+}
+
+fn validate_compensation(j: &JointParams) -> Result<(), String> {
+    let w = j.compensation;
+    require((0.0..=1.0).contains(&w), "servo_compensation", w, "in [0, 1] (0 = off, 1 = full)")?;
+    if w > 0.0 && j.servo.is_none() {
+        return Err(format!(
+            "servo_compensation = {w} needs a servo model, and this joint's parameter file has no [servo] \
+             table (make one with `admittance fidelity RECORDING --params-out FILE`)"
+        ));
+    }
+    if let Some(model) = &j.servo {
+        model.validate().map_err(|e| format!("servo model: {e}"))?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -251,7 +378,14 @@ pub(crate) mod tests {
         JointParams {
             gains: JointGains { inertia: 0.02, damping: 0.05, coulomb: 0.01, lever_arm: 0.1 },
             limits: Limits { position_min: -3.0, position_max: 3.0, velocity_max: 10.0, acceleration_max: 1e3 },
+            servo: None,
+            compensation: 0.0,
         }
+    }
+
+    /// The reach of `n` joints with ids 1..=n: ±π.
+    pub fn reach(n: usize) -> Vec<Reach> {
+        (1..=n as u8).map(|id| Reach { id, theta_min: -std::f64::consts::PI, theta_max: std::f64::consts::PI }).collect()
     }
 
     pub fn params(n: usize) -> LoopParams {
@@ -292,7 +426,7 @@ pub(crate) mod tests {
 
     #[test]
     fn unstable_and_inconsistent_values_are_refused_with_a_reason() {
-        let ids = [1];
+        let ids = reach(1);
         let mut p = params(1);
         p.joints[0].gains.damping = 40.0; // h·B/I = 2 at 1 kHz
         let e = p.validate(&ids, 1000.0).unwrap_err();
@@ -312,6 +446,71 @@ pub(crate) mod tests {
         assert!(params(1).validate(&ids, 1000.0).is_ok());
     }
 
+    /// Each value just outside the envelope, one at a time: refused, and the reason names the key
+    /// without echoing a long number.
+    #[test]
+    fn the_envelope_bounds_every_value() {
+        type Mutation = fn(&mut LoopParams);
+        let cases: [(&str, Mutation); 16] = [
+            ("virtual_inertia", |p| p.joints[0].gains.inertia = 1e-20),
+            ("virtual_inertia", |p| p.joints[0].gains.inertia = 1e300),
+            ("virtual_damping", |p| p.joints[0].gains.damping = f64::INFINITY),
+            ("virtual_coulomb", |p| p.joints[0].gains.coulomb = 1e300),
+            ("lever_arm", |p| p.joints[0].gains.lever_arm = 0.0),
+            ("lever_arm", |p| p.joints[0].gains.lever_arm = -1e9),
+            ("position_max", |p| p.joints[0].limits.position_max = 100.0),
+            ("position_min", |p| p.joints[0].limits.position_min = -3.2),
+            ("velocity_max", |p| p.joints[0].limits.velocity_max = 1e300),
+            ("velocity_max", |p| p.joints[0].limits.velocity_max = f64::NAN),
+            ("acceleration_max", |p| p.joints[0].limits.acceleration_max = -1.0),
+            ("deadband", |p| p.sensor.deadband = 1e300),
+            ("stale_timeout_ms", |p| p.sensor.stale_timeout_ms = 1e12),
+            ("ramp_time_s", |p| p.ramp_time_s = 1e9),
+            ("bias", |p| p.bias[3] = 1e300),
+            ("lowpass_hz", |p| p.sensor.lowpass_hz = f64::NAN),
+        ];
+        for (key, mutate) in cases {
+            let mut p = params(1);
+            mutate(&mut p);
+            let e = p.validate(&reach(1), 1000.0).unwrap_err();
+            assert!(e.contains(key.trim_start_matches("virtual_")), "{key}: {e}");
+            assert!(e.len() < 200, "{key}: a short reason, got {e}");
+        }
+    }
+
+    #[test]
+    fn short_numbers_read_like_printf_g() {
+        assert_eq!(short(0.05), "0.05");
+        assert_eq!(short(1e300), "1e300");
+        assert_eq!(short(-1.234567891e-20), "-1.23457e-20");
+        assert_eq!(short(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn long_names_are_not_echoed_in_full() {
+        let mut p = params(1);
+        let name = "x".repeat(100_000);
+        let e = p.set(&[1], &name, ParamValue::Scalar(1.0)).unwrap_err();
+        assert!(e.len() < 400, "{}", e.len());
+    }
+
+    #[test]
+    fn compensation_needs_a_servo_model_and_a_weight_in_0_1() {
+        let (ids, reach) = ([1], reach(1));
+        let mut p = params(1);
+        p.set(&ids, "servo_compensation", ParamValue::Scalar(1.0)).unwrap();
+        assert!(p.validate(&reach, 1000.0).unwrap_err().contains("[servo]"));
+        p.joints[0].servo = Some(ServoModel::first_order_lag(0.02));
+        assert_eq!(p.validate(&reach, 1000.0), Ok(()));
+        for bad in [1.5, -0.1, f64::NAN] {
+            p.set(&ids, "1.servo_compensation", ParamValue::Scalar(bad)).unwrap();
+            assert!(p.validate(&reach, 1000.0).unwrap_err().contains("servo_compensation"), "{bad}");
+        }
+        p.joints[0].compensation = 0.0;
+        p.joints[0].servo = Some(ServoModel { time_constant: -1.0, ..ServoModel::first_order_lag(0.02) });
+        assert!(p.validate(&reach, 1000.0).unwrap_err().contains("time_constant"));
+    }
+
     #[test]
     fn a_ramp_between_stable_sets_stays_stable() {
         // h·B/I < 1 is linear in (I, B): every convex mix of two stable sets is stable.
@@ -321,5 +520,46 @@ pub(crate) mod tests {
             let g = a.lerp(&b, k as f64 / 100.0);
             assert!(check_stable(&g.admittance(), 1e-3).is_ok());
         }
+    }
+
+    #[test]
+    fn the_ramp_ends_exactly_on_its_target_and_never_rounds_to_zero() {
+        // The issue's case: 0.02 → 1e-20 with the affine form a + s·(b − a) gave exactly 0 at s = 1.
+        let a = JointGains { inertia: 0.02, damping: 0.0, coulomb: 0.0, lever_arm: 0.1 };
+        let b = JointGains { inertia: 1e-20, ..a };
+        assert_eq!(a.lerp(&b, 1.0), b);
+        assert!((0..=1000).all(|k| a.lerp(&b, k as f64 / 1000.0).inertia >= 1e-20));
+    }
+
+    proptest::proptest! {
+        /// Any two sets the gate accepts: every point of the ramp between them is usable and
+        /// (up to rounding) stable, so a ramp cannot pass through an invalid set.
+        #[test]
+        fn every_point_of_a_ramp_between_accepted_sets_is_valid(
+            a in accepted_gains(), b in accepted_gains(), s in 0.0f64..=1.0,
+        ) {
+            let g = a.lerp(&b, s);
+            proptest::prop_assert!(g.usable());
+            proptest::prop_assert!(g.inertia >= a.inertia.min(b.inertia) * (1.0 - 1e-12));
+            proptest::prop_assert!(1e-3 * g.damping / g.inertia < 1.0 + 1e-9);
+        }
+    }
+
+    /// Gains that pass `validate` at 1 kHz (drawn across the whole envelope, log-uniform).
+    pub fn accepted_gains() -> impl proptest::strategy::Strategy<Value = JointGains> {
+        use proptest::prelude::*;
+        (-6.0f64..3.0, 0.0f64..1.0, 0.0f64..envelope::COULOMB_MAX, -4.0f64..1.0, any::<bool>()).prop_filter_map(
+            "the set must pass the gate",
+            |(log_i, b_frac, coulomb, log_l, flip)| {
+                let inertia = 10f64.powf(log_i);
+                // h·B/I < 1 at 1 kHz: B below 1000·I, and within the envelope.
+                let damping = (b_frac * 999.0 * inertia).min(envelope::DAMPING_MAX);
+                let lever_arm = 10f64.powf(log_l) * if flip { -1.0 } else { 1.0 };
+                let g = JointGains { inertia, damping, coulomb, lever_arm };
+                let mut p = params(1);
+                p.joints[0].gains = g;
+                p.validate(&reach(1), 1000.0).ok().map(|_| g)
+            },
+        )
     }
 }

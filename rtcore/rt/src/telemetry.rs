@@ -6,6 +6,7 @@
 //!
 //! Why counters are atomics: the RT thread writes them with uncontended relaxed operations and
 //! Python reads them whenever it likes; there is no lock the loop could wait on.
+use crate::fault::{FaultCounters, LoopMode};
 use crate::histogram::{Histogram, Percentiles};
 use crate::sched::RtReport;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
@@ -17,6 +18,11 @@ pub struct Record {
     pub cycle: u64,
     /// CLOCK_MONOTONIC at the cycle's start (its wake-up).
     pub t_ns: u64,
+    /// The cycle's deadline on the model's clock (CLOCK_MONOTONIC): the time the model's state
+    /// has been integrated up to, in whole steps of one period; the grid point this cycle stands
+    /// for, within half a period of the (phase-locked) grid. Recordings stamp rows with it. A
+    /// cycle that took no step (a grid that moved back) repeats the previous one's.
+    pub deadline_ns: u64,
     pub id: i64,
     /// The conditioned force on the joint's axis (after tare, deadband, low-pass).
     pub force: f64,
@@ -27,16 +33,23 @@ pub struct Record {
     pub goal_tick: i64,
     /// The tick read this cycle, or −1 when none was read.
     pub present_tick: i64,
-    /// How late the cycle woke after its deadline.
+    /// How late the cycle woke after the moment it was due: its grid point on the schedule; with
+    /// the sample trigger the window's opening, the push of the sample that started it, or the
+    /// window's end. Not a time base: a cycle may start before `deadline_ns` + this.
     pub period_error_ns: i64,
     /// Arrival of the sample this SyncWrite used first → end of the write; −1 when no new sample.
     pub latency_ns: i64,
+    /// The faults active for this joint this cycle (its own and the loop's): `FaultKind::bit`s.
+    pub fault: u64,
+    /// The loop's mode this cycle: `LoopMode` as a number (0 running, 1 holding, 2 faulted).
+    pub mode: i64,
 }
 
 /// The field names in layout order, each 8 bytes: (name, numpy type code).
-pub const RECORD_FIELDS: [(&str, &str); 11] = [
+pub const RECORD_FIELDS: [(&str, &str); 14] = [
     ("cycle", "<u8"),
     ("t_ns", "<u8"),
+    ("deadline_ns", "<u8"),
     ("id", "<i8"),
     ("force", "<f8"),
     ("torque", "<f8"),
@@ -46,6 +59,8 @@ pub const RECORD_FIELDS: [(&str, &str); 11] = [
     ("present_tick", "<i8"),
     ("period_error_ns", "<i8"),
     ("latency_ns", "<i8"),
+    ("fault", "<u8"),
+    ("mode", "<i8"),
 ];
 
 impl Record {
@@ -53,6 +68,7 @@ impl Record {
     pub fn write_le(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.cycle.to_le_bytes());
         out.extend_from_slice(&self.t_ns.to_le_bytes());
+        out.extend_from_slice(&self.deadline_ns.to_le_bytes());
         out.extend_from_slice(&self.id.to_le_bytes());
         for v in [self.force, self.torque, self.theta, self.omega] {
             out.extend_from_slice(&v.to_le_bytes());
@@ -60,6 +76,8 @@ impl Record {
         for v in [self.goal_tick, self.present_tick, self.period_error_ns, self.latency_ns] {
             out.extend_from_slice(&v.to_le_bytes());
         }
+        out.extend_from_slice(&self.fault.to_le_bytes());
+        out.extend_from_slice(&self.mode.to_le_bytes());
     }
 }
 
@@ -77,6 +95,8 @@ pub struct LoopStats {
     pub latency: Histogram,
     /// Wake-up → end of the cycle's bus traffic: what a cycle costs.
     pub work: Histogram,
+    /// Fault events per kind, and the loop's mode (see `fault`).
+    pub faults: FaultCounters,
     /// Set once by the loop thread before its first cycle.
     pub rt: Mutex<RtReport>,
 }
@@ -95,6 +115,9 @@ pub struct StatsSnapshot {
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
     pub sync_reads: u64,
+    /// (kind name, events), every kind.
+    pub faults: Vec<(&'static str, u64)>,
+    pub mode: LoopMode,
     pub rt: RtReport,
 }
 
@@ -116,6 +139,8 @@ impl LoopStats {
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
             sync_reads: self.sync_reads.load(Relaxed),
+            faults: self.faults.snapshot(),
+            mode: self.faults.mode(),
             rt: self.rt.lock().map(|r| r.clone()).unwrap_or_default(),
         }
     }
@@ -127,7 +152,7 @@ mod tests {
 
     #[test]
     fn the_byte_layout_matches_the_field_table() {
-        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, ..Default::default() };
+        let r = Record { cycle: 1, deadline_ns: 7, id: -2, theta: 0.5, latency_ns: -1, fault: 1, mode: 2, ..Default::default() };
         let mut out = Vec::new();
         r.write_le(&mut out);
         assert_eq!(out.len(), 8 * RECORD_FIELDS.len());
@@ -136,8 +161,11 @@ mod tests {
             <[u8; 8]>::try_from(&out[8 * k..8 * k + 8]).unwrap()
         };
         assert_eq!(u64::from_le_bytes(field("cycle")), 1);
+        assert_eq!(u64::from_le_bytes(field("deadline_ns")), 7);
         assert_eq!(i64::from_le_bytes(field("id")), -2);
         assert_eq!(f64::from_le_bytes(field("theta")), 0.5);
         assert_eq!(i64::from_le_bytes(field("latency_ns")), -1);
+        assert_eq!(u64::from_le_bytes(field("fault")), 1);
+        assert_eq!(i64::from_le_bytes(field("mode")), 2);
     }
 }

@@ -1,0 +1,66 @@
+"""``admittance setup --mock``: the wizard against the simulated bench, with a simulated person.
+
+The bench's arm carries a gravity load whose hanging angle is off the encoder's middle (an
+``angle_offset``), so the measured ``zero_tick`` is not the default 2048; the simulated person
+does what each instruction says by setting the hand torque, which reaches both the horn and the
+force sensor (as a hand on the handle does). Tests drive the wizard through this.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any, TextIO
+
+from admittance.mockbench.bench import MockBench
+
+HANGING_OFFSET_RAD = 0.15  # where the simulated arm hangs: tick 2048 + 100
+GRAVITY_TORQUE = 1.0  # N·m: m·g·l of the simulated arm
+LOAD_INERTIA = 0.01  # kg·m²
+PUSH_TORQUE = 0.5  # N·m: holds the arm about 30° off its rest
+FACTORY_BAUD_CODE = 1  # 57 600 bit/s on Protocol 2.0
+PRESS_PEAK = 0.8  # N·m at the top of the press (7.6 N at 0.105 m)
+
+
+def simulated_bench(**options: Any) -> MockBench:
+    """The bench the wizard rehearses on: one MX-64 with a hanging arm and a still hand, set to
+    ROBOTIS's factory 57 600 bit/s. (A pty has no baud rate: the simulated wire keeps 1 Mbit/s
+    timing, the rate the wizard moves the servo to.)"""
+    settings = dict(gravity_torque=GRAVITY_TORQUE, load_inertia=LOAD_INERTIA, profile="still",
+                    effects={"angle_offset": HANGING_OFFSET_RAD}, baudrate=1_000_000,
+                    servos=[{"id": 1, "registers": {"Baud Rate": FACTORY_BAUD_CODE}}])
+    return MockBench(**(settings | options))
+
+
+class SimulatedPerson:
+    """A prompter whose actions are hand torques on the simulated bench.
+
+    ``positive`` is the sign, in the encoder's direction, of what this person calls positive.
+    """
+
+    def __init__(self, bench: MockBench, *, positive: int = 1, press_s: float = 6.0, out: TextIO = sys.stderr):
+        self.bench, self.positive, self.press_s, self.out = bench, positive, press_s, out
+
+    def say(self, text: str) -> None:
+        print(text, file=self.out, flush=True)
+
+    def confirm(self, question: str) -> bool:
+        self.say(f"{question} yes (simulated)")
+        return True
+
+    def act(self, action: str, instruction: str) -> None:
+        self.say(f"{instruction} (simulated person: {action})")
+        shape = {
+            "push": lambda s: PUSH_TORQUE,
+            "press": lambda s: PRESS_PEAK * math.sin(math.pi * min(max(s / self.press_s, 0.0), 1.0)),
+        }.get(action, lambda s: 0.0)  # hang, release, and the dry run until start_hand
+        self._follow(shape)
+
+    def start_hand(self) -> None:
+        """The dry run's pushes, once the loop runs (never during its tare)."""
+        self._follow(lambda s: 0.15 * math.sin(2 * math.pi * 0.5 * s))
+
+    def _follow(self, shape) -> None:
+        t0 = time.monotonic()
+        self.bench.profile = lambda t: self.positive * shape(time.monotonic() - t0)

@@ -1,0 +1,373 @@
+//! The servo's tracking dynamics: how a position servo's horn follows the goal it is sent.
+//!
+//! The admittance loop commands a goal; the horn gets there late, by the servo's own position
+//! loop, and gives way under the hand. One model serves both ways it is used: the fidelity fit
+//! simulates it (goal and hand torque in, horn angle out) and the RT loop inverts it (the goal
+//! that makes the horn follow the admittance model). Both call this file, so the physics the
+//! compensation assumes is exactly the physics that was fitted.
+//!
+//! The model, with θ the horn angle, u the goal and τ the hand torque:
+//!
+//! ```text
+//!     m·θ'' + θ' = (u(t − d) + s·τ(t) − θ − b·sgn θ') / T
+//! ```
+//!
+//! - `time_constant` T (s): the lag. A servo following a ramp at v rad/s runs T·v behind.
+//! - `inertial_time` m (s): the second-order part (the horn's inertia over its damping); 0 is a
+//!   plain first-order lag, θ' = (u − θ)/T.
+//! - `dead_time` d (s): the goal acts this late (bus, firmware period, the reads' timing).
+//! - `compliance` s (rad/N·m): how far the hand's torque pushes the horn off its goal at rest.
+//! - `deadband` b (rad): the horn sticks while its effective error is within ±b (friction
+//!   against the position loop's stiffness), with the plant's exact stick law.
+//!
+//! Why this form: a P-controlled DC servo (BAM's MX model: duty ∝ error, capped; torque
+//! kt/R·V − kt²/R·ω; horn inertia I, viscous B, Coulomb F) is, below its duty cap,
+//! I·θ'' + (B + kt²/R)·θ' = K·(u − θ) + τ − F·sgn θ' with K the loop's stiffness. Divided by the
+//! total damping D = B + kt²/R it is the equation above with T = D/K, m = I/D, s = 1/K and
+//! b = F/K. A servo whose horn simply lags its goal (no inertia, no give) is the same equation
+//! with m = s = b = 0. Every term is in radians inside the bracket, so the parameters read as
+//! times and angles whatever the motor.
+//!
+//! The velocity update is the plant's stick-slip step (`friction::advance_velocity`) multiplied
+//! through by m, so that m = 0 is exact instead of a division by zero.
+use rayon::prelude::*;
+
+use crate::error::{require_finite, PlantError};
+use crate::model::State;
+use crate::trial::{validate_max_step, walk, TorqueCursor, Walk};
+
+/// Number of servo-model parameters.
+pub const N_SERVO_PARAMS: usize = 5;
+
+/// Servo-model parameter names in vector order (the `[servo]` table of a parameter file).
+pub const SERVO_PARAM_NAMES: [&str; N_SERVO_PARAMS] =
+    ["time_constant", "inertial_time", "dead_time", "compliance", "deadband"];
+
+/// Below this speed (rad/s) the compensation's friction term fades to zero (a smooth sign), so
+/// a reference that starts or reverses does not step the goal.
+pub const FRICTION_FADE_VELOCITY: f64 = 0.02;
+
+/// The bounds `validate` enforces (s): a lag up to 10 s, a dead time of −0.1…1 s. A slightly
+/// negative dead time is allowed because a recording labels the goal and the present position
+/// with the same cycle time, while the read happens after the write.
+pub const MAX_TIME_CONSTANT: f64 = 10.0;
+pub const DEAD_TIME_RANGE: (f64, f64) = (-0.1, 1.0);
+
+/// A servo's tracking dynamics (see the module documentation for the equation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServoModel {
+    /// T, s (> 0).
+    pub time_constant: f64,
+    /// m, s (≥ 0; 0 = first-order lag).
+    pub inertial_time: f64,
+    /// d, s.
+    pub dead_time: f64,
+    /// s, rad/(N·m).
+    pub compliance: f64,
+    /// b, rad (≥ 0).
+    pub deadband: f64,
+}
+
+impl ServoModel {
+    /// A plain first-order lag with time constant `t` (no inertia, delay, give or friction).
+    pub fn first_order_lag(t: f64) -> ServoModel {
+        ServoModel { time_constant: t, inertial_time: 0.0, dead_time: 0.0, compliance: 0.0, deadband: 0.0 }
+    }
+
+    /// The model from a vector in `SERVO_PARAM_NAMES` order (validated).
+    pub fn from_slice(values: &[f64]) -> Result<ServoModel, PlantError> {
+        let v: [f64; N_SERVO_PARAMS] = values.try_into().map_err(|_| {
+            PlantError::Shape(format!("a servo model has {N_SERVO_PARAMS} values, got {}", values.len()))
+        })?;
+        let model = ServoModel {
+            time_constant: v[0],
+            inertial_time: v[1],
+            dead_time: v[2],
+            compliance: v[3],
+            deadband: v[4],
+        };
+        model.validate()?;
+        Ok(model)
+    }
+
+    pub fn to_array(&self) -> [f64; N_SERVO_PARAMS] {
+        [self.time_constant, self.inertial_time, self.dead_time, self.compliance, self.deadband]
+    }
+
+    /// `Ok(())` when every value is finite and within its domain; the error names the value.
+    pub fn validate(&self) -> Result<(), PlantError> {
+        for (name, value) in SERVO_PARAM_NAMES.iter().zip(self.to_array()) {
+            require_finite(name, value)?;
+        }
+        let bad = |what: String| Err(PlantError::InvalidValue(what));
+        if !(self.time_constant > 0.0 && self.time_constant <= MAX_TIME_CONSTANT) {
+            return bad(format!("time_constant must be in (0, {MAX_TIME_CONSTANT}] s, got {}", self.time_constant));
+        }
+        if self.inertial_time < 0.0 || self.inertial_time > MAX_TIME_CONSTANT {
+            return bad(format!("inertial_time must be in [0, {MAX_TIME_CONSTANT}] s, got {}", self.inertial_time));
+        }
+        let (lo, hi) = DEAD_TIME_RANGE;
+        if !(lo..=hi).contains(&self.dead_time) {
+            return bad(format!("dead_time must be in [{lo}, {hi}] s, got {}", self.dead_time));
+        }
+        if self.deadband < 0.0 {
+            return bad(format!("deadband must be >= 0 rad, got {}", self.deadband));
+        }
+        Ok(())
+    }
+}
+
+/// The velocity after one substep of m·ω' = (e − b·sgn ω)/T − ω, implicit in the damping and in
+/// the stiffness (e⁺ = e − h·ω⁺) so that no (m, T) makes it diverge, not even a lag far below the
+/// substep that an optimiser may probe: (m + h + h²/T)·ω⁺ = m·ω + h·(e ∓ b)/T. The friction is the
+/// plant's stick law: the horn stops exactly when |m·ω + h·e/T| ≤ h·b/T. For m = 0 this is the
+/// implicit Euler step of the first-order lag.
+#[inline]
+fn advance(omega: f64, model: &ServoModel, error: f64, h: f64) -> f64 {
+    let inv_t = 1.0 / model.time_constant;
+    let free = model.inertial_time * omega + h * error * inv_t;
+    let level = h * model.deadband * inv_t;
+    if free.abs() <= level {
+        return 0.0;
+    }
+    (free - free.signum() * level) / (model.inertial_time + h + h * h * inv_t)
+}
+
+/// Advances the horn by one substep of length `h` under the goal it sees now (`goal`, already
+/// delayed by the caller) and the hand torque `tau`. Expects a validated model and h > 0.
+#[inline]
+pub fn step(state: &mut State, model: &ServoModel, goal: f64, tau: f64, h: f64) {
+    let error = goal + model.compliance * tau - state.theta;
+    state.omega = advance(state.omega, model, error, h);
+    state.theta += h * state.omega;
+}
+
+/// The goal offset that makes a horn with this model follow a reference moving at `omega`
+/// rad/s with acceleration `alpha` under the hand torque `tau`: the model inverted, a dead time
+/// ahead. The goal is then reference + lead.
+///
+/// From the equation with θ = the reference: u(t − d) = θ + T·(m·θ'' + θ') + b·sgn θ' − s·τ at
+/// t. Over the dead time the reference is extrapolated at constant acceleration and the torque
+/// held, so everything needed is the reference's own state: no numerical differentiation.
+#[inline]
+pub fn lead(model: &ServoModel, omega: f64, alpha: f64, tau: f64) -> f64 {
+    let d = model.dead_time;
+    let omega_ahead = omega + alpha * d;
+    let travel = omega * d + 0.5 * alpha * d * d;
+    let lag = model.time_constant * (model.inertial_time * alpha + omega_ahead);
+    let fade = omega_ahead / (omega_ahead * omega_ahead + FRICTION_FADE_VELOCITY * FRICTION_FADE_VELOCITY).sqrt();
+    travel + lag + model.deadband * fade - model.compliance * tau
+}
+
+/// One recorded run of a servo: the times at which its horn angle is known (`t`), and its goal
+/// and the hand torque on their own time base (`t_in`), linearly interpolated in between.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServoTrial {
+    t: Vec<f64>,
+    t_in: Vec<f64>,
+    goal: Vec<f64>,
+    tau: Vec<f64>,
+}
+
+fn strictly_increasing(name: &str, t: &[f64]) -> Result<(), PlantError> {
+    if t.is_empty() {
+        return Err(PlantError::Shape(format!("{name} needs at least one sample")));
+    }
+    for (i, &v) in t.iter().enumerate() {
+        require_finite(&format!("{name}[{i}]"), v)?;
+    }
+    match t.windows(2).position(|w| w[1] <= w[0]) {
+        Some(i) => Err(PlantError::InvalidValue(format!("{name} must be strictly increasing at index {}", i + 1))),
+        None => Ok(()),
+    }
+}
+
+impl ServoTrial {
+    pub fn new(t: Vec<f64>, t_in: Vec<f64>, goal: Vec<f64>, tau: Vec<f64>) -> Result<Self, PlantError> {
+        strictly_increasing("t", &t)?;
+        strictly_increasing("t_in", &t_in)?;
+        for (name, series) in [("goal", &goal), ("tau", &tau)] {
+            if series.len() != t_in.len() {
+                return Err(PlantError::Shape(format!("{name} has {} samples but t_in has {}", series.len(), t_in.len())));
+            }
+            for (i, &v) in series.iter().enumerate() {
+                require_finite(&format!("{name}[{i}]"), v)?;
+            }
+        }
+        Ok(ServoTrial { t, t_in, goal, tau })
+    }
+
+    pub fn n_samples(&self) -> usize {
+        self.t.len()
+    }
+}
+
+/// Simulates `trial` from `x0` (the state at t[0]) and hands the state at every sample time to
+/// `record(i, &state)`. Between samples it takes equal substeps of at most `max_step`, with the
+/// goal interpolated at (substep time − dead time) and the torque at the substep time.
+pub fn simulate_into<F: FnMut(usize, &State)>(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64, mut record: F) {
+    let mut goal = TorqueCursor::new(&trial.t_in, &trial.goal);
+    let mut tau = TorqueCursor::new(&trial.t_in, &trial.tau);
+    let mut state = x0;
+    walk(&trial.t, max_step, |event| match event {
+        Walk::Substep { t, h } => step(&mut state, model, goal.at(t - model.dead_time), tau.at(t), h),
+        Walk::Sample(i) => record(i, &state),
+    });
+}
+
+/// The horn angle at every sample time of `trial`, after checking the inputs.
+pub fn simulate(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64) -> Result<Vec<f64>, PlantError> {
+    model.validate()?;
+    validate_max_step(max_step)?;
+    require_finite("theta0", x0.theta)?;
+    require_finite("omega0", x0.omega)?;
+    let mut out = vec![0.0; trial.n_samples()];
+    simulate_into(trial, model, x0, max_step, |i, s| out[i] = s.theta);
+    Ok(out)
+}
+
+/// Every trial under every model, in parallel: `x0[s * trials.len() + k]` starts model `s` on
+/// trial `k`. Returns one row-major (S, n_samples) buffer of angles per trial. Everything is
+/// checked before any thread starts.
+pub fn simulate_batch(
+    trials: &[&ServoTrial],
+    models: &[ServoModel],
+    x0: &[State],
+    max_step: f64,
+) -> Result<Vec<Vec<f64>>, PlantError> {
+    validate_max_step(max_step)?;
+    for (s, m) in models.iter().enumerate() {
+        m.validate().map_err(|e| PlantError::InvalidValue(format!("servo model {s}: {e}")))?;
+    }
+    if x0.len() != models.len() * trials.len() {
+        return Err(PlantError::Shape(format!(
+            "x0 has {} initial states, expected {} models × {} trials",
+            x0.len(),
+            models.len(),
+            trials.len()
+        )));
+    }
+    for (i, x) in x0.iter().enumerate() {
+        require_finite(&format!("x0 theta #{i}"), x.theta)?;
+        require_finite(&format!("x0 omega #{i}"), x.omega)?;
+    }
+    let n_sets = models.len();
+    let mut outs: Vec<Vec<f64>> = trials.iter().map(|tr| vec![0.0; n_sets * tr.n_samples()]).collect();
+    let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(n_sets * trials.len());
+    for (k, out) in outs.iter_mut().enumerate() {
+        for (s, chunk) in out.chunks_mut(trials[k].n_samples().max(1)).enumerate() {
+            jobs.push((s, k, chunk));
+        }
+    }
+    jobs.into_par_iter().for_each(|(s, k, chunk)| {
+        simulate_into(trials[k], &models[s], x0[s * trials.len() + k], max_step, |i, st| chunk[i] = st.theta)
+    });
+    Ok(outs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MX: ServoModel =
+        ServoModel { time_constant: 0.017, inertial_time: 0.021, dead_time: 0.002, compliance: 0.024, deadband: 0.002 };
+
+    fn uniform(n: usize, dt: f64) -> Vec<f64> {
+        (0..n).map(|i| i as f64 * dt).collect()
+    }
+
+    fn trial(goal: impl Fn(f64) -> f64, tau: impl Fn(f64) -> f64, seconds: f64) -> ServoTrial {
+        let t = uniform((seconds * 1000.0) as usize, 1e-3);
+        let g = t.iter().map(|&x| goal(x)).collect();
+        let q = t.iter().map(|&x| tau(x)).collect();
+        ServoTrial::new(t.clone(), t, g, q).unwrap()
+    }
+
+    #[test]
+    fn a_first_order_lag_steps_like_implicit_euler_even_far_below_the_substep() {
+        let tr = trial(|_| 1.0, |_| 0.0, 0.05);
+        let out = simulate(&tr, &ServoModel::first_order_lag(1e-6), State::default(), 5e-4).unwrap();
+        assert!(out.iter().skip(1).all(|&x| (x - 1.0).abs() < 1e-2), "no divergence");
+        let (tc, h) = (0.025, 1e-4);
+        let tr = trial(|_| 1.0, |_| 0.0, 0.2);
+        let out = simulate(&tr, &ServoModel::first_order_lag(tc), State::default(), h).unwrap();
+        for (i, &theta) in out.iter().enumerate() {
+            let n = (i as f64 * 1e-3 / h).round();
+            let exact = 1.0 - (1.0 / (1.0 + h / tc)).powf(n);
+            assert!((theta - exact).abs() < 1e-9, "sample {i}: {theta} vs {exact}");
+        }
+        assert!((out[25] - (1.0 - (-1.0f64).exp())).abs() < 3e-3, "one time constant: 63 %");
+    }
+
+    #[test]
+    fn a_ramp_is_followed_time_constant_plus_dead_time_behind_plus_the_deadband() {
+        let v = 0.5;
+        let tr = trial(|t| v * t, |_| 0.0, 2.0);
+        let out = simulate(&tr, &MX, State::default(), 2.5e-4).unwrap();
+        let lag = v * 1.999 - out[1999];
+        let expected = v * (MX.time_constant + MX.dead_time) + MX.deadband;
+        assert!((lag - expected).abs() < 2e-4, "lag {lag} vs {expected}");
+    }
+
+    #[test]
+    fn the_hand_deflects_the_horn_by_the_compliance_and_the_deadband_holds_it() {
+        let tr = trial(|_| 0.0, |_| 0.5, 2.0);
+        let deflection = MX.compliance * 0.5;
+        let out = simulate(&tr, &MX, State::default(), 2.5e-4).unwrap();
+        assert!((out[1999] - deflection).abs() <= MX.deadband, "the horn rests within the band: {}", out[1999]);
+        let no_inertia = ServoModel { inertial_time: 0.0, ..MX };
+        let out = simulate(&tr, &no_inertia, State::default(), 2.5e-4).unwrap();
+        assert!((out[1999] - (deflection - MX.deadband)).abs() < 1e-9, "without inertia, at its edge: {}", out[1999]);
+        let small = trial(|_| 0.0, |_| 0.5 * MX.deadband / MX.compliance, 1.0);
+        let out = simulate(&small, &MX, State::default(), 2.5e-4).unwrap();
+        assert!(out.iter().all(|&x| x == 0.0), "within the band the horn never moves");
+    }
+
+    #[test]
+    fn the_dead_time_shifts_the_response() {
+        let late = ServoModel { dead_time: 0.05, ..ServoModel::first_order_lag(0.01) };
+        let tr = trial(|t| if t >= 0.1 { 1.0 } else { 0.0 }, |_| 0.0, 0.5);
+        let out = simulate(&tr, &late, State::default(), 1e-4).unwrap();
+        assert_eq!(out[149], 0.0, "nothing before 0.1 + 0.05 s");
+        assert!(out[152] > 0.0);
+    }
+
+    #[test]
+    fn the_lead_makes_the_horn_follow_the_reference() {
+        // A reference with the admittance model's smoothness: a sum of sines, its ω and α exact.
+        let r = |t: f64| 0.2 * (2.0 * t).sin() + 0.05 * (9.0 * t).sin();
+        let w = |t: f64| 0.4 * (2.0 * t).cos() + 0.45 * (9.0 * t).cos();
+        let a = |t: f64| -0.8 * (2.0 * t).sin() - 4.05 * (9.0 * t).sin();
+        let tau = |t: f64| 0.3 * (3.0 * t).sin();
+        for model in [MX, ServoModel { dead_time: 0.004, ..ServoModel::first_order_lag(0.025) }] {
+            let plain = trial(r, tau, 4.0);
+            let led = trial(|t| r(t) + lead(&model, w(t), a(t), tau(t)), tau, 4.0);
+            let x0 = State { theta: r(0.0), omega: w(0.0) };
+            let err = |out: Vec<f64>| {
+                let sq: f64 = out.iter().enumerate().skip(500).map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2)).sum();
+                (sq / (out.len() - 500) as f64).sqrt()
+            };
+            let before = err(simulate(&plain, &model, x0, 2.5e-4).unwrap());
+            let after = err(simulate(&led, &model, x0, 2.5e-4).unwrap());
+            assert!(after < before / 10.0, "{model:?}: {before} → {after}");
+        }
+    }
+
+    #[test]
+    fn the_batch_equals_single_runs_and_refuses_bad_models() {
+        let a = trial(|t| t.sin(), |t| 0.1 * t.cos(), 1.0);
+        let b = trial(|t| 0.3 * t, |_| 0.2, 0.5);
+        let models = [MX, ServoModel::first_order_lag(0.03)];
+        let x0 = vec![State::default(); 4];
+        let outs = simulate_batch(&[&a, &b], &models, &x0, 5e-4).unwrap();
+        for (s, m) in models.iter().enumerate() {
+            let single = simulate(&b, m, State::default(), 5e-4).unwrap();
+            assert_eq!(&outs[1][s * b.n_samples()..(s + 1) * b.n_samples()], &single[..]);
+        }
+        let bad = ServoModel { time_constant: 0.0, ..MX };
+        assert!(simulate_batch(&[&a], &[bad], &x0[..1], 5e-4).unwrap_err().to_string().contains("time_constant"));
+        assert!(ServoModel::from_slice(&[0.01, -1.0, 0.0, 0.0, 0.0]).is_err());
+        assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, f64::NAN]).is_err());
+        assert_eq!(ServoModel::from_slice(&MX.to_array()).unwrap(), MX);
+    }
+}

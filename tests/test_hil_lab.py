@@ -1,0 +1,123 @@
+"""A lab on loopback: `admittance router` with user/password and an ACL, three daemons in client
+mode on simulated benches behind it, one monitor that shows all three, and `set`/`get` that
+address one bench; a viewer login reads but cannot set; ROS 2 topics from one bench."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from admittance import data
+from admittance.daemon import config
+from admittance.daemon.zenoh_iface import Client, security_of
+
+from daemon_process import ADMITTANCE, EXIT_TIMEOUT_S, START_TIMEOUT_S
+from helpers import free_endpoint
+
+pytestmark = pytest.mark.hil
+
+MX64 = data.params_file("MX-64")
+BENCHES = ("lab/arm1", "lab/arm2", "lab/arm3")
+
+
+def write_toml(path: Path, doc: dict) -> Path:
+    path.write_text(tomli_w.dumps(doc))
+    return path
+
+
+def lab_files(tmp_path: Path, router: str) -> dict[str, Path]:
+    (tmp_path / "users.txt").write_text("bench:bench-pw\nalice:alice-pw\nvisitor:visitor-pw\n")
+    for user in ("bench", "alice", "visitor"):
+        (tmp_path / f"{user}.pw").write_text(f"{user}-pw\n")
+    files = {"router": write_toml(tmp_path / "router.toml", {"zenoh": {
+        "prefix": "lab", "listen": [router], "auth_dictionary": "users.txt", "operators": ["bench", "alice"]}})}
+    for user in ("alice", "visitor"):
+        files[user] = write_toml(tmp_path / f"{user}.toml", {"zenoh": {
+            "connect": [router], "auth_user": user, "auth_password_file": f"{user}.pw"}})
+    for i, prefix in enumerate(BENCHES):
+        files[prefix] = write_toml(tmp_path / f"bench{i + 1}.toml", {
+            "bus": {"port": "mock"},
+            "joints": [{"id": 1, "model": "MX-64", "params": str(MX64), "name": f"arm{i + 1}_joint"}],
+            "sensor": {"kind": "optoforce", "port": "mock", "lever_arm": 0.105, "tare_samples": 50},
+            "loop": {"rate_hz": 500.0, "sync_read_divisor": 5},
+            "zenoh": {"prefix": prefix, "mode": "client", "connect": [router], "state_rate_hz": 50.0,
+                      "auth_user": "bench", "auth_password_file": "bench.pw"},
+            "ros2": {"enabled": i == 0, "namespace": "/arm1"},
+        })
+    return files
+
+
+def login(path: Path) -> Client:
+    zen = config.load_zenoh_table(path)
+    return Client(zen.connect, {k: v for k, v in security_of(zen).items() if k != "access_control"})
+
+
+def admittance(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    return subprocess.run([str(ADMITTANCE), *args], capture_output=True, text=True, timeout=timeout)
+
+
+@contextlib.contextmanager
+def lab(files: dict[str, Path]):
+    """The router, then each bench once the one before is up: three mock benches starting at the
+    same instant on a loaded machine can miss their setup replies, which is not what this tests."""
+    procs = []
+
+    def start(*args: str) -> subprocess.Popen:
+        procs.append(subprocess.Popen([str(ADMITTANCE), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                      text=True))
+        return procs[-1]
+
+    try:
+        start("router", "--zenoh-config", str(files["router"]))
+        with login(files["alice"]) as alice:
+            for prefix in BENCHES:
+                proc = start("run", "--config", str(files[prefix]))
+                deadline = time.monotonic() + START_TIMEOUT_S
+                while not alice.alive(prefix, timeout=0.5):
+                    assert time.monotonic() < deadline, f"{prefix} never came up behind the router"
+                    assert proc.poll() is None, proc.communicate()[1]
+        yield procs
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in reversed(procs):
+            proc.communicate(timeout=EXIT_TIMEOUT_S)
+
+
+def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
+    router = free_endpoint()
+    files = lab_files(tmp_path, router)
+    with lab(files):
+
+        monitor = admittance("monitor", "--prefix", "lab", "--zenoh-config", str(files["visitor"]),
+                             "--duration", "3")
+        assert monitor.returncode == 0, monitor.stderr
+        for i, prefix in enumerate(BENCHES):
+            assert f"{prefix}  joint   1" in monitor.stdout  # every bench, from one monitor, as a visitor
+
+        as_alice = ["--zenoh-config", str(files["alice"])]
+        changed = admittance("set", "virtual_damping=0.123", "--prefix", "lab/arm2", *as_alice)
+        assert changed.returncode == 0 and json.loads(changed.stdout) == {"accepted": True}, changed.stderr
+        values = {p: json.loads(admittance("get", "1.virtual_damping", "--prefix", p, *as_alice).stdout)
+                  for p in BENCHES}
+        assert values["lab/arm2"] == {"1.virtual_damping": 0.123}
+        assert values["lab/arm1"] == values["lab/arm3"] != values["lab/arm2"]  # only the bench addressed
+
+        refused = admittance("set", "virtual_damping=0.5", "--prefix", "lab/arm1", "--timeout", "2",
+                             "--zenoh-config", str(files["visitor"]))
+        assert refused.returncode == 3 and "no daemon answered" in refused.stderr
+        tare = admittance("tare", "--prefix", "lab/arm1", "--timeout", "2", "--zenoh-config", str(files["visitor"]))
+        assert tare.returncode == 3
+        assert json.loads(admittance("get", "--prefix", "lab/arm1", *as_alice).stdout)["1.virtual_damping"] != 0.5
+
+        with login(files["visitor"]) as visitor:  # ROS 2 graph of bench 1, through the router
+            tokens = [str(r.ok.key_expr) for r in visitor._session.liveliness().get("@ros2_lv/0/**", timeout=2.0)
+                      if r.ok is not None]
+        assert any("/NN/%/%arm1/admittance" in t for t in tokens)
+        assert sum("/MP/" in t for t in tokens) == 2
