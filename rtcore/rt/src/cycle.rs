@@ -9,7 +9,9 @@
 //! 3. `condition_force`: bias, deadband, low-pass.
 //! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
 //!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
-//!    deadlines' time), or a hold (velocity zero, no integration) while the force is stale.
+//!    deadlines' time; the deadline is the grid point, never the cycle's start, which a sample
+//!    may trigger anywhere in the window), or a hold (velocity zero, no integration) while the
+//!    force is stale.
 //!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
 //!    step is guarded: gains that are not usable, a state that is not finite or leaves the
 //!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
@@ -21,7 +23,8 @@
 //! 7. `tend_servos`: at most one transaction the servos' recovery asks for (`recovery`: a
 //!    torque check, a Hardware Error Status read, a REBOOT, a re-anchor, torque on), with the
 //!    same deadline; a wait (a reboot's silence) spans cycles, never one.
-//! 8. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
+//! 8. `publish`: telemetry records (with the model's time, each joint's fault bits and the
+//!    loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway. An
 //! error that says the port itself is gone (`bus::link_gone`: the adapter unplugged) makes the
@@ -230,25 +233,30 @@ impl Controller {
         self.joints.iter().map(|j| j.gains)
     }
 
-    /// Runs the cycle whose deadline was `deadline_ns`.
-    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64) {
+    /// Runs the cycle of the grid point `grid_ns`, due at `due_ns`.
+    ///
+    /// The two differ when a sample starts the cycle (`trigger`): the grid point (the window's
+    /// opening) is what the model's clock counts its steps against; the due time (the opening,
+    /// the sample's push or the window's end) is what the wake-up's lateness and the read's
+    /// deadline are measured from. On the schedule both are the deadline.
+    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, grid_ns: u64, due_ns: u64) {
         let wake_ns = clock.now_ns();
         self.adopt_params();
         self.advance_ramp();
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
-        let steps = self.steps_due(deadline_ns);
+        let steps = self.steps_due(grid_ns);
         let link_up = self.keep_link(t);
         self.step_joints(&force, intake.stale, steps);
         let written = link_up && self.write_goals(t, wake_ns);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
-        let bus_deadline = deadline_ns + self.period_ns - self.period_ns / 10;
+        let bus_deadline = due_ns + self.period_ns - self.period_ns / 10;
         let read = written && self.read_present(t, bus_deadline, clock);
         if written {
             self.tend_servos(t, clock, bus_deadline);
         }
         self.recovery.judge(clock.now_ns(), self.link_lost_since);
-        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
+        self.publish(wake_ns, wake_ns.saturating_sub(due_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
     }
 
@@ -523,6 +531,7 @@ impl Controller {
             let record = Record {
                 cycle: self.cycle,
                 t_ns: wake_ns,
+                deadline_ns: self.model_ns.unwrap_or(wake_ns),
                 id: slot.wiring.id as i64,
                 force: slot.force,
                 torque: slot.torque,

@@ -236,7 +236,7 @@ fn a_whole_recovery_allocates_nothing() {
         let deadline = r.clock.now_ns() + PERIOD;
         r.clock.clone().sleep_until(deadline);
         let before = counting::count();
-        r.ctl.run_cycle(servo, &r.clock, deadline);
+        r.ctl.run_cycle(servo, &r.clock, deadline, deadline);
         while r.telemetry.pop().is_ok() {}
         counting::count() - before
     };

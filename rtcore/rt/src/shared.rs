@@ -7,12 +7,15 @@
 use crate::fault::ExternalFaults;
 use crate::recovery::{Phase, ServoCounts, ServoView, StopRequest};
 use crate::telemetry::LoopStats;
+use crate::trigger::TriggerStats;
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 
 #[derive(Default)]
 pub struct Shared {
     pub stats: LoopStats,
+    /// How the cycles started (runner only).
+    pub trigger: TriggerStats,
     pub stop: AtomicBool,
     pub running: AtomicBool,
     /// Samples to average for a tare; the loop takes it (swaps in 0) when it starts the tare.
