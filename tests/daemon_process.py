@@ -74,19 +74,20 @@ def wait_alive(endpoint: str, prefix: str, timeout: float = START_TIMEOUT_S) -> 
 
 
 def wait_for_state(client, prefix: str, condition: Callable[[dict], bool], what: str,
-                   timeout: float = START_TIMEOUT_S) -> dict:
-    """Watch ``<prefix>/state`` until a message satisfies ``condition``; return that message."""
+                   timeout: float = START_TIMEOUT_S, leaf: str = "state") -> dict:
+    """Watch ``<prefix>/state`` (or ``<prefix>/stats`` with ``leaf="stats"``: once a second)
+    until a message satisfies ``condition``; return that message."""
     sub = client.try_stream(prefix)
     deadline = time.monotonic() + timeout
     try:
         while time.monotonic() < deadline:
             for kind, message in sub.drain():
-                if kind == "state" and condition(message):
+                if kind == leaf and condition(message):
                     return message
             time.sleep(0.02)
     finally:
         sub.close()
-    raise AssertionError(f"the daemon's state never showed {what}")
+    raise AssertionError(f"the daemon's {leaf} never showed {what}")
 
 
 def wait_for_cycles(client, prefix: str, cycles: int, after: dict | None = None) -> None:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import time
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -25,7 +24,7 @@ import tomli_w
 from admittance import _rtcore
 from admittance.errors import EXIT_TEMPFAIL, EXIT_UNAVAILABLE
 
-from daemon_process import EXIT_TIMEOUT_S, START_TIMEOUT_S, read_recording, running_daemon, wait_alive, wait_for_state
+from daemon_process import EXIT_TIMEOUT_S, read_recording, running_daemon, wait_alive, wait_for_state
 from test_hil_daemon import PREFIX, daemon_config
 
 STILL = "still:torque=0.05"  # a light steady push: the joint moves, so a jump would show
@@ -58,18 +57,7 @@ def run_args(tmp_path: Path) -> tuple[str, ...]:
 
 
 def wait_for_stats(client, condition: Callable[[dict], bool], what: str) -> dict:
-    """Watch ``<prefix>/stats`` (once a second) until a message satisfies ``condition``."""
-    sub = client.try_stream(PREFIX)
-    deadline = time.monotonic() + START_TIMEOUT_S
-    try:
-        while time.monotonic() < deadline:
-            for kind, message in sub.drain():
-                if kind == "stats" and condition(message):
-                    return message
-            time.sleep(0.02)
-    finally:
-        sub.close()
-    raise AssertionError(f"the daemon's stats never showed {what}")
+    return wait_for_state(client, PREFIX, condition, what, leaf="stats")
 
 
 def servo(stats: dict) -> dict:
