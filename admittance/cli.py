@@ -15,6 +15,7 @@ import sys
 
 from admittance import __version__
 from admittance.errors import AdmittanceError
+from admittance.logs import report_error
 
 # Modules that register subcommands, in the order they appear in --help.
 SUBCOMMAND_MODULES = (
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AdmittanceError as exc:
-        print(f"admittance {args.command}: error: {exc}", file=sys.stderr)
+        report_error(args.command, str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
         return 130

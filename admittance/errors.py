@@ -24,3 +24,9 @@ class DeviceError(AdmittanceError):
     """A device (serial port, servo, force sensor, CAN interface) is missing or misbehaves."""
 
     exit_code = 3
+
+
+class RefusedError(AdmittanceError):
+    """A running daemon refused a request, or does not know a name asked for."""
+
+    exit_code = 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import threading
@@ -146,7 +147,6 @@ class Harness:
         self.tare_ok = tare_ok
         self.loop = None
         self.published = []
-        self.logs = []
 
         @contextlib.contextmanager
         def bench(cfg):
@@ -171,7 +171,7 @@ class Harness:
             self._maybe_fail("sensor")
             return FakeSensor(self.events, sink, self.tare_ok)
 
-        def make_interface(zcfg, codec, handler, log):
+        def make_interface(zcfg, codec, handler):
             self.events.append("zenoh")
             self._maybe_fail("zenoh")
             return SimpleNamespace(publish_state=self.published.append, publish_stats=self.published.append,
@@ -192,7 +192,7 @@ class Harness:
                                  make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
                                  claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
-        options = RunOptions(duration=stop_after, stats_json=self.stats_path, log=self.logs.append)
+        options = RunOptions(duration=stop_after, stats_json=self.stats_path)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
 
     def _maybe_fail(self, step):
@@ -200,7 +200,8 @@ class Harness:
             raise DeviceError(f"{step} failed")
 
 
-def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
+def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path, caplog):
+    caplog.set_level(logging.INFO, "admittance")
     h = Harness(tmp_path, stop_after=0.2)
     assert h.supervisor.run() == 0
     start = h.events[: h.events.index("READY") + 1]
@@ -211,7 +212,9 @@ def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
                              "release-claim"]
     stats = json.loads(h.stats_path.read_text())
     assert set(STATS_KEYS) <= set(stats) and "daemon" in stats
-    assert any("latency timer" in line for line in h.logs) and any("SCHED_FIFO" in line for line in h.logs)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("latency timer" in line for line in warnings) and any("SCHED_FIFO" in line for line in warnings)
+    assert caplog.records[-1].levelno == logging.INFO and caplog.messages[-1].startswith("stopped (hold) after")
     assert h.published, "state and stats are published while running"
 
 
@@ -291,14 +294,15 @@ def test_every_resource_is_claimed_before_the_first_write_to_a_servo(tmp_path):
     assert "zenoh.serve" not in h.events[:servos], "queries are only served once the loop runs"
 
 
-def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path):
+def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path, caplog):
     h = Harness(tmp_path, stop_after=0.05, zenoh={"listen": ["tcp/0.0.0.0:7447"]})
     h.supervisor.run()
-    assert any(line.startswith("warning: [zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface")
-               for line in h.logs)
+    assert any(r.levelno == logging.WARNING and r.getMessage().startswith(
+        "[zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface") for r in caplog.records)
+    caplog.clear()
     h = Harness(tmp_path, stop_after=0.05)
     h.supervisor.run()
-    assert not any("[zenoh].listen" in line for line in h.logs), "loopback: no warning"
+    assert not any("[zenoh].listen" in line for line in caplog.messages), "loopback: no warning"
 
 
 def test_an_unexpected_exception_still_writes_stats_with_the_error(tmp_path):

@@ -21,7 +21,7 @@
 //! 7. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
-use crate::bus::{BusError, JointBus, Transport};
+use crate::bus::{BusError, BusErrorKind, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
 use crate::fault::{FaultKind, Faults, LoopMode};
@@ -325,7 +325,7 @@ impl Controller {
     fn write_goals(&mut self, t: &mut dyn Transport) -> bool {
         let ok = self.bus.write_goals(t, &self.goals).is_ok();
         if !ok {
-            LoopStats::add(&self.shared.stats.bus_errors, 1);
+            self.shared.stats.bus_error(BusErrorKind::Write);
         }
         ok
     }
@@ -367,8 +367,8 @@ impl Controller {
                 self.read_retry = false;
                 true
             }
-            Err(_) => {
-                LoopStats::add(&self.shared.stats.bus_errors, 1);
+            Err(e) => {
+                self.shared.stats.bus_error(e.read_kind());
                 false
             }
         }
