@@ -25,11 +25,12 @@ a logger named under ``admittance``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TextIO
 
 ROOT = "admittance"
@@ -118,6 +119,36 @@ def configure(command: str, verbosity: int = 0, stream: TextIO | None = None,
     logging.getLogger(ROOT).setLevel(logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0
                                      else logging.INFO)
     return handler
+
+
+class _CallHandler(logging.Handler):
+    def __init__(self, say: Callable[[str], None]) -> None:
+        super().__init__()
+        self.say = say
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.say(LEVEL_WORD.get(record.levelno, "") + self.format(record))
+        except Exception:  # a broken sink must not break the code that logs
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def forwarded(say: Callable[[str], None], level: int = logging.INFO) -> Iterator[None]:
+    """For the block, the package's lines at ``level`` and above go to ``say`` only (the setup
+    wizard shows a dry run's daemon lines in its own output)."""
+    ours = logging.getLogger(ROOT)
+    handler = _CallHandler(say)
+    saved = ours.level, ours.propagate
+    ours.addHandler(handler)
+    ours.setLevel(level)
+    ours.propagate = False
+    try:
+        yield
+    finally:
+        ours.removeHandler(handler)
+        ours.setLevel(saved[0])
+        ours.propagate = saved[1]
 
 
 def report_error(command: str, text: str) -> None:

@@ -446,3 +446,28 @@ def test_the_claim_comes_before_any_device_and_a_refused_claim_touches_none(tmp_
     with pytest.raises(DeviceError, match="cannot claim"):
         refused.supervisor.run()
     assert refused.events == [], "no bench, no servo check, no sensor: nothing was opened"
+
+
+def _stats(errors: int, simulated: bool, stalls: int = 0) -> dict:
+    timing = {"rt": {"policy": "SCHED_FIFO", "priority": 80}, "stalls": stalls,
+              "reply_late_us": {"max": 3400.0}, "wake_late_us": {"max": 900.0}}
+    return {"cycles": 10_000, "overruns": 0, "bus_errors": errors,
+            "bus_error_kinds": {"write": 0, "read_timeout": errors, "read_corrupt": 0},
+            "sensor_stale_events": 0, "period_us": {"p99": 40.0},
+            "bench": {"simulated": simulated, "simulated_sensor": simulated,
+                      **({"bus": {"timing": timing}} if simulated else {})}}
+
+
+def test_the_stop_line_says_the_bench_is_simulated_and_where_its_errors_came_from():
+    from admittance.daemon.supervisor import summary_line
+
+    clean = summary_line(_stats(0, simulated=True), "hold")
+    assert clean.startswith("stopped (hold) after 10000 cycles on the simulated bench: 0 overruns, 0 bus errors, ")
+    assert "thread" not in clean, "no errors: nothing to explain"
+    starved = summary_line(_stats(3, simulated=True, stalls=2), "hold")
+    assert "3 bus errors (3 read timeouts)" in starved
+    assert "(SCHED_FIFO 80) ran late 2 times (> 0.25 ms, longest 3.4 ms): a loaded machine starved" in starved
+    punctual = summary_line(_stats(3, simulated=True, stalls=0), "hold")
+    assert "was never more than 0.25 ms late: these errors are not the simulation's lateness" in punctual
+    real = summary_line(_stats(3, simulated=False), "torque_off")
+    assert "simulated" not in real and real.startswith("stopped (torque_off) after 10000 cycles: ")

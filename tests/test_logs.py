@@ -115,3 +115,17 @@ def test_no_bare_prints_in_the_daemon_its_bench_and_its_drivers():
                 if bare or ("print(" in code and path.name != "cli.py"):
                     offenders.append(f"{path.relative_to(REPO)}:{number}: {line.strip()}")
     assert offenders == []
+
+
+def test_forwarded_sends_the_packages_lines_to_a_callable_only_for_the_block(restore_logging):
+    """The setup wizard shows a dry run's daemon lines in its own output, not twice."""
+    out, said = io.StringIO(), []
+    logs.configure("setup", 0, stream=out, journal=False)
+    log = logging.getLogger("admittance.daemon.supervisor")
+    with logs.forwarded(said.append):
+        log.debug("a step")
+        log.info("stopped (hold) after 10 cycles")
+        log.warning("SCHED_FIFO refused")
+    log.info("after the block")
+    assert said == ["stopped (hold) after 10 cycles", "warning: SCHED_FIFO refused"]
+    assert out.getvalue() == "admittance setup: after the block\n"

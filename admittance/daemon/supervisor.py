@@ -87,7 +87,7 @@ class Backends:
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
-    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler, log=) -> DaemonInterface
+    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
     # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
     claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
 

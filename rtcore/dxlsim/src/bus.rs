@@ -81,6 +81,11 @@ impl Bus {
         self.protocol
     }
 
+    /// The IDs the servos answer to now.
+    pub fn ids(&self) -> impl Iterator<Item = u8> + '_ {
+        self.servos.iter().map(Servo::id)
+    }
+
     pub fn servos_mut(&mut self) -> &mut [Servo] {
         &mut self.servos
     }
