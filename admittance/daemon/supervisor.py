@@ -476,8 +476,11 @@ def bench_lateness_text(timing: dict[str, Any]) -> str:
     if not stalls:
         return f"{thread} was never more than {STALL_MS:g} ms late: these errors are not the simulation's lateness"
     longest = max(timing.get("reply_late_us", {}).get("max", 0.0), timing.get("wake_late_us", {}).get("max", 0.0))
+    # Late even at SCHED_FIFO: on a pty, poll and read wait for the kernel's tty worker (a
+    # SCHED_OTHER kworker) to hand the bytes over, and a loaded machine starves that worker.
     return (f"{thread} ran late {stalls} times (> {STALL_MS:g} ms, longest {longest / 1e3:.1f} ms): "
-            "a loaded machine starved the simulation, whose late replies a real servo would not give")
+            "a loaded machine starved the simulation and its pseudo-terminals, whose late replies "
+            "a real servo would not give")
 
 
 def error_fields(error: BaseException) -> dict[str, Any]:

@@ -81,11 +81,6 @@ impl Bus {
         self.protocol
     }
 
-    /// The IDs the servos answer to now.
-    pub fn ids(&self) -> impl Iterator<Item = u8> + '_ {
-        self.servos.iter().map(Servo::id)
-    }
-
     pub fn servos_mut(&mut self) -> &mut [Servo] {
         &mut self.servos
     }

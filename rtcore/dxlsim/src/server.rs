@@ -94,56 +94,6 @@ impl Timing {
     }
 }
 
-/// External torques on their way to the servos. The simulated sensor's thread sets one at its
-/// rate; if it took `Shared` to do so, and a loaded machine preempted it (SCHED_OTHER) while it
-/// held the lock, this thread (SCHED_FIFO) would wait for it: a priority inversion, seen as
-/// replies 100-200 ms late at FIFO 80 with four CPU burners. So the setter only posts here; the
-/// bus thread takes the posts with `try_lock` (never waiting for a poster), and every other
-/// holder of `Shared` takes them first, so what was set is what the next reader sees.
-#[derive(Default)]
-struct Mailbox {
-    pending: Mutex<Vec<(u8, f64)>>,
-    /// The IDs the servos answered to at the last packet (a 256-bit set): a post to an absent
-    /// ID is refused without taking `Shared`.
-    ids: [AtomicU64; 4],
-}
-
-impl Mailbox {
-    fn post(&self, id: u8, tau: f64) -> bool {
-        if self.ids[usize::from(id / 64)].load(Ordering::Acquire) >> (id % 64) & 1 == 0 {
-            return false;
-        }
-        let mut pending = self.pending.lock().unwrap_or_else(|p| p.into_inner());
-        match pending.iter_mut().find(|(i, _)| *i == id) {
-            Some(slot) => slot.1 = tau,
-            None => pending.push((id, tau)),
-        }
-        true
-    }
-
-    /// Applies the posts; `wait` false (the bus thread) leaves them for later if a poster holds them.
-    fn deliver(&self, bus: &mut Bus, wait: bool) {
-        let pending = if wait {
-            Some(self.pending.lock().unwrap_or_else(|p| p.into_inner()))
-        } else {
-            self.pending.try_lock().ok()
-        };
-        for (id, tau) in pending.into_iter().flat_map(|mut p| std::mem::take(&mut *p)) {
-            if let Some(servo) = bus.servo_mut(id) {
-                servo.set_external_torque(tau);
-            }
-        }
-    }
-
-    fn note_ids(&self, bus: &Bus) {
-        let mut set = [0u64; 4];
-        bus.ids().for_each(|id| set[usize::from(id / 64)] |= 1 << (id % 64));
-        for (slot, bits) in self.ids.iter().zip(set) {
-            slot.store(bits, Ordering::Release);
-        }
-    }
-}
-
 /// What `timing()` reports.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TimingReport {
@@ -197,7 +147,6 @@ pub struct MockBus {
     stop: Arc<AtomicBool>,
     thread: Mutex<Option<JoinHandle<io::Result<()>>>>,
     timing: Arc<Timing>,
-    mailbox: Arc<Mailbox>,
 }
 
 /// The bus's end of the wire: the pty while plugged in, and the stable link to it.
@@ -224,8 +173,6 @@ impl MockBus {
         }
         let pty = Pty::open()?;
         let port = Port { path: pty.path().to_string(), pty: Some(Arc::new(pty)), link: None, generation: 0 };
-        let mailbox = Arc::new(Mailbox::default());
-        mailbox.note_ids(&bus);
         Ok(MockBus {
             port: Arc::new(Mutex::new(port)),
             shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default() })),
@@ -233,14 +180,7 @@ impl MockBus {
             stop: Arc::new(AtomicBool::new(false)),
             thread: Mutex::new(None),
             timing: Arc::new(Timing::default()),
-            mailbox,
         })
-    }
-
-    /// The external torque (N·m) on servo `id`, without taking the shared state (see
-    /// `Mailbox`); false when no servo answers to `id`.
-    pub fn set_external_torque(&self, id: u8, tau: f64) -> bool {
-        self.mailbox.post(id, tau)
     }
 
     fn port(&self) -> MutexGuard<'_, Port> {
@@ -337,8 +277,7 @@ impl MockBus {
         }
         self.stop.store(false, Ordering::SeqCst);
         let mut worker =
-            Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone(), self.timing.clone(),
-                        self.mailbox.clone());
+            Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone(), self.timing.clone());
         *handle = Some(std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?);
         Ok(())
     }
@@ -356,9 +295,7 @@ impl MockBus {
     /// The servos, locked (the lock survives a panicked thread: the data stays consistent
     /// because every mutation is a single call).
     pub fn lock(&self) -> MutexGuard<'_, Shared> {
-        let mut shared = self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        self.mailbox.deliver(&mut shared.bus, true);
-        shared
+        self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
     pub fn stats(&self) -> Stats {
@@ -471,7 +408,6 @@ struct Worker {
     /// When the last bytes arrived (for the inter-byte timeout).
     last_rx: Instant,
     timing: Arc<Timing>,
-    mailbox: Arc<Mailbox>,
 }
 
 impl Worker {
@@ -481,7 +417,6 @@ impl Worker {
         config: BusConfig,
         stop: Arc<AtomicBool>,
         timing: Arc<Timing>,
-        mailbox: Arc<Mailbox>,
     ) -> Worker {
         let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
         let generation = port.lock().unwrap_or_else(|p| p.into_inner()).generation;
@@ -501,7 +436,6 @@ impl Worker {
             bus_free: now,
             last_rx: now,
             timing,
-            mailbox,
         }
     }
 
@@ -565,7 +499,6 @@ impl Worker {
         let mut n = due.saturating_sub(self.steps_done);
         let h = self.step.as_secs_f64();
         let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
-        self.mailbox.deliver(&mut shared.bus, false);
         if n > max_burst {
             shared.io.skipped_steps += n - max_burst;
             self.steps_done += n - max_burst;
@@ -641,9 +574,7 @@ impl Worker {
                 match self.decoder.next() {
                     None => return,
                     Some(Ok(Packet { id, kind: Kind::Instruction(code), params })) => {
-                        let replies = shared.bus.handle(id, code, params);
-                        self.mailbox.note_ids(&shared.bus); // an ID write changes who answers
-                        Some((replies, packet_len(protocol, params.len())))
+                        Some((shared.bus.handle(id, code, params), packet_len(protocol, params.len())))
                     }
                     Some(Ok(Packet { kind: Kind::Status(_), .. })) => {
                         shared.io.foreign_status_packets += 1;

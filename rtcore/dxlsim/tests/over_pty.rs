@@ -176,21 +176,3 @@ fn the_bus_thread_reports_its_scheduling_and_how_late_its_replies_went_out() {
     assert!(timing.reply_late_us.max >= 0.0 && timing.stalls <= timing.reply_late_us.count + timing.wake_late_us.count);
     mock.stop().unwrap();
 }
-
-#[test]
-fn an_external_torque_is_set_without_waiting_for_the_shared_state_and_read_back_after() {
-    // The simulated sensor's thread sets one per sample; were it to wait for the shared state, a
-    // preempted holder would stall it, and holding it itself it would stall the bus thread.
-    let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
-    let bus = build_bus(vec![ServoConfig::new(1, params)], BAUD).expect("valid configuration");
-    let config = BusConfig { baudrate: BAUD, wire_delay: true, physics_rate_hz: 2000.0, rt_priority: 0 };
-    let mock = std::sync::Arc::new(MockBus::new(bus, config).unwrap());
-    let held = mock.lock();
-    let (tx, rx) = std::sync::mpsc::channel();
-    let setter = mock.clone();
-    std::thread::spawn(move || tx.send((setter.set_external_torque(1, 0.7), setter.set_external_torque(9, 1.0))));
-    let posted = rx.recv_timeout(std::time::Duration::from_secs(5));
-    drop(held);
-    assert_eq!(posted, Ok((true, false)), "posted while the state was held; an absent ID refused");
-    assert_eq!(mock.lock().bus.servo(1).unwrap().snapshot().external_torque, 0.7, "the next reader sees it");
-}

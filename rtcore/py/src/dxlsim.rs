@@ -255,10 +255,7 @@ impl PyMockBus {
         if !tau.is_finite() {
             return Err(config_error(py, format!("external torque must be finite, got {tau}")));
         }
-        if !self.inner.set_external_torque(id, tau) {
-            return Err(config_error(py, format!("no servo with ID {id} on this bus")));
-        }
-        Ok(())
+        self.with_servo(py, id, |s| s.set_external_torque(tau))
     }
 
     /// A hand grips the horn where it is now: its inertia (kg·m²) rides with the horn, its
