@@ -10,6 +10,8 @@ checkout, and for a before/after comparison an export of the commit to compare w
     .venv/bin/python bench/simulated_bench.py --tree before=/tmp/before --tree after=. \\
         --burners 0,2,4 --runs 3 --duration 10 --test-burners 3 --test-runs 4
 
+Without ``--tree`` it measures this checkout alone (``make bench``): idle against loaded.
+
 For each number of CPU burners (busy-looping processes at the default nice level, started here
 and stopped after), the trees take turns: `admittance run --duration S --stats-json` (the
 embedded simulated bench) reports its bus errors by kind and, where the tree measures it, the
@@ -69,60 +71,62 @@ def test_run(tree: Path, tests: list[str]) -> tuple[int, int, list[str]]:
     return passed, len(failed), failed
 
 
+def daemon_row(s: dict) -> str:
+    kinds = {key: v for key, v in (s.get("bus_error_kinds") or {}).items() if v} or "-"
+    counts = f"{s.get('cycles', '?')} | {s.get('overruns', '?')} | {s.get('bus_errors', '?')} | {kinds}"
+    timing = s.get("bench", {}).get("bus", {}).get("timing", {})
+    if not timing:
+        return f"{counts} | not measured | - | -"
+    rt = timing.get("rt", {})
+    late = max(timing.get("reply_late_us", {}).get("max", 0), timing.get("wake_late_us", {}).get("max", 0))
+    return f"{counts} | {rt.get('policy', '?')} {rt.get('priority', '')} | {timing.get('stalls', '-')} | {late / 1e3:.1f}"
+
+
+def test_row(tree: Path, tests: list[str]) -> str:
+    passed, failed, which = test_run(tree, tests)
+    return f"{passed} | {failed} | {', '.join(which) or '-'}"
+
+
+def under_load(levels: str, runs: int, trees: dict[str, Path], header: str, row, settle_s: float = 0.0) -> None:
+    """One table per burner count in ``levels`` ("0,2,4"): the trees take turns, ``runs`` times."""
+    for n in [int(b) for b in levels.split(",") if b != ""]:
+        print(f"\n{n} burners; {uptime()}")
+        print(f"| {header} |\n|{'---|' * (header.count('|') + 1)}")
+        procs = burners(n)
+        try:
+            time.sleep(settle_s)
+            for k in range(runs):
+                for name, tree in trees.items():
+                    print(f"| {name} | {k + 1} | {row(tree)} |", flush=True)
+        finally:
+            stop(procs)
+
+
 def uptime() -> str:
     return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tree", action="append", required=True, metavar="NAME=DIR",
-                        help="a tree to measure (repeatable; they take turns)")
+    parser.add_argument("--tree", action="append", metavar="NAME=DIR",
+                        help="a tree to measure (repeatable; they take turns; default: this checkout)")
     parser.add_argument("--burners", default="0,2,4", help="CPU burner counts for the daemon runs (default 0,2,4)")
-    parser.add_argument("--runs", type=int, default=3, help="daemon runs per tree and burner count (default 3)")
+    parser.add_argument("--runs", type=int, default=2, help="daemon runs per tree and burner count (default 2)")
     parser.add_argument("--duration", type=float, default=10.0, help="seconds per daemon run (default 10)")
-    parser.add_argument("--test-burners", default="3", help="burner counts for the test runs (default 3; '' = none)")
-    parser.add_argument("--test-runs", type=int, default=4, help="pytest runs per tree and burner count (default 4)")
+    parser.add_argument("--test-burners", default="0,3", help="burner counts for the test runs (default 0,3; '' = none)")
+    parser.add_argument("--test-runs", type=int, default=1, help="pytest runs per tree and burner count (default 1)")
     parser.add_argument("--tests", nargs="*", default=list(DEFAULT_TESTS), help="the tests that drive the mock bus")
     args = parser.parse_args()
-    trees = {name: Path(path).resolve() for name, _, path in (t.partition("=") for t in args.tree)}
+    trees = {name: Path(path).resolve() for name, _, path in (t.partition("=") for t in args.tree or
+                                                                [f"this={Path(__file__).resolve().parents[1]}"])}
 
-    print("## daemon runs: `admittance run --duration %g` on the embedded simulated bench" % args.duration)
-    for n in [int(b) for b in args.burners.split(",") if b != ""]:
-        print(f"\n{n} burners; {uptime()}")
-        print("| tree | run | cycles | overruns | bus errors | by kind | bus thread | stalls > 0.25 ms | longest late ms |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        procs = burners(n)
-        try:
-            time.sleep(1.0)
-            for k in range(args.runs):
-                for name, tree in trees.items():
-                    s = daemon_run(tree, args.duration)
-                    kinds = {key: v for key, v in (s.get("bus_error_kinds") or {}).items() if v} or "-"
-                    timing = s.get("bench", {}).get("bus", {}).get("timing", {})
-                    rt = timing.get("rt", {})
-                    late = max(timing.get("reply_late_us", {}).get("max", 0), timing.get("wake_late_us", {}).get("max", 0))
-                    print(f"| {name} | {k + 1} | {s.get('cycles', '?')} | {s.get('overruns', '?')} | "
-                          f"{s.get('bus_errors', '?')} | {kinds} | {rt.get('policy', 'not measured')} "
-                          f"{rt.get('priority', '')} | {timing.get('stalls', '-')} | "
-                          f"{late / 1e3:.1f} |" if timing else
-                          f"| {name} | {k + 1} | {s.get('cycles', '?')} | {s.get('overruns', '?')} | "
-                          f"{s.get('bus_errors', '?')} | {kinds} | not measured | - | - |", flush=True)
-        finally:
-            stop(procs)
-
+    print(f"## daemon runs: `admittance run --duration {args.duration:g}` on the embedded simulated bench")
+    under_load(args.burners, args.runs, trees, "tree | run | cycles | overruns | bus errors | by kind | bus thread | "
+               "stalls > 0.25 ms | longest late ms", lambda tree: daemon_row(daemon_run(tree, args.duration)),
+               settle_s=1.0)
     print(f"\n## test runs: pytest {' '.join(args.tests)}")
-    for n in [int(b) for b in args.test_burners.split(",") if b != ""]:
-        print(f"\n{n} burners; {uptime()}")
-        print("| tree | run | passed | failed | failed tests |")
-        print("|---|---|---|---|---|")
-        procs = burners(n)
-        try:
-            for k in range(args.test_runs):
-                for name, tree in trees.items():
-                    passed, failed, which = test_run(tree, args.tests)
-                    print(f"| {name} | {k + 1} | {passed} | {failed} | {', '.join(which) or '-'} |", flush=True)
-        finally:
-            stop(procs)
+    under_load(args.test_burners, args.test_runs, trees, "tree | run | passed | failed | failed tests",
+               lambda tree: test_row(tree, args.tests))
     print(f"\nend: {uptime()}")
     return 0
 
