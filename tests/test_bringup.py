@@ -113,7 +113,7 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
         assert bench.bus.register(1, "PWM Limit") == 885  # the dry run's cap was restored
         assert bench.bus.register(1, "Torque Enable") == 0  # and the joint released
     # the dry run's daemon lines reach the wizard's own output, its stop line saying where it ran
-    assert re.search(r"^stopped \(hold\) after \d+ cycles on the simulated bench: ", said.getvalue(), re.M)
+    assert re.search(r"^stopped \(torque_off\) after \d+ cycles on the simulated bench: ", said.getvalue(), re.M)
     doc = tomllib.loads(out.read_text())
     joint, s = doc["joints"][0], doc["sensor"]
     assert doc["bus"]["baudrate"] == 1_000_000
