@@ -133,9 +133,10 @@ def _sign(x: float) -> float:
     return 1.0 if x > 0 else -1.0 if x < 0 else 0.0
 
 
-def _friction_level(p: Mapping[str, float], omega: float, drive: float, load_torque: float) -> float:
+def _friction_level(p: Mapping[str, float], theta: float, omega: float, drive: float, load_torque: float) -> float:
     direction = _sign(omega) if omega != 0 else _sign(drive)
     level = p["coulomb"] + direction * p["coulomb_asym"]
+    level += p["friction_ripple_amplitude"] * math.sin(p["friction_ripple_period"] * theta + p["friction_ripple_phase"])
     if p["stribeck_torque"] != 0:
         level += p["stribeck_torque"] * math.exp(-((omega / p["stribeck_velocity"]) ** 2))
     level += p["load_coulomb"] * abs(load_torque)
@@ -160,9 +161,10 @@ def _reference_step(theta: float, omega: float, p: Mapping[str, float], inertia:
     tau_corrected = p["torque_gain"] * tau - p["torque_bias"] - p["torque_drift"] * t
     g = gravity * math.sin(theta - p["angle_offset"])
     cogging = p["cogging_amplitude"] * math.sin(p["cogging_period"] * theta + p["cogging_phase"])
-    drive = tau_corrected - g - cogging
+    spring = p["spring_stiffness"] * (theta - p["spring_neutral"])
+    drive = tau_corrected - g - cogging - spring
     dissipation = p["damping"] + p["quadratic_drag"] * abs(omega)  # taken at the new velocity
-    level = _friction_level(p, omega, drive, g - tau_corrected)
+    level = _friction_level(p, theta, omega, drive, g - tau_corrected)
     omega = _next_velocity(omega, inertia, drive, dissipation, level, friction, p["tanh_k"], h)
     return theta + h * omega, omega
 

@@ -24,7 +24,7 @@ import numpy as np
 from admittance.daemon import telemetry
 from admittance.daemon.messages import Codec, JointState, State, decode
 
-FIELDS = [("cycle", "<u8"), ("t_ns", "<u8"), ("id", "<i8"), ("force", "<f8"), ("torque", "<f8"),
+FIELDS = [("cycle", "<u8"), ("t_ns", "<u8"), ("deadline_ns", "<u8"), ("id", "<i8"), ("force", "<f8"), ("torque", "<f8"),
           ("theta", "<f8"), ("omega", "<f8"), ("goal_tick", "<i8"), ("present_tick", "<i8"),
           ("period_error_ns", "<i8"), ("latency_ns", "<i8"), ("fault", "<u8"), ("mode", "<i8")]
 
@@ -32,7 +32,8 @@ FIELDS = [("cycle", "<u8"), ("t_ns", "<u8"), ("id", "<i8"), ("force", "<f8"), ("
 def records(joints: int, rows: int) -> np.ndarray:
     rec = np.zeros(joints * rows, np.dtype(FIELDS))
     rec["cycle"] = np.repeat(np.arange(rows), joints)
-    rec["t_ns"] = rec["cycle"] * 1_000_000
+    rec["deadline_ns"] = rec["cycle"] * 1_000_000
+    rec["t_ns"] = rec["deadline_ns"] + 20_000  # woke 20 µs late
     rec["id"] = np.tile(np.arange(1, joints + 1), rows)
     rec["torque"] = np.sin(rec["cycle"] * 0.01)
     rec["theta"] = np.cos(rec["cycle"] * 0.01)
@@ -47,11 +48,12 @@ def per_row(rec: np.ndarray, cfg) -> tuple[dict, State]:
     latest: dict[int, JointState] = {}
     zero = {j.id: j for j in cfg.joints}
     for row in rec.tolist():
-        cycle, t_ns, jid, force, torque, theta, omega, goal, present, _, _, fault, mode = row
+        cycle, t_ns, deadline_ns, jid, force, torque, theta, omega, goal, present, _, _, fault, mode = row
         joint = zero[jid]
-        col = columns.setdefault(jid, {k: [] for k in ("t", "tau", "force", "theta_model", "omega_model",
-                                                       "theta_goal", "theta_present", "cycle", "fault")})
-        col["t"].append(t_ns * 1e-9)
+        col = columns.setdefault(jid, {k: [] for k in ("t", "t_wake", "tau", "force", "theta_model", "omega_model",
+                                                       "theta_goal", "theta_present", "cycle", "fault", "mode")})
+        col["t"].append(deadline_ns * 1e-9)
+        col["t_wake"].append(t_ns * 1e-9)
         col["tau"].append(torque)
         col["force"].append(force)
         col["theta_model"].append(theta)
@@ -61,6 +63,7 @@ def per_row(rec: np.ndarray, cfg) -> tuple[dict, State]:
                                     (present - joint.zero_tick) * telemetry.RAD_PER_TICK * joint.direction)
         col["cycle"].append(float(cycle))
         col["fault"].append(float(fault))
+        col["mode"].append(float(mode))
         latest[jid] = JointState(id=jid, t=t_ns * 1e-9, force=force, tau=torque, theta=theta, omega=omega,
                                  goal_tick=goal, present_tick=None if present == -1 else present, fault=fault)
     return columns, State(cycle=int(rec["cycle"][-1]), joints=list(latest.values()),

@@ -1,39 +1,60 @@
 """Timing of the Rust RT loop against an equivalent pure-Python loop, side by side in one run.
 
-Both loops run the same virtual joint (plant::admittance: implicit damping, stick friction),
+Three loops run the same virtual joints (plant::admittance: implicit damping, stick friction),
 build one Protocol 2.0 SyncWrite per cycle for every joint and write it to the same kind of
 pseudo-terminal: a MockBus (its servos decode every packet in Rust threads, so the bus side
-costs both loops the same). Both sleep to absolute deadlines and skip missed ones.
+costs every loop the same).
 
-- ``rust``: ``_rtcore.AdmittanceLoop`` at SCHED_OTHER (the same scheduling as Python's thread,
-  so the ratio compares implementations, not privileges);
-- ``rust_fifo``: the same at SCHED_FIFO 50 (what the daemon asks for; falls back if refused);
-- ``python``: a thread running the loop in Python, the SyncWrite bytes (CRC, byte stuffing)
-  built in Python and written with pyserial, ``time.sleep`` to each absolute deadline;
-- ``python_fifo``: the same thread switched to SCHED_FIFO 50 (``os.sched_setscheduler`` on the
-  calling thread), so the FIFO pair compares implementations with equal privileges too.
-  Both Python variants also set the thread's timer slack to 1 ns (``prctl`` through ctypes),
-  as the Rust loop does, so neither sleeps up to 50 µs late by the kernel's default.
+- ``rust``: ``_rtcore.AdmittanceLoop`` as the daemon runs it: a force sample's push starts the
+  cycle (``trigger = "sample"``, one cycle per period, phase lock on; docs/realtime.md);
+- ``rust_sched``: the same loop on the fixed schedule (``trigger = "schedule"``): every cycle at
+  ``start + k·period``, the loop as it was before the sample trigger;
+- ``python``: a thread running the loop in Python on the fixed schedule (``time.sleep`` to each
+  absolute deadline, overruns skipped), the SyncWrite bytes (CRC, byte stuffing) built in
+  Python and written with pyserial.
 
-Load, identical for all: a sensor thread pushes a force sample every millisecond, and a
-supervisor thread drains the telemetry and JSON-encodes the newest state at 100 Hz, as the
-daemon does. Figures: the wake-up lateness behind each deadline ("period error"), the
-force-to-write latency (a sample's arrival → the end of the first SyncWrite that used it),
-p50/p99/p99.9/max in µs, the cycle's own cost (wake-up → end of its SyncWrite, p50/p99) and
-the Python/Rust ratios. The cost is the least load-sensitive figure: on a shared machine the
-period error at SCHED_OTHER mostly measures the other processes. Each point runs ~1 s; the whole bench
-takes about a minute. The machine is shared and noisy: read the ratios, not the absolutes.
+Each runs at SCHED_OTHER and at SCHED_FIFO 50 (``_fifo``; the Python thread switches itself with
+``os.sched_setscheduler``, so each pair has equal privileges), every thread with 1 ns timer slack.
+
+Two loads, the same for all three loops:
+
+- ``bench``: a sensor thread pushes a sample about every millisecond (``time.sleep(0.001)``,
+  so about 0.9-1 kHz and drifting against the loop), and a thread drains the telemetry and
+  JSON-encodes the newest rows at 100 Hz;
+- ``daemon``: the daemon's own process around the loop. The real supervisor
+  (``admittance.daemon.supervisor.Supervisor``) runs the loop: it drains the telemetry at
+  100 Hz, records every cycle to CSV (``Recorder``), publishes state and stats over a real Zenoh
+  session to a subscriber in the same process; the same sensor thread pushes through the
+  supervisor's gate; a thread allocates 500 small dicts with reference cycles every
+  millisecond (allocation and cyclic-GC pressure); and two processes burn a CPU each.
+
+Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
+("period error": a deadline, or a sample's push), the force-to-write latency (a sample's
+arrival → the end of the first SyncWrite that used it), the cycle's own cost (wake-up → end of
+its SyncWrite), and ratios of one run. A last section shows the phase lock at work on a sensor
+paced at the loop's own rate. The machine is shared and noisy: read the ratios, not the
+absolutes. ``--help`` lists the options; the default run takes about eight minutes.
 """
 
 from __future__ import annotations
 
+import argparse
 import collections
+import contextlib
 import ctypes
+import gc
 import json
 import math
 import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import serial
@@ -42,12 +63,16 @@ from admittance import _rtcore
 
 RATES_HZ = (250, 500, 1000, 2000)
 JOINT_COUNTS = (1, 6, 12)
-POINT_S = 1.0
+POINT_S = 2.0
 FORCE_N = 2.0
 INERTIA, DAMPING, COULOMB, LEVER = 0.02, 0.05, 0.01, 0.1
 GOAL_ADDRESS, GOAL_SIZE = 116, 4
 QUANTILES = (50, 99, 99.9, 100)
+LOOPS = ("python", "rust_sched", "rust")
+PR_SET_TIMERSLACK = 29  # <linux/prctl.h>
 
+
+# -- the Python loop --------------------------------------------------------------------------
 
 def crc16_table() -> list[int]:
     table = []
@@ -90,51 +115,75 @@ def joint_step(theta: float, omega: float, tau: float, h: float) -> tuple[float,
     return theta + h * omega, omega
 
 
-
-PR_SET_TIMERSLACK = 29  # <linux/prctl.h>
-
-
 def set_minimal_timer_slack() -> None:
     """The calling thread's timer slack to 1 ns, as the Rust loop thread sets its own."""
     ctypes.CDLL(None, use_errno=True).prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0)
 
-class PythonLoop(threading.Thread):
-    """The loop in Python, paced like the Rust one (absolute deadlines, overruns skipped)."""
 
-    def __init__(self, port: str, rate_hz: float, ids: list[int], duration_s: float, fifo: bool):
-        super().__init__(daemon=True)
-        self.port, self.period_ns, self.ids, self.duration_s = port, int(1e9 / rate_hz), ids, duration_s
-        self.fifo = fifo
+def percentiles_us(values_ns: list[int]) -> dict:
+    if not values_ns:
+        return {"p50": math.nan, "p99": math.nan, "p999": math.nan, "max": math.nan}
+    p = np.percentile(values_ns, QUANTILES) / 1e3
+    return {"p50": float(p[0]), "p99": float(p[1]), "p999": float(p[2]), "max": float(p[3])}
+
+
+class PythonLoop:
+    """The loop in Python, paced like the Rust schedule (absolute deadlines, overruns skipped).
+
+    It offers the part of ``AdmittanceLoop``'s API the supervisor uses (start, stop, force_sink,
+    drain_telemetry as the same numpy array, stats, heartbeat...), so both loops run under the
+    same supervisor.
+    """
+
+    def __init__(self, port: str, rate_hz: float, ids: list[int], fifo: bool):
+        self.port, self.period_ns, self.ids, self.fifo = port, int(1e9 / rate_hz), ids, fifo
+        self.rate_hz = rate_hz
         self.policy = "SCHED_OTHER"
-        self.costs: list[int] = []
         self.sample = (0, 0.0)  # (arrival t_ns, force): what the sensor thread hands over
+        self.samples = 0
         self.telemetry: collections.deque = collections.deque(maxlen=1 << 16)
+        self.costs: list[int] = []
         self.period_errors: list[int] = []
         self.latencies: list[int] = []
         self.overruns = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    # the sink
+    def force_sink(self) -> PythonLoop:
+        return self
 
     def push(self, t_ns: int, forces: list[float]) -> bool:
         self.sample = (t_ns, forces[0])
+        self.samples += 1
         return True
 
-    def become_fifo(self) -> None:
+    # the loop
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, torque_policy: str = "hold") -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _become_fifo(self) -> None:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))  # 0 = this thread
             self.policy = "SCHED_FIFO"
         except PermissionError:
             pass
 
-    def run(self) -> None:
+    def _run(self) -> None:
         set_minimal_timer_slack()
         if self.fifo:
-            self.become_fifo()
+            self._become_fifo()
         port = serial.Serial(self.port, 1_000_000, timeout=0)
         h = self.period_ns / 1e9
         state = [(0.0, 0.0)] * len(self.ids)
         used_t = 0
         next_ns = time.monotonic_ns() + self.period_ns
-        end_ns = next_ns + int(self.duration_s * 1e9)
-        while next_ns < end_ns:
+        cycle = 0
+        while not self._stop.is_set():
             time.sleep(max(0.0, (next_ns - time.monotonic_ns()) / 1e9))
             wake = time.monotonic_ns()
             self.period_errors.append(wake - next_ns)
@@ -142,11 +191,15 @@ class PythonLoop(threading.Thread):
             state = [joint_step(th, om, force * LEVER, h) for th, om in state]
             ticks = [2048 + round(th * 4096 / (2 * math.pi)) for th, _ in state]
             port.write(sync_write_p2(self.ids, ticks))
-            self.costs.append(time.monotonic_ns() - wake)
+            end = time.monotonic_ns()
+            self.costs.append(end - wake)
+            latency = -1
             if t_ns != used_t:
                 used_t = t_ns
-                self.latencies.append(time.monotonic_ns() - t_ns)
-            self.telemetry.append((wake, force, state, ticks))
+                latency = end - t_ns
+                self.latencies.append(latency)
+            self.telemetry.append((cycle, wake, force, state, ticks, wake - next_ns, latency))
+            cycle += 1
             next_ns += self.period_ns
             now = time.monotonic_ns()
             if now > next_ns:
@@ -155,45 +208,47 @@ class PythonLoop(threading.Thread):
                 next_ns += missed * self.period_ns
         port.close()
 
-    def drain(self) -> list:
-        out = []
+    def drain_telemetry(self) -> np.ndarray:
+        rows = []
         while self.telemetry:
-            out.append(self.telemetry.popleft())
+            rows.append(self.telemetry.popleft())
+        n = len(self.ids)
+        out = np.zeros(len(rows) * n, _rtcore.AdmittanceLoop.telemetry_dtype())
+        for k, (cycle, wake, force, state, ticks, period_error, latency) in enumerate(rows):
+            r = out[k * n:(k + 1) * n]
+            r["cycle"], r["t_ns"], r["deadline_ns"], r["id"], r["force"] = cycle, wake, wake - period_error, self.ids, force
+            r["torque"], r["period_error_ns"], r["latency_ns"] = force * LEVER, period_error, latency
+            r["theta"], r["omega"] = [s[0] for s in state], [s[1] for s in state]
+            r["goal_tick"], r["present_tick"] = ticks, -1
         return out
 
+    def stats(self) -> dict:
+        return {"cycles": len(self.period_errors), "overruns": self.overruns, "rate_hz": self.rate_hz,
+                "period_us": percentiles_us(self.period_errors), "latency_us": percentiles_us(self.latencies),
+                "work_us": percentiles_us(self.costs), "bus_errors": 0, "sensor_samples": self.samples,
+                "sensor_stale_events": 0, "rt": {"policy": self.policy, "priority": 50 if self.fifo else 0,
+                                                 "memory_locked": False}}
 
-def sensor_thread(sink, stop: threading.Event) -> threading.Thread:
-    def run():
-        while not stop.is_set():
-            sink.push(time.monotonic_ns(), [FORCE_N, 0.0, 0.0, 0.0, 0.0, 0.0])
-            time.sleep(0.001)
-    return threading.Thread(target=run, daemon=True)
+    def heartbeat(self) -> int:
+        return len(self.period_errors)
+
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def params(self) -> dict:
+        return {}
+
+    def set_params(self, request: dict) -> tuple[bool, str]:
+        return False, "the benchmark's Python loop has no live parameters"
+
+    def tare(self, samples: int) -> None:
+        pass
 
 
-def supervisor_thread(drain, stop: threading.Event) -> threading.Thread:
-    """Publishes the newest state as JSON at 100 Hz, like the daemon's main loop."""
-    def run():
-        while not stop.is_set():
-            rows = drain()
-            if len(rows):
-                tail = rows[-12:]  # a numpy structured array (Rust) or a list of tuples (Python)
-                json.dumps({"state": tail.tolist() if hasattr(tail, "tolist") else tail, "n": len(rows)})
-            time.sleep(0.01)
-    return threading.Thread(target=run, daemon=True)
-
-
-def under_load(sink, drain, body) -> None:
-    stop = threading.Event()
-    threads = [sensor_thread(sink, stop), supervisor_thread(drain, stop)]
-    for t in threads:
-        t.start()
-    try:
-        body()
-    finally:
-        stop.set()
-        for t in threads:
-            t.join()
-
+# -- the loops under test ---------------------------------------------------------------------
 
 def mock_bus(n_joints: int):
     servos = [{"id": i, "model": "MX-64", "protocol": 2, "params": {"motor_inertia": 0.0147}}
@@ -203,88 +258,364 @@ def mock_bus(n_joints: int):
     return bus
 
 
-def run_rust(port: str, rate_hz: int, n_joints: int, priority: int) -> dict:
+def rust_loop(port: str, rate_hz: int, n_joints: int, priority: int, trigger: str, phase_lock: bool = True):
     joints = [{"id": i, "virtual_inertia": INERTIA, "virtual_damping": DAMPING, "virtual_coulomb": COULOMB,
-               "lever_arm": LEVER, "limits": {"position_min": -1e3, "position_max": 1e3,
-                                              "velocity_max": 1e3, "acceleration_max": 1e6}}
+               # The goal range's angles (the default) and the envelope's speed bounds.
+               "lever_arm": LEVER, "limits": {"velocity_max": 100.0, "acceleration_max": 1e5}}
               for i in range(1, n_joints + 1)]
-    loop = _rtcore.AdmittanceLoop({"port": port, "rate_hz": rate_hz, "rt_priority": priority,
-                                   "lock_memory": False, "sync_read_divisor": 0,
-                                   "stale_timeout_ms": 1000.0, "joints": joints})
-    loop.start()
-    under_load(loop.force_sink(), loop.drain_telemetry, lambda: time.sleep(POINT_S))
-    stats = loop.stats()
-    loop.stop("hold")
+    return _rtcore.AdmittanceLoop({"port": port, "rate_hz": rate_hz, "rt_priority": priority,
+                                   "lock_memory": False, "sync_read_divisor": 0, "stale_timeout_ms": 1000.0,
+                                   "start_timeout_ms": 2000.0,
+                                   "trigger": trigger, "phase_lock": phase_lock, "joints": joints})
+
+
+def make_loop(name: str, port: str, rate_hz: int, n_joints: int):
+    fifo = name.endswith("_fifo")
+    base = name.removesuffix("_fifo")
+    if base == "python":
+        return PythonLoop(port, rate_hz, list(range(1, n_joints + 1)), fifo)
+    return rust_loop(port, rate_hz, n_joints, 50 if fifo else 0, "schedule" if base == "rust_sched" else "sample")
+
+
+def summary(stats: dict) -> dict:
     pick = lambda d: [d["p50"], d["p99"], d["p999"], d["max"]]  # noqa: E731
     return {"period": pick(stats["period_us"]), "latency": pick(stats["latency_us"]),
             "cost": pick(stats["work_us"])[:2], "overruns": stats["overruns"], "cycles": stats["cycles"],
             "policy": stats["rt"]["policy"]}
 
 
-def run_python(port: str, rate_hz: int, n_joints: int, fifo: bool) -> dict:
-    loop = PythonLoop(port, rate_hz, list(range(1, n_joints + 1)), POINT_S, fifo)
+# -- the loads --------------------------------------------------------------------------------
 
-    def body():
+class DriftingSensor:
+    """A thread pushing one sample about every millisecond (a relative sleep: it drifts)."""
+
+    def __init__(self, sink) -> None:
+        self.sink, self.error, self.pushed = sink, None, 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.sink.push(time.monotonic_ns(), [FORCE_N, 0.0, 0.0, 0.0, 0.0, 0.0])
+            self.pushed += 1
+            time.sleep(0.001)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def stats(self) -> dict:
+        return {"pushed": self.pushed}
+
+
+class BenchLoad:
+    """The sensor thread and a JSON "supervisor" thread, as the first version of this bench had."""
+
+    name = "bench"
+
+    def run(self, loop, duration_s: float) -> dict:
+        stop = threading.Event()
+        sensor = DriftingSensor(loop.force_sink())
+        supervisor = threading.Thread(target=self._supervise, args=(loop, stop), daemon=True)
         loop.start()
-        loop.join()
+        sensor.start()
+        supervisor.start()
+        time.sleep(duration_s)
+        stats = loop.stats()
+        loop.stop("hold")
+        stop.set()
+        sensor.stop()
+        supervisor.join()
+        return stats
 
-    under_load(loop, loop.drain, body)
-    pct = lambda xs: [float(v) / 1e3 for v in np.percentile(xs, QUANTILES)] if xs else [math.nan] * 4  # noqa: E731
-    return {"period": pct(loop.period_errors), "latency": pct(loop.latencies), "cost": pct(loop.costs)[:2],
-            "overruns": loop.overruns, "cycles": len(loop.period_errors), "policy": loop.policy}
+    @staticmethod
+    def _supervise(loop, stop: threading.Event) -> None:
+        while not stop.is_set():
+            rows = loop.drain_telemetry()
+            if len(rows):
+                json.dumps({"state": rows[-12:].tolist(), "n": len(rows)})
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        pass
+
+
+def gc_pressure(stop: threading.Event) -> None:
+    """500 small dicts with reference cycles every millisecond: only the cyclic GC frees them."""
+    while not stop.is_set():
+        junk = []
+        for i in range(500):
+            d = {"i": i, "s": str(i), "l": [i, i, i]}
+            d["self"] = d
+            junk.append(d)
+        del junk
+        time.sleep(0.001)
+
+
+def die_with_parent() -> None:
+    """In a burner, before exec: SIGKILL when the bench dies, however it dies (PR_SET_PDEATHSIG)."""
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class DaemonLoad:
+    """The daemon's supervisor around the loop, GC pressure and two CPU burners (see the docstring)."""
+
+    name = "daemon"
+    PREFIX = "bench/loop-timing"
+
+    def __init__(self) -> None:
+        import zenoh
+
+        from admittance.daemon.zenoh_iface import make_config, open_session
+        self.workdir = Path(tempfile.mkdtemp(prefix="loop-timing-"))
+        self.endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        self.monitor = open_session(make_config(listen=[self.endpoint]), "for the bench's subscriber")
+        self.subscriber = self.monitor.declare_subscriber(f"{self.PREFIX}/**", zenoh.handlers.RingChannel(64))
+        self.burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=die_with_parent)
+                        for _ in range(2)]
+        self._gc_stop = threading.Event()
+        self._gc = threading.Thread(target=gc_pressure, args=(self._gc_stop,), daemon=True)
+        self._gc.start()
+        self.runs = 0
+
+    def config(self, rate_hz: int, n_joints: int):
+        from admittance.daemon.config import load_config
+        folder = self.workdir / f"run{self.runs}"
+        folder.mkdir()
+        joints = "".join(f'[[joints]]\nid = {i}\nmodel = "MX-64"\n\n' for i in range(1, n_joints + 1))
+        (folder / "daemon.toml").write_text(
+            f'[bus]\nport = "{folder}/bus"\n\n{joints}'
+            '[sensor]\nkind = "mock"\nlever_arm = 0.1\ntare_samples = 0\n\n'
+            f"[loop]\nrate_hz = {rate_hz}\nsync_read_divisor = 0\nlock_memory = false\n\n"
+            f'[zenoh]\nprefix = "{self.PREFIX}"\nlisten = ["tcp/127.0.0.1:0"]\nconnect = ["{self.endpoint}"]\n'
+            'state_rate_hz = 100\n\n'
+            f'[record]\npath = "{folder}/record"\n')
+        return load_config(folder / "daemon.toml")
+
+    def run(self, loop, duration_s: float, rate_hz: int, n_joints: int) -> dict:
+        from admittance.daemon.notify import Notifier
+        from admittance.daemon.supervisor import Backends, RunOptions, Supervisor
+        from admittance.daemon.zenoh_iface import DaemonInterface
+        self.runs += 1
+        cfg = self.config(rate_hz, n_joints)
+        backends = Backends(start_bench=lambda cfg: contextlib.nullcontext((cfg.bus.port, "", lambda: None)),
+                            check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
+                            make_sensor=lambda cfg, port, sink: DriftingSensor(sink),
+                            make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
+        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, log=lambda line: None),
+                                notifier=Notifier(environ={}))
+        supervisor.run()
+        shutil.rmtree(cfg.record.path, ignore_errors=True)
+        return supervisor.final_stats
+
+    def close(self) -> None:
+        for p in self.burners:
+            p.kill()
+            p.wait()
+        self._gc_stop.set()
+        self._gc.join()
+        self.subscriber.undeclare()
+        self.monitor.close()
+        shutil.rmtree(self.workdir, ignore_errors=True)
+
+
+# -- one point: every loop, both policies, one load -------------------------------------------
+
+def run_point(load, rate: int, n: int, point_s: float) -> dict:
+    bus = mock_bus(n)
+    results = {}
+    try:
+        for name in (*LOOPS, *(f"{loop}_fifo" for loop in LOOPS)):
+            loop = make_loop(name, bus.port_path, rate, n)
+            stats = load.run(loop, point_s) if isinstance(load, BenchLoad) else load.run(loop, point_s, rate, n)
+            results[name] = summary(stats)
+    finally:
+        bus.stop()
+    return results
 
 
 def fmt(values: list[float]) -> str:
     return " ".join(f"{v:7.0f}" for v in values)
 
 
-def ratio(py: dict, rs: dict, key: str, k: int) -> float:
-    return py[key][k] / max(rs[key][k], 1e-3)
+def ratio(a: dict, b: dict, key: str, k: int) -> float:
+    return a[key][k] / max(b[key][k], 1e-3)
 
 
-def run_point(rate: int, n: int) -> dict:
-    bus = mock_bus(n)
+def print_point(rate: int, n: int, results: dict) -> None:
+    for name, r in results.items():
+        print(f"{rate:5d} {n:3d} {name:<15} {r['policy']:<11} | {fmt(r['period'])} | {fmt(r['latency'])} "
+              f"| {fmt(r['cost'])} | {r['overruns']}/{r['cycles']}", flush=True)
+
+
+def print_latency_table(rows: list[tuple]) -> None:
+    print("\nForce→write latency, before (rust_sched: the fixed schedule) and after (rust: the sample starts "
+          "the cycle), µs:")
+    print(f"{'rate':>5} {'jnt':>3} | OTHER p50 before→after  p99 before→after  p99 after/before | "
+          f"FIFO p50 before→after  p99 before→after  p99 after/before")
+    ratios = {"SCHED_OTHER": [], "SCHED_FIFO": []}
+    for rate, n, results in rows:
+        cells = []
+        for suffix, policy in (("", "SCHED_OTHER"), ("_fifo", "SCHED_FIFO")):
+            before, after = results[f"rust_sched{suffix}"]["latency"], results[f"rust{suffix}"]["latency"]
+            r = after[1] / max(before[1], 1e-3)
+            ratios[policy].append(r)
+            cells.append(f"{before[0]:6.0f} → {after[0]:5.0f}   {before[1]:6.0f} → {after[1]:5.0f}   {r:16.2f}")
+        print(f"{rate:5d} {n:3d} |      " + " |     ".join(cells))
+    for policy, values in ratios.items():
+        print(f"median p99 latency after/before at {policy}: {np.median(values):.2f} "
+              f"(max {max(values):.2f})")
+
+
+def print_ratio_table(rows: list[tuple]) -> None:
+    print("\nPython / Rust (rust: the daemon's loop, sample-triggered), same run, same policy:")
+    print(f"{'rate':>5} {'jnt':>3} | OTHER: p99 period err  p99 latency  p50 cycle cost || "
+          f"FIFO: p99 period err  p99 latency  p50 cycle cost")
+    table = []
+    for rate, n, results in rows:
+        row = []
+        for suffix in ("", "_fifo"):
+            py, rs = results[f"python{suffix}"], results[f"rust{suffix}"]
+            row += [ratio(py, rs, "period", 1), ratio(py, rs, "latency", 1), ratio(py, rs, "cost", 0)]
+        table.append(row)
+        print(f"{rate:5d} {n:3d} |        {row[0]:14.1f} {row[1]:12.1f} {row[2]:15.1f} ||        "
+              f"{row[3]:14.1f} {row[4]:12.1f} {row[5]:15.1f}")
+    med = np.median(table, axis=0)
+    for label, k in (("SCHED_OTHER", 0), ("SCHED_FIFO", 3)):
+        print(f"median Python/Rust at {label}: p99 period error {med[k]:.1f}x, p99 latency {med[k + 1]:.1f}x, "
+              f"cycle cost {med[k + 2]:.1f}x")
+
+
+def run_load(load, rates, joints, point_s: float) -> None:
+    print(f"\n== load: {load.name}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(f"{'rate':>5} {'jnt':>3} {'loop':<15} {'policy':<11} | period error µs: p50 p99 p99.9 max "
+          f"| latency µs: p50 p99 p99.9 max | cost µs: p50 p99 | overruns/cycles")
+    rows = []
+    for rate in rates:
+        for n in joints:
+            results = run_point(load, rate, n, point_s)
+            print_point(rate, n, results)
+            rows.append((rate, n, results))
+    print_latency_table(rows)
+    print_ratio_table(rows)
+    print(f"load average after the {load.name} load: {os.getloadavg()[0]:.1f}")
+
+
+# -- the phase lock on a sensor paced at the loop's rate --------------------------------------
+
+class PacedSensor:
+    """A thread pushing at absolute deadlines ``phase + k·period`` (a sensor with its own clock)."""
+
+    def __init__(self, sink, first_ns: int, period_ns: int) -> None:
+        self.sink, self.next_ns, self.period_ns = sink, first_ns, period_ns
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        set_minimal_timer_slack()
+        while not self._stop.is_set():
+            time.sleep(max(0.0, (self.next_ns - time.monotonic_ns()) / 1e9))
+            self.sink.push(time.monotonic_ns(), [FORCE_N, 0.0, 0.0, 0.0, 0.0, 0.0])
+            self.next_ns += self.period_ns
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def grid_opening(loop) -> int:
+    """A window opening of the running loop's grid, from its telemetry: a cycle's deadline (the
+    model's time, the grid point itself while no sensor has moved the grid)."""
+    deadline = time.monotonic() + 5.0
+    rows = loop.drain_telemetry()
+    while len(rows) == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+        rows = loop.drain_telemetry()
+    return int(rows["deadline_ns"][-1])
+
+
+def paced_run(port: str, rate: int, trigger: str, phase_lock: bool, phase: float, point_s: float) -> dict:
+    """One loop, the sensor at `phase` of a period after each window opening; latency of the last second."""
+    period = int(1e9 / rate)
+    loop = rust_loop(port, rate, 1, 50, trigger, phase_lock)
+    loop.start()
+    time.sleep(0.05)  # a few cycles on the schedule (no sensor yet) give the grid
+    opening = grid_opening(loop)
+    first = opening + int(phase * period) + period * ((time.monotonic_ns() - opening) // period + 2)
+    sensor = PacedSensor(loop.force_sink(), first, period)
+    time.sleep(point_s)
+    loop.drain_telemetry()  # the pull-in: the lock may move the grid by up to half a period
+    time.sleep(1.0)
+    rows = loop.drain_telemetry()
+    sensor.stop()
+    stats = loop.stats()
+    loop.stop("hold")
+    lat = rows["latency_ns"][rows["latency_ns"] >= 0] / 1e3
+    starts = stats["trigger"]["starts"]
+    return {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)), "n": len(lat),
+            "starts": starts, "phase_error_us": stats["trigger"]["phase_error_us"]}
+
+
+def run_phase_lock(rate: int, point_s: float) -> None:
+    print(f"\n== the phase lock: a sensor paced at the loop's rate ({rate} Hz), one joint, SCHED_FIFO, "
+          f"bench load none; load average {os.getloadavg()[0]:.1f}")
+    print("Pushes aimed at a phase of the period after each window opening; latency µs over the last second "
+          "(after a pull-in of {:.1f} s):".format(point_s))
+    print(f"{'phase':>6} | {'schedule p50/p99':>17} | {'sample, no lock p50/p99':>24} | "
+          f"{'sample + lock p50/p99':>22} | lock's last phase error µs")
+    bus = mock_bus(1)
     try:
-        return {"rust": run_rust(bus.port_path, rate, n, 0),
-                "python": run_python(bus.port_path, rate, n, fifo=False),
-                "rust_fifo": run_rust(bus.port_path, rate, n, 50),
-                "python_fifo": run_python(bus.port_path, rate, n, fifo=True)}
+        for phase in (0.3, 0.6, 0.93):
+            cells, last = [], None
+            for trigger, lock in (("schedule", False), ("sample", False), ("sample", True)):
+                r = paced_run(bus.port_path, rate, trigger, lock, phase, point_s)
+                cells.append(f"{r['p50']:7.0f} / {r['p99']:6.0f}")
+                last = r
+            print(f"{phase:6.2f} | {cells[0]:>17} | {cells[1]:>24} | {cells[2]:>22} | {last['phase_error_us']:.0f}",
+                  flush=True)
     finally:
         bus.stop()
 
 
-def print_ratios(ratios: list[tuple]) -> None:
-    print("\nPython / Rust, same run, same policy (SCHED_OTHER pair | SCHED_FIFO pair):")
-    print(f"{'rate':>5} {'jnt':>3} | p99 period err | p99 latency | p50 cycle cost || "
-          f"p99 period err | p99 latency | p50 cycle cost")
-    widths = (14, 11, 14) * 2
-    for rate, n, other, fifo in ratios:
-        print(f"{rate:5d} {n:3d} | " + " | ".join(f"{v:{w}.1f}" for v, w in zip(other + fifo, widths)))
-    for label, col in (("SCHED_OTHER", 2), ("SCHED_FIFO", 3)):
-        med = np.median([[r[col][k] for k in range(3)] for r in ratios], axis=0)
-        print(f"median Python/Rust at {label}: p99 period error {med[0]:.1f}x, p99 latency {med[1]:.1f}x, "
-              f"cycle cost {med[2]:.1f}x")
-
-
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--load", choices=("bench", "daemon", "both", "none"), default="both",
+                        help="which load the loops run under (none: only the phase-lock section; default both)")
+    parser.add_argument("--rates", type=int, nargs="+", default=list(RATES_HZ), metavar="HZ",
+                        help=f"loop rates, Hz (default {' '.join(map(str, RATES_HZ))})")
+    parser.add_argument("--joints", type=int, nargs="+", default=list(JOINT_COUNTS), metavar="N",
+                        help=f"joint counts (default {' '.join(map(str, JOINT_COUNTS))})")
+    parser.add_argument("--point-s", type=float, default=POINT_S, metavar="S",
+                        help=f"seconds per loop and point (default {POINT_S})")
+    parser.add_argument("--no-phase-lock-section", action="store_true",
+                        help="skip the last section (a sensor paced at the loop's rate)")
+    args = parser.parse_args()
     print(__doc__.split("\n\n")[0])
-    print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
-    print(f"\n{'rate':>5} {'jnt':>3} {'loop':<11} {'policy':<11} | period error µs: p50 p99 p99.9 max "
-          f"| latency µs: p50 p99 p99.9 max | cost µs: p50 p99 | overruns/cycles")
-    ratios = []
+    print(f"command: {' '.join(sys.argv)}")
+    print(f"uptime: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")
     started = time.monotonic()
-    for rate in RATES_HZ:
-        for n in JOINT_COUNTS:
-            results = run_point(rate, n)
-            for name, r in results.items():
-                print(f"{rate:5d} {n:3d} {name:<11} {r['policy']:<11} | {fmt(r['period'])} | {fmt(r['latency'])} "
-                      f"| {fmt(r['cost'])} | {r['overruns']}/{r['cycles']}")
-            pair = lambda py, rs: [ratio(results[py], results[rs], "period", 1),  # noqa: E731
-                                   ratio(results[py], results[rs], "latency", 1),
-                                   ratio(results[py], results[rs], "cost", 0)]
-            ratios.append((rate, n, pair("python", "rust"), pair("python_fifo", "rust_fifo")))
-    print_ratios(ratios)
-    print(f"bench took {time.monotonic() - started:.0f} s; load average after: {os.getloadavg()[0]:.1f}")
+    loads = {"bench": [BenchLoad], "daemon": [DaemonLoad], "both": [BenchLoad, DaemonLoad], "none": []}[args.load]
+    for make in loads:
+        load = make()
+        try:
+            run_load(load, args.rates, args.joints, args.point_s)
+        finally:
+            load.close()
+    if not args.no_phase_lock_section:
+        run_phase_lock(1000, max(args.point_s, 1.0))
+    gc.collect()
+    print(f"\nbench took {time.monotonic() - started:.0f} s; "
+          f"uptime after: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")
 
 
 if __name__ == "__main__":

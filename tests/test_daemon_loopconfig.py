@@ -60,3 +60,21 @@ def test_a_zero_tick_outside_the_goal_range_is_a_config_error(tmp_path):
     bad = config.dataclasses.replace(cfg, joints=(config.dataclasses.replace(cfg.joints[0], zero_tick=5000),))
     with pytest.raises(ConfigError, match="zero_tick: 5000 is outside"):
         loop_config(bad, "/dev/x")
+
+
+@pytest.mark.parametrize("loop, mode, locked", [({}, "sample", True), ({"phase_lock": False}, "sample", False),
+                                                ({"trigger": "schedule"}, "schedule", False)])
+def test_the_loops_trigger_comes_from_the_loop_table(tmp_path, loop, mode, locked):
+    cfg = cfg_for(tmp_path, 2)
+    cfg = config.dataclasses.replace(cfg, loop=config.dataclasses.replace(cfg.loop, **loop))
+    trigger = _rtcore.AdmittanceLoop(loop_config(cfg, "/dev/null")).stats()["trigger"]
+    assert (trigger["mode"], trigger["phase_lock"]) == (mode, locked)
+
+
+def test_an_unknown_trigger_is_a_config_error(tmp_path):
+    path = tmp_path / "d.toml"
+    path.write_text(tomli_w.dumps({"bus": {"port": "/dev/ttyUSB0"}, "joints": [{"id": 1, "model": "MX-64"}],
+                                   "sensor": {"kind": "optoforce", "port": "/dev/x", "lever_arm": 0.1},
+                                   "loop": {"trigger": "sometimes"}}))
+    with pytest.raises(ConfigError, match=r"loop.*trigger"):
+        config.load_config(path)

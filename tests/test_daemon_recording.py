@@ -61,6 +61,29 @@ def test_a_row_carries_the_next_cycles_torque_across_batches(tmp_path):
     assert np.allclose(trial.t, np.arange(40) * 1e-3), "t is the cycle's deadline, not its wake-up"
 
 
+def test_a_cycle_that_took_no_step_supersedes_the_row_before_it(tmp_path):
+    """A phase-locked grid that fell half a period behind the model gives a cycle of no step: it
+    repeats its predecessor's deadline and state, and the predecessor's next torque was never
+    integrated. The predecessor's row goes (here across a batch's end, held back), so t stays
+    strictly increasing and the next row carries the torque of the cycle that did step."""
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
+    first, second = batch(0.0, 20), batch(0.02, 20)
+    for cols in (first, second):
+        cols["t"][cols["cycle"] >= 20] -= 1e-3  # cycle 20 took no step: its deadline is cycle 19's
+    first["fault"][19] = 1  # the superseded row's fault carries on to the next row kept
+    rec.append(1, first)
+    rec.append(1, second)
+    rec.close()
+    trial = load_dataset(tmp_path).trials[0]
+    t = np.concatenate([first["t"], second["t"]])
+    tau = np.concatenate([first["tau"], second["tau"]])
+    kept = np.arange(40) != 19
+    assert trial.n_samples == 39 and np.all(np.diff(trial.t) > 0)
+    assert np.allclose(trial.t, t[kept]) and np.allclose(trial.tau[:-1], tau[1:][kept[:-1]])
+    rows = np.genfromtxt(tmp_path / "joint1_000.csv", delimiter=",", names=True)
+    assert rows["fault"][19] == 1 and rows["cycle"][19] == 20
+
+
 def test_a_hold_or_a_fault_between_two_reads_marks_the_next_row(tmp_path):
     """Reads every 5th cycle; cycle 7 held (stale force: mode holding), cycle 18 faulted (the
     state guard, fault bit 1): rows 10 and 20 say so, even the one whose fault fell after the

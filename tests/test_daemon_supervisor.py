@@ -22,9 +22,9 @@ from admittance.daemon.supervisor import Backends, GatedSink, RunOptions, Superv
 from admittance.errors import DeviceError
 
 REPO = Path(__file__).resolve().parents[1]
-RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns", "fault") else "<f8" if name in
+RECORD_DTYPE = np.dtype([(name, "<u8" if name in ("cycle", "t_ns", "deadline_ns", "fault") else "<f8" if name in
                           ("force", "torque", "theta", "omega") else "<i8")
-                         for name in ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
+                         for name in ("cycle", "t_ns", "deadline_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
                                       "present_tick", "period_error_ns", "latency_ns", "fault", "mode")])
 PCT = {"p50": 1.0, "p99": 2.0, "p999": 3.0, "max": 4.0}
 
@@ -51,7 +51,8 @@ class FakeLoop:
             self.cycle += 1
             for j, jid in enumerate(self.ids):
                 r = rec[k * len(self.ids) + j]
-                r["cycle"], r["t_ns"], r["id"] = self.cycle, 10**9 + self.cycle * 10**6, jid
+                r["cycle"], r["deadline_ns"], r["id"] = self.cycle, 10**9 + self.cycle * 10**6, jid
+                r["t_ns"] = r["deadline_ns"] + 30_000  # woke 30 µs after the deadline
                 r["torque"], r["theta"], r["goal_tick"] = 0.1, 0.001 * self.cycle, 2048 + self.cycle
                 r["present_tick"] = 2048 + self.cycle if self.cycle % 5 == 0 else -1
         return rec

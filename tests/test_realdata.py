@@ -1,6 +1,7 @@
-"""The pipeline on measured data (../shared/data/real): converted, identified, sane.
+"""The pipeline on measured data (../shared/data/real): converted, identified, sane, and judged
+by the admission rules of issue 9.
 
-Skipped when the shared data is absent. Each test cuts its logs short (a window and every
+Skipped when the shared data is absent. The XL330 tests cut their logs short (a window and every
 other sample) to stay fast; the full analyses are in docs/real-data.md.
 """
 
@@ -61,10 +62,14 @@ def test_xl330_angle_offset_halves_the_heldout_error(real_data, tmp_path):
     folder = convert_files(_xl330_files(real_data), "dynamixel", tmp_path / "xl330",
                            header={"motor": "XL330", "rod": {"mass": 0.0094, "length": 0.1}, "bob": {"mass": 0.49}},
                            extra={"bob_distance": 0.1}, t_stop=2.0, every=2)
-    base, offset = effect_ladder(load_dataset(folder), [(), ("angle_offset",)])
+    base, offset, cogging = effect_ladder(load_dataset(folder), [(), ("angle_offset",), ("angle_offset", "cogging")])
     assert 0.0012 < base.params["motor_inertia"] < 0.0026
     assert -0.045 < offset.params["angle_offset"] < -0.015
     assert offset.pooled_rmse < 0.7 * base.pooled_rmse
+    assert offset.verdict in ("claimed", "stand-in") and offset.support["folds_supporting"] == 4
+    # Issue 9: cogging at a free period (6.8, 1.55, 1.51, 2.92/rev across folds) was the catch-all;
+    # on a whole-number period it may help prediction, but it is not claimed with structure left.
+    assert cogging.verdict in ("refused", "stand-in")
 
 
 def _dfki_geometry(real_data, tmp_path):
@@ -75,29 +80,42 @@ def _dfki_geometry(real_data, tmp_path):
         extra={"bob_distance": 0.5}, t_stop=3.3))
 
 
-def test_dfki_identify_ranks_the_torque_gain_first_but_cannot_admit_it(real_data, tmp_path):
-    """What identify's rules honestly give on three runs: its inner split fits on one run (DDP)
-    and validates on another, so the gain improves validation the most but stays under 3 σ.
-    Nothing is admitted, so the final model is the base model; delay and bias never qualify."""
+def test_dfki_identify_weighs_the_torque_gain_on_two_runs(real_data, tmp_path):
+    """identify holds out the energy-shaping run and cross-validates on the other two (one fold
+    each). The torque gain is refitted from its own starts whatever the linear ranking says, and
+    found at 0.87, about 3 σ from 1: on two 3.3 s runs that is the edge of the significance the
+    rule asks (the ladder, on all three runs, claims it: next test). The delay collapses the
+    inertia and the bias is not significant. (Before issue 9 the gain was refitted only when its
+    linearised share of the residual passed 0.2 %; a base fit that ended elsewhere after a 1e-9
+    change of its start put it at 0.06 %, and the verdict flipped without the gain being tried.)"""
     result = identify_dataset(_dfki_geometry(real_data, tmp_path)).to_json()
     assert result["mode"] == "geometry"
     assert result["base"]["motor_inertia"] < 0.01  # the reflected rotor is ~0.0022 kg·m²
     assert 0.05 < result["base"]["coulomb"] < 0.4  # the source's own fits: 0.11–0.18 N·m
-    assert not {"time_delay", "torque_bias"} & set(result["effects"])
     assert result["rmse_after"] <= result["rmse_before"] < 0.2
     tried = {e["effect"]: e for e in result["evidence"][0]}
     gain = tried["torque_gain"]
-    assert gain["validation_gain"] == max(e["validation_gain"] or -1.0 for e in tried.values())
-    assert gain["validation_gain"] > 0.03
-    assert 0.8 < gain["params"]["torque_gain"]["value"] < 0.95
+    assert 0.82 < gain["params"]["torque_gain"]["value"] < 0.92 and gain["significance_sigma"] > 2.5
+    if gain["accepted"]:
+        assert result["effects"] == ["torque_gain"] and gain["crossval"]["folds_supporting"] == 2
+    else:
+        assert result["effects"] == [] and "σ from its off value" in gain["reason"]
+    assert tried["time_delay"]["reason"].startswith("not physical") and "motor_inertia" in tried["time_delay"]["reason"]
+    assert "σ from its off value" in tried["torque_bias"]["reason"]
 
 
 def test_dfki_torque_gain_lowers_the_leave_one_out_error(real_data, tmp_path):
     """Fitted on two runs and scored on the third, the gain (the plant's torque_gain, geometry
-    mode) lowers every fold's error; its value agrees with the lumped κ·I."""
+    mode) lowers every fold's error at one value (0.85–0.87 in each fold). The ladder admits it
+    but only as a stand-in: fitted apart, the large swings and the small ones still want models
+    far apart (inertia ~5× apart, tens of noise variances gained), so something the library does
+    not name is left in these runs, and the gain may be covering part of it."""
     base, gain = effect_ladder(_dfki_geometry(real_data, tmp_path), [(), ("torque_gain",)])
     assert gain.pooled_rmse < 0.85 * base.pooled_rmse
     assert all(g <= b for g, b in zip(gain.heldout_rmse, base.heldout_rmse))
+    assert all(0.82 < fold["torque_gain"][0] < 0.92 for fold in gain.fold_values)
+    assert gain.verdict == "stand-in" and gain.support["folds_supporting"] == 3
+    assert "not one model on the large-swing and the small-swing data" in gain.reason
     assert 0.82 < gain.params["torque_gain"] < 0.92
     assert gain.params["motor_inertia"] < 0.01
 

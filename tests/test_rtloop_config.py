@@ -37,6 +37,8 @@ def config(**overrides) -> dict:
     ({"protocol": 3}, "protocol"),
     ({"rt_policy": "rr"}, "rt_policy"),
     ({"lowpass_hz": 600.0}, "lowpass_hz"),
+    ({"trigger": "sometimes"}, "config.trigger"),
+    ({"phase_lock": "yes"}, "phase_lock"),
     ({"joints": [{"id": 1, "servo_compensation": 1.0}]}, "needs a servo model"),
     ({"joints": [{"id": 1, "servo": {"time_constant": 0.02}}]}, "inertial_time\" is required"),
     ({"joints": [{"id": 1, "servo": {**SERVO, "time_constant": -1.0}}]}, "time_constant"),
@@ -100,7 +102,7 @@ def test_a_servo_model_turns_compensation_on_and_a_live_set_may_turn_it_off():
 
 def test_telemetry_dtype_is_the_documented_record():
     names = _rtcore.AdmittanceLoop.telemetry_dtype().names
-    assert names == ("cycle", "t_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
+    assert names == ("cycle", "t_ns", "deadline_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
                      "present_tick", "period_error_ns", "latency_ns", "fault", "mode")
     assert len(_rtcore.AdmittanceLoop(config()).drain_telemetry()) == 0
 

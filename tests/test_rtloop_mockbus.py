@@ -69,10 +69,11 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     h = 1.0 / RATE_HZ
     # plant::admittance with F = 0, on the torque each cycle used: the velocity first (damping
     # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'; one step per deadline since the
-    # last cycle (a cycle after an overrun takes the skipped deadlines' steps too).
-    # (at most 10: docs/realtime.md). A cycle that held on a stale force (mode holding: this
-    # test's pushing thread stalled on a loaded machine) stops the model instead.
-    deadline = rec["t_ns"].astype(np.int64) - rec["period_error_ns"]
+    # last cycle (a cycle after an overrun takes the skipped deadlines' steps too, at most 10:
+    # docs/realtime.md), whatever started the cycle: `deadline_ns` is the model's time. A cycle
+    # that held on a stale force (mode holding: this test's pushing thread stalled on a loaded
+    # machine) stops the model instead.
+    deadline = rec["deadline_ns"].astype(np.int64)
     steps = np.minimum(np.round(np.diff(deadline) / (1e9 / RATE_HZ)).astype(int), 10)
     omega_want, theta_want = rec["omega"][:-1].copy(), rec["theta"][:-1].copy()
     for k in range(steps.max()):
@@ -128,6 +129,25 @@ def test_stats_has_every_key_of_the_daemon_contract(bus):
         assert stats[key]["p50"] <= stats[key]["p99"] <= stats[key]["p999"] <= stats[key]["max"]
     assert stats["rt"] == {"policy": "SCHED_OTHER", "priority": 0, "memory_locked": False, "cpu": None}
     assert stats["rate_hz"] == RATE_HZ and stats["cycles"] >= 20 and stats["sensor_samples"] > 0
+
+
+@pytest.mark.parametrize("trigger", ["sample", "schedule"])
+def test_a_sample_starts_the_cycle_unless_the_loop_keeps_to_its_schedule(bus, trigger):
+    loop = _rtcore.AdmittanceLoop(config(bus.port_path, trigger=trigger))
+    loop.start()
+    run_with_force(loop, 0.5, 100)
+    loop.stop()
+    stats = loop.stats()
+    t = stats["trigger"]
+    assert t["mode"] == trigger and t["phase_lock"] == (trigger == "sample")
+    assert sum(t["starts"].values()) == stats["cycles"]
+    if trigger == "schedule":
+        assert t["starts"]["schedule"] == stats["cycles"]
+    else:
+        # The pushes (about one a millisecond; 500 Hz loop) wake the loop: cycles start on a
+        # sample's arrival, and the sensor's period is known.
+        assert t["starts"]["schedule"] == 0 and t["starts"]["arrival"] > 0
+        assert t["sensor_interval_us"] > 0
 
 
 def test_fifo_is_obtained_or_refused_with_a_warning(bus):

@@ -25,6 +25,9 @@ EFFECTS = {
     "tanh_k": {"tanh_k": 40.0},
     "torque_gain": {"torque_gain": 0.8},
     "torque_gain_and_bias": {"torque_gain": 1.25, "torque_bias": 0.006},
+    "spring": {"spring_stiffness": 0.05, "spring_neutral": 0.2},
+    "friction_ripple": {"friction_ripple_amplitude": 0.004, "friction_ripple_period": 6.0,
+                        "friction_ripple_phase": 0.3},
 }
 
 
@@ -47,6 +50,14 @@ def test_torque_gain_is_entry_16_and_defaults_to_one():
     """Contract 1's order: torque_gain was added after tanh_k, so older indices are unchanged."""
     assert sim.PARAM_NAMES.index("torque_gain") == 16 == sim.PARAM_NAMES.index("tanh_k") + 1
     assert sim.PARAM_DEFAULTS["torque_gain"] == 1.0
+
+
+def test_new_effects_are_appended_after_torque_gain_and_default_off():
+    """spring and friction_ripple were appended at the end: every older index is unchanged."""
+    new = ("spring_stiffness", "spring_neutral", "friction_ripple_amplitude", "friction_ripple_period",
+           "friction_ripple_phase")
+    assert sim.PARAM_NAMES[17:] == new
+    assert all(sim.PARAM_DEFAULTS[n] == 0.0 for n in new)
 
 
 def test_pack_fills_defaults_and_unpack_inverts():
@@ -175,3 +186,23 @@ def test_degenerate_batches():
     single = sim.make_trial([0.5])
     assert sim.simulate(single, BASE, 0.2, 0.1).tolist() == [0.2]
     assert sim.simulate_many([], sim.pack_params(BASE)[None, :], np.zeros((1, 0, 2))) == []
+
+
+@pytest.mark.parametrize("effect", ["base", "stribeck", "load_coulomb", "cogging", "spring", "friction_ripple",
+                                    "torque_gain_and_bias", "time_delay"])
+def test_rust_plant_converges_to_the_test_oracle(effect):
+    """A third reading of Contract 1 with another integrator (tests/ivp_oracle.py: solve_ivp
+    between stick events): the Rust plant approaches it at first order as the step shrinks."""
+    import ivp_oracle
+
+    params = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084,
+              **{k: v * (10.0 if k in ("coulomb_asym", "stribeck_torque", "cogging_amplitude", "torque_bias",
+                                       "friction_ripple_amplitude") else 1.0) for k, v in EFFECTS[effect].items()}}
+    t = np.arange(361) / 120
+    tau = 0.25 * np.sin(2.1 * t) * np.clip(t / 0.5, 0, 1) if "torque" in effect or effect == "time_delay" else None
+    x0 = (0.0, 0.0) if tau is not None else (1.4, 0.0)
+    truth = ivp_oracle.simulate(params, 0.004, 0.3, t, x0, tau)
+    trial = sim.make_trial(t, tau, load_inertia=0.004, gravity_torque=0.3)
+    errors = [np.sqrt(np.mean((sim.simulate(trial, params, *x0, max_step=h) - truth) ** 2)) for h in (1e-3, 1e-4)]
+    assert errors[0] < 1e-3  # 1 ms, the fit's step: well under the data's noise
+    assert errors[1] < 0.25 * errors[0]  # first order: 10× finer, ~10× closer

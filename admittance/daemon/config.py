@@ -138,6 +138,10 @@ class LoopConfig:
                                   doc="no force sample for this long: hold position")
     ramp_time_s: float = key("float", 0.5, unit="s", lo=0.0, hi=10.0, live=True,
                              doc="a live parameter change blends in over this time (no jump)")
+    trigger: str = key("str", "sample", choices=("sample", "schedule"),
+                       doc="what starts a cycle: a force sample's arrival in the period's window, or the fixed schedule")
+    phase_lock: bool = key("bool", True, doc="with trigger = sample: move the cycle grid (≤ period/500 per cycle) "
+                                             "so a sensor at the loop's rate arrives mid-window")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -36,6 +36,8 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
         "lowpass_hz": s.lowpass_hz,
         "stale_timeout_ms": lp.stale_timeout_ms,
         "ramp_time_s": lp.ramp_time_s,
+        "trigger": lp.trigger,
+        "phase_lock": lp.phase_lock,
         "bias": list(s.bias),
         "joints": [joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints],
     }

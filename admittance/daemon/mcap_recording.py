@@ -15,7 +15,7 @@ any MCAP reader open without our code:
 ``t`` is the CSV dataset's time base (recording.py): the loop integrates one step per deadline,
 so the deadline is the model's clock. A cycle message carries the torque that cycle
 integrated; the CSV row and :func:`admittance.ident.loaders.load_recording` pair each angle
-with the next cycle's (recording.next_cycle_tau), so both files give the same dataset.
+with the next cycle's (recording.with_next_cycle), so both files give the same dataset.
 
 Every message's ``log_time`` is its wall-clock time (ns since the Unix epoch) and
 ``publish_time`` its CLOCK_MONOTONIC time (ns): the loop stamps cycles on the monotonic clock and

@@ -23,6 +23,11 @@ Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract
   applies τ(t) over the substep that *starts* at t. The recorder therefore holds each batch's
   last cycle back until the next batch (or the close) shows what follows it.
 
+A cycle that took no step (the loop's grid, phase-locked to a sensor on another clock, fell
+half a period behind the model: docs/realtime.md) repeats its predecessor's ``t`` and state,
+and its torque was never integrated: the predecessor's row is then *superseded* and left out,
+so ``t`` stays strictly increasing and each row's ``tau`` is the one the model stepped with.
+
 The same rows are made from a ``session.mcap`` (every cycle) by :func:`recorded_rows`, so both
 files of a session give the same dataset (admittance.ident.loaders.load_recording).
 
@@ -167,8 +172,8 @@ class Recorder:
         self._pending[joint_id] = {k: v[-1:] for k, v in columns.items()}
         if len(columns["t"]) == 1:
             return None
-        tau = next_cycle_tau(columns["tau"], columns["cycle"])
-        return {**{k: v[:-1] for k, v in columns.items()}, "tau": tau[:-1]}
+        columns = with_next_cycle(columns)
+        return {k: v[:-1] for k, v in columns.items()}
 
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
         rows, self._carry[joint_id] = recorded_rows(columns, measured_theta=self.measured_theta, t0=self.t0,
@@ -202,9 +207,19 @@ class Recorder:
 
 
 def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault`` 0."""
+    """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault``
+    0, none ``superseded``."""
     zeros = np.zeros(len(columns["t"]))
-    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, **columns}
+    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, "superseded": zeros, **columns}
+
+
+def with_next_cycle(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Consecutive cycles with what the cycle after each says about it (module doc): ``tau`` the
+    following cycle's torque, and ``superseded`` where the following cycle took no step."""
+    follows = np.diff(columns["cycle"]) == 1
+    superseded = np.zeros(len(columns["cycle"]))
+    superseded[:-1] = follows & (np.diff(columns["t"]) <= 0)
+    return {**columns, "tau": next_cycle_tau(columns["tau"], columns["cycle"]), "superseded": superseded}
 
 
 def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
@@ -237,11 +252,13 @@ def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> t
 def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
                   carry: tuple[int, int] = (0, 0)) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
     """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
-    cycle's: one row per cycle that read the servo (every cycle without reads), times from
-    ``t0``, ``held`` and ``fault`` gathered since the previous row. Also the (held, fault) carry."""
+    cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
+    reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
+    previous row. Also the (held, fault) carry."""
     columns = with_defaults(columns)
     n = len(columns["t"])
     keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
+    keep &= columns["superseded"] == 0
     held, held_carry = since_previous_row(held_cycles(columns["mode"]), keep, carry[0])
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none

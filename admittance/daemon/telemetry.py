@@ -41,8 +41,9 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
         present = rows["present_tick"].astype(float)
         present[rows["present_tick"] == NOT_READ] = np.nan
         out[joint.id] = {
-            # The cycle's deadline: the model's time (wake-up = deadline + the scheduler's lateness).
-            "t": (rows["t_ns"].astype(np.int64) - rows["period_error_ns"]) * 1e-9,
+            # The cycle's deadline on the model's clock (not its start: a sample may start a cycle
+            # anywhere in its window, and the grid may be phase-locked to the sensor).
+            "t": rows["deadline_ns"] * 1e-9,
             "t_wake": rows["t_ns"] * 1e-9,
             "tau": rows["torque"].astype(float),
             "force": rows["force"].astype(float),

@@ -58,6 +58,9 @@ class Dataset:
     motor: str = ""
     folder: Path | None = None
     geometry: dict = field(default_factory=dict)
+    # Ticks per revolution of the angle encoder (manifest key ``encoder_ticks``, an extension of
+    # the contract); None: not declared (identify then looks for a grid in the data).
+    encoder_ticks: int | None = None
 
     @property
     def has_torque(self) -> bool:
@@ -96,7 +99,20 @@ def load_dataset(folder: str | Path) -> Dataset:
         motor=str(motor),
         folder=folder,
         geometry={"rod": rod, "bob": bob},
+        encoder_ticks=_encoder_ticks(manifest.get("encoder_ticks"), manifest_path),
     )
+
+
+MAX_ENCODER_TICKS = 1 << 24
+
+
+def _encoder_ticks(value: Any, path: Path) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 2 <= value <= MAX_ENCODER_TICKS:
+        raise DataError(f"{path}: encoder_ticks must be a whole number of ticks per revolution "
+                        f"(2 to {MAX_ENCODER_TICKS}), got {value!r}")
+    return value
 
 
 def load_geometry(rod: dict | None, bob: dict | None, bob_distance: float | None) -> tuple[float, float]:

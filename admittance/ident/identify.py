@@ -1,13 +1,17 @@
 """``identify``: the whole pipeline from a dataset to fitted parameters, effects and scores.
 
 1. Split (split.py): held-out trials for ``rmse_before``/``rmse_after``; the rest train.
+   The angle sensor is read from the manifest or the data (sensor.py).
 2. Equation error on the training trials gives a start (equation_error.py).
-3. Output-error LM of the base model on all training trials (fit.py).
-4. Effect search (effects.py) on an inner split of the training trials: a fitting part and a
-   validation part, so the held-out trials never influence which effects are chosen and their
-   score stays an honest estimate.
+3. Output-error LM of the base model on all training trials (fit.py), from the equation-error
+   start and, unless that already leaves nothing but sensor noise, from a small grid over
+   friction (:data:`FRICTION_GRID`): the best end point wins.
+4. Effect search (search.py) by cross-validation over the training trials only (whole trials,
+   or time segments of few long trials: crossval.py), so the held-out trials never influence
+   which effects are chosen and their score stays an honest estimate.
 5. Refit of the final model on all training trials; both models scored on the held-out trials
-   (only their initial states fitted); residual verdict (residual.py).
+   (only their initial states fitted, from several starts); residual verdict (residual.py)
+   and, when structure is left, what the library could not explain (unexplained.py).
 
 Every step logs a one-line progress on stderr unless quiet; the result converts to the JSON of
 ``datasets.md`` (:meth:`IdentifyResult.to_json`) and to a Contract 2 parameter file.
@@ -26,11 +30,12 @@ import numpy as np
 
 from admittance.errors import ConfigError
 from admittance.ident import paramfile
+from admittance.ident.base import fit_base, search_context, torque_scale_of
+from admittance.ident.crossval import Folds
 from admittance.ident.dataset import Dataset
-from admittance.ident.effects import Evidence, SearchOutcome, SearchSettings, candidate_effects, rank_candidates
-from admittance.ident.effects import grown, nothing_left, score, search_effects
-from admittance.ident.equation_error import fit_equation_error, initial_states
-from admittance.ident.fit import FitResult, fit_initial_states, fit_output_error, rmse
+from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
+from admittance.ident.equation_error import fit_equation_error, initial_state_starts
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
 from admittance.ident.model import (
     EFFECTS,
     INDEX,
@@ -43,7 +48,10 @@ from admittance.ident.model import (
 )
 from admittance.ident.paramfile import PARAM_DEFAULTS
 from admittance.ident.residual import analyse
+from admittance.ident.search import SearchOutcome, SearchSettings, nothing_left, search_effects
+from admittance.ident.sensor import Sensor, sensor_for
 from admittance.ident.split import stratified_pick
+from admittance.ident.unexplained import describe_unexplained
 
 # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM
 # iterations) and less accurate.
@@ -71,8 +79,7 @@ class IdentifyResult:
     dataset: Dataset
     settings: IdentifySettings
     heldout: list[int]
-    training: list[int]
-    validation: list[int]  # indices into the dataset's trials
+    training: list[int]  # indices into the dataset's trials
     base: FitResult  # base model on the training trials
     final: FitResult  # final model on the training trials
     before: FitResult  # held-out scoring of the base model
@@ -80,6 +87,9 @@ class IdentifyResult:
     search: SearchOutcome | None
     remaining: list[Evidence]  # candidates ranked on the final residual (not admitted)
     residual: dict
+    sensor: Sensor = field(default_factory=Sensor)
+    unexplained: dict | None = None
+    base_starts: list[dict] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
 
     @property
@@ -88,7 +98,21 @@ class IdentifyResult:
 
     @property
     def effects(self) -> list[str]:
+        """The effects claimed: admitted, and not stand-ins (datasets.md's ``effects``)."""
+        return list(self.search.claimed) if self.search else []
+
+    @property
+    def model_effects(self) -> list[str]:
+        """Every effect in the final model, stand-ins included."""
         return list(self.search.effects) if self.search else []
+
+    @property
+    def stand_ins(self) -> list[str]:
+        return list(self.search.stand_ins) if self.search else []
+
+    @property
+    def folds(self) -> Folds | None:
+        return self.search.folds if self.search else None
 
     @property
     def params(self) -> dict[str, float]:
@@ -117,15 +141,27 @@ class IdentifyResult:
         p = self.base_params
         return {k: p[k] for k in ("motor_inertia", "damping", "coulomb")}
 
+    def crossvalidation(self) -> dict | None:
+        """How the search judged effects: its folds and the cross-validated error after each step."""
+        if not self.search:
+            return None
+        folds = self.search.folds
+        return {**(folds.describe() if folds else {"kind": None, "folds": 0, "units": 0}),
+                "steps": [s.as_dict() for s in self.search.steps], "stopped": self.search.stopped,
+                "removed": self.search.removed, "equivalents": self.search.equivalents}
+
     def to_json(self) -> dict:
         trials = self.dataset.trials
         params = self.params
+        search = self.search
         out = {
             "mode": self.mode,
             "friction": self.settings.friction,
             "motor": self.dataset.motor,
             "base": self.base_summary(),
             "effects": self.effects,
+            "stand_ins": self.stand_ins,
+            "model_effects": self.model_effects,
             "params": params,
             "motor_inertia": params["motor_inertia"],
             "damping": params["damping"],
@@ -134,17 +170,20 @@ class IdentifyResult:
             "rmse_after": self.after.rmse,
             "heldout": [trials[i].name for i in self.heldout],
             "training": [trials[i].name for i in self.training],
-            "validation": [trials[i].name for i in self.validation],
+            "sensor": self.sensor.as_dict(),
             "sigma": self.sigma(self.final),
             "training_rmse": {"base": self.base.rmse, "final": self.final.rmse},
             "heldout_rmse_per_trial": {
                 trials[i].name: {"before": rmse([rb]), "after": rmse([ra])}
                 for i, rb, ra in zip(self.heldout, self.before.residuals, self.after.residuals)
             },
-            "evidence": [[e.as_dict() for e in round_] for round_ in (self.search.rounds if self.search else [])],
-            "validation_rmse": self.search.validation_rmse if self.search else [],
+            "base_fit_starts": self.base_starts,
+            "crossvalidation": self.crossvalidation(),
+            "evidence": [[e.as_dict() for e in round_] for round_ in (search.rounds if search else [])],
+            "validation_rmse": search.validation_rmse if search else [],
             "remaining_candidates": [e.as_dict() for e in self.remaining],
             "residual": self.residual,
+            "unexplained": self.unexplained,
             "x0": {trials[i].name: [float(v) for v in x] for i, x in zip(self.training, self.final.x0)},
             "timings": self.timings,
         }
@@ -160,7 +199,7 @@ class IdentifyResult:
                  "source": source or f"admittance identify {self.dataset.folder}"}
         if self.mode == "lumped":
             model.update(self.lumped(self.final))
-        fit = {"effects": self.effects, "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
+        fit = {"effects": self.effects, "stand_ins": self.stand_ins, "rmse_before": self.before.rmse, "rmse_after": self.after.rmse,
                "heldout": [self.dataset.trials[i].name for i in self.heldout],
                "date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
         paramfile.dump(path, params, model=model, fit=fit)
@@ -222,39 +261,57 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
     heldout, training = stratified_pick(trials)
     if not heldout:  # a single trial: score on it, and say so in the JSON (heldout == training)
         heldout = list(training)
-    torque_scale = _torque_scale(dataset)
+    torque_scale = torque_scale_of(dataset)
     with _timed(timings, "equation_error"):
         progress("equation-error start")
+        sensor = sensor_for(trials, dataset.encoder_ticks)
         start, tau_scale = fit_equation_error([trials[i] for i in training], dataset.mode)
-        x0_all = initial_states(trials)
+        starts_all = initial_state_starts(trials)
         sim_all = Simulator(trials, dataset.mode, settings.friction, settings.max_step, tau_scale)
         sim_train, sim_held = sim_all.subset(training), sim_all.subset(heldout)
     with _timed(timings, "base_fit"):
-        base = fit_output_error(sim_train, start, free_params(dataset.mode, [], dataset.has_torque),
-                                x0_all[training], torque_scale=torque_scale, progress=progress, label="base fit")
+        free = free_params(dataset.mode, [], dataset.has_torque)
+        base, base_starts = fit_base(sim_train, start, free, [s[training] for s in starts_all], sensor,
+                                      torque_scale, progress)
     with _timed(timings, "effect_search"):
-        search, validation = _search(sim_train, training, base, torque_scale, settings, progress)
+        search = _search(sim_train, base, sensor, torque_scale, settings, progress)
     with _timed(timings, "final_fit_and_scoring"):
         final = _final_fit(sim_train, base, search, torque_scale, progress)
-        before = score(sim_held, base, x0_all[heldout], progress=progress)
-        after = before if final is base else score(sim_held, final, before.x0, progress=progress)
+        # Each held-out trial's initial state: the data's candidate starts screened under the
+        # model in one batch, then fitted; the final model also from the base model's states.
+        held_starts = [s[heldout] for s in starts_all]
+        held_base = sim_held.with_tau_scale(base.tau_scale)
+        before = fit_initial_states_multi(sim_held, base.vector, [screen_starts(held_base, base.vector, held_starts)],
+                                          tau_scale=base.tau_scale, progress=progress, label="scoring")
+        after = before if final is base else fit_initial_states_multi(
+            sim_held, final.vector, [screen_starts(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
+                                     before.x0], tau_scale=final.tau_scale, progress=progress, label="scoring")
     with _timed(timings, "residual_analysis"):
         progress("residual analysis")
+        residual = analyse(sim_train, final, sensor)
         effects = search.effects if search else []
+        remaining, unexplained = [], None
         # Ranking what is left only matters when something is left (it is the costliest batch).
-        remaining = [] if nothing_left(final) else rank_candidates(
-            sim_train, final, candidate_effects(effects, dataset.has_torque, dataset.mode), torque_scale)
-        residual = analyse(sim_train, final)
-    return IdentifyResult(dataset, settings, heldout, training, validation, base, final, before, after, search,
-                          remaining, residual, timings)
+        if not residual["nothing_left"]:
+            remaining = rank_candidates(sim_train, final, candidate_effects(effects, dataset.has_torque,
+                                                                            dataset.mode), torque_scale)
+            unexplained = describe_unexplained(residual, search, remaining)
+    return IdentifyResult(dataset, settings, heldout, training, base, final, before, after, search,
+                          remaining, residual, sensor, unexplained, base_starts, timings)
 
 
-def _torque_scale(dataset: Dataset) -> float:
-    """A typical torque of the problem (N·m; 1 in lumped sim units): sets finite-difference steps."""
-    if dataset.mode != "geometry":
-        return 1.0
-    scale = float(np.mean([tr.gravity_torque for tr in dataset.trials]))
-    return scale if scale > 0 else 1.0
+def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale: float,
+            settings: IdentifySettings, progress) -> SearchOutcome | None:
+    """The effect search, cross-validated on the training trials (None when it cannot run)."""
+    if settings.max_effects == 0:
+        return None
+    if nothing_left(sim_train, base, sensor):
+        return SearchOutcome([], base, [], [], None, stopped="nothing left: the residual is at the sensor's noise")
+    search_settings = SearchSettings(settings.max_effects, settings.min_gain, settings.min_sigma)
+    context = search_context(sim_train, base, sensor, torque_scale, search_settings, progress)
+    if context is None:
+        return SearchOutcome([], base, [], [], None, stopped="too few trials to cross-validate")
+    return search_effects(*context)
 
 
 def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | None, torque_scale: float,
@@ -267,7 +324,7 @@ def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | No
     for start in _restarts(search.fit.vector, search.effects):
         # The initial states belong to the base model; refit them to the new model first (cheap,
         # three simulations per trial and iteration) so the joint fit starts near its optimum.
-        x0 = fit_initial_states(sim, start, base.x0, label="final fit").x0
+        x0 = fit_initial_states_multi(sim, start, [base.x0], label="final fit").x0
         fit = fit_output_error(sim, start, search.fit.free, x0, torque_scale=torque_scale, progress=progress,
                                label="final fit")
         if best is None or fit.rmse < best.rmse:
@@ -282,25 +339,3 @@ def _restarts(vector: np.ndarray, effects: list[str]) -> list[np.ndarray]:
     for name, value in grown({n: vector[INDEX[n]] for n in names}, effects).items():
         doubled[INDEX[name]] = value
     return [vector, doubled]
-
-
-def _search(sim_train: Simulator, training: list[int], base: FitResult, torque_scale: float,
-            settings: IdentifySettings, progress) -> tuple[SearchOutcome | None, list[int]]:
-    """The effect search on an inner split of the training trials (None if too few trials).
-    A base residual that is already white noise ends it before the inner split is even fitted."""
-    if settings.max_effects == 0:
-        return None, []
-    if nothing_left(base):
-        return SearchOutcome([], base, [], []), []
-    val_local, fit_local = stratified_pick(sim_train.trials)
-    if not val_local or not fit_local:
-        return None, []
-    fit_sim = sim_train.subset(fit_local)
-    val_sim = sim_train.subset(val_local)
-    progress("base fit on the search split")
-    inner = fit_output_error(fit_sim.with_tau_scale(base.tau_scale), base.vector, base.free, base.x0[fit_local],
-                             torque_scale=torque_scale, progress=progress, label="search-split fit")
-    search_settings = SearchSettings(settings.max_effects, settings.min_gain, settings.min_sigma)
-    outcome = search_effects(fit_sim, val_sim, inner, base.x0[val_local], torque_scale, search_settings,
-                             progress)
-    return outcome, [training[i] for i in val_local]

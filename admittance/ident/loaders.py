@@ -510,14 +510,13 @@ def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]
     """Per joint, the rows the session's CSV dataset has (recording.recorded_rows: one per cycle
     that read the servo, the next cycle's torque, held and fault since the previous row, times
     from t0), cut into segments of ``segment_s`` seconds."""
-    from admittance.daemon.recording import next_cycle_tau, recorded_rows
+    from admittance.daemon.recording import recorded_rows, with_next_cycle
 
     measured = bool(rec.session.get("measured_theta", True))
     t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
     out = {}
     for jid in sorted(rec.joints):
-        cols = dict(rec.joints[jid])
-        cols["tau"] = next_cycle_tau(cols["tau"], cols["cycle"])
+        cols = with_next_cycle(dict(rec.joints[jid]))
         if not np.isfinite(cols["t_wake"]).all():
             cols["t_wake"] = cols["t"]  # an older file
         rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0)

@@ -1,6 +1,6 @@
 """The model being identified: its parameters, the catalogue of effects, and the batch simulator.
 
-**Parameters.** The fit works on Contract 1's parameter vector (17 entries). A model is that
+**Parameters.** The fit works on Contract 1's parameter vector (22 entries). A model is that
 vector plus the names that are free. The base model frees ``motor_inertia``, ``damping`` and ``coulomb``; each
 effect of :data:`EFFECTS` frees its own parameters (the names of ``datasets.md``).
 
@@ -47,6 +47,8 @@ TORQUE_PARAMS = frozenset(
         "cogging_amplitude",
         "torque_bias",
         "torque_drift",
+        "spring_stiffness",
+        "friction_ripple_amplitude",
     }
 )
 
@@ -64,6 +66,9 @@ LOWER = {
     "time_delay": 0.0,
     "cogging_period": 1.5,
     "torque_gain": 0.05,  # the plant refuses a gain <= 0: a reversed or dead sensor is no plant
+    "spring_stiffness": 0.0,  # a spring that pushes away from its neutral angle is no spring
+    "friction_ripple_amplitude": 0.0,
+    "friction_ripple_period": 1.5,
     TAU_SCALE: 1e-12,
 }
 UPPER = {
@@ -72,6 +77,7 @@ UPPER = {
     "stribeck_velocity": 20.0,
     "time_delay": 0.5,
     "torque_gain": 20.0,
+    "friction_ripple_period": 64.0,
 }
 
 
@@ -110,6 +116,10 @@ EFFECTS: dict[str, Effect] = {
                "offset or drift of the measured torque", ("torque_bias", "torque_drift")),
         Effect("torque_gain", ("torque_gain",), True, "the measured torque is off by a factor",
                ("torque_gain",), geometry_only=True),
+        Effect("spring", ("spring_stiffness", "spring_neutral"), False,
+               "elastic torque towards a neutral angle (a cable, a hose)", ("spring_stiffness",)),
+        Effect("friction_ripple", ("friction_ripple_amplitude", "friction_ripple_phase", "friction_ripple_period"),
+               False, "Coulomb level periodic in the angle (gear-mesh friction)", ("friction_ripple_amplitude",)),
     )
 }
 

@@ -43,6 +43,11 @@ PARAM_DEFAULTS: dict[str, float | None] = {
     "torque_drift": 0.0,
     "tanh_k": 100.0,
     "torque_gain": 1.0,
+    "spring_stiffness": 0.0,
+    "spring_neutral": 0.0,
+    "friction_ripple_amplitude": 0.0,
+    "friction_ripple_period": 0.0,
+    "friction_ripple_phase": 0.0,
 }
 PARAM_NAMES: tuple[str, ...] = tuple(PARAM_DEFAULTS)
 # plant::servo's parameter order (units: s, s, s, rad/N·m, rad), and each value's domain.

@@ -90,7 +90,7 @@ def _torque_check(prediction: TrialPrediction, trial, params, friction, tanh_k_t
     grid, vel, acc, theta_f = filtered_derivatives(trial.t, trial.theta)
     inertia = params["motor_inertia"] + trial.load_inertia
     thesis_grid = inertia * acc + params["damping"] * vel + np.tanh(k * vel) * params["coulomb"]
-    model_grid = model_torque(params, inertia, trial.gravity_torque, theta_f, vel, acc, friction)
+    model_grid = model_torque(params, trial.load_inertia, trial.gravity_torque, theta_f, vel, acc, friction)
     prediction.tau = trial.tau
     prediction.tau_thesis = np.interp(trial.t, grid, thesis_grid)
     prediction.tau_model = np.interp(trial.t, grid, model_grid)
@@ -142,24 +142,29 @@ def filtered_derivatives(t: np.ndarray, theta: np.ndarray, cutoff: float = CUTOF
     return grid, vel, acc, theta_f
 
 
-def model_torque(p: dict[str, float], inertia: float, gravity: float, theta, vel, acc, friction: str) -> np.ndarray:
-    """Inverse dynamics of Contract 1: the applied torque that produces (θ, ω, ω')."""
-    load = gravity * np.sin(theta - p["angle_offset"])
-    cogging = p["cogging_amplitude"] * np.sin(p["cogging_period"] * theta + p["cogging_phase"])
-    direction = np.sign(vel)
-    level = (p["coulomb"] + direction * p["coulomb_asym"]
-             + p["stribeck_torque"] * np.exp(-(vel / max(p["stribeck_velocity"], 1e-12)) ** 2))
-    applied = inertia * acc + load + cogging + p["damping"] * vel + p["quadratic_drag"] * vel * np.abs(vel)
-    level = level + p["load_coulomb"] * np.abs(load - applied)  # first-order: τ ≈ applied
-    shape = np.tanh(p["tanh_k"] * vel) if friction == "tanh" else np.where(np.abs(vel) > VELOCITY_EPS, direction, 0.0)
-    return applied + np.maximum(level, 0.0) * shape
+def model_torque(p: dict[str, float], load_inertia: float, gravity: float, theta, vel, acc, friction: str) -> np.ndarray:
+    """Inverse dynamics of Contract 1: the applied torque that produces (θ, ω, ω'), computed by
+    the Rust plant (``plant::inverse``), the same code that simulates the model forwards."""
+    from admittance import _rtcore
+    from admittance.sim import pack_params
+
+    try:
+        return _rtcore.required_torque(pack_params(p), theta, vel, acc, load_inertia=load_inertia,
+                                       gravity_torque=gravity, friction=friction, velocity_eps=VELOCITY_EPS)
+    except ValueError as exc:
+        raise DataError(f"cannot compute the model's torque: {exc}") from exc
 
 
 def corrected_torque(t: np.ndarray, tau: np.ndarray, p: dict[str, float]) -> np.ndarray:
     """The measured torque as the model sees it: delayed, scaled by the gain, minus bias and drift
-    (Contract 1)."""
-    delayed = np.interp(t - p["time_delay"], t, tau)
-    return p["torque_gain"] * delayed - p["torque_bias"] - p["torque_drift"] * (t - t[0])
+    (Contract 1; the Rust plant's interpolation)."""
+    from admittance import _rtcore
+    from admittance.sim import pack_params
+
+    try:
+        return _rtcore.corrected_torque(pack_params(p), t, tau)
+    except ValueError as exc:
+        raise DataError(f"cannot correct the measured torque: {exc}") from exc
 
 
 def lag_of(grid: np.ndarray, calculated: np.ndarray, measured: np.ndarray, max_lag: float = MAX_LAG_S) -> float:

@@ -177,7 +177,8 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
         "",
         f"- dataset: `{result.dataset.folder}` ({len(result.dataset.trials)} trials, mode **{result.mode}**, "
         f"friction law **{result.settings.friction}**)",
-        f"- effects added: **{', '.join(result.effects) or 'none'}**",
+        f"- effects claimed: **{', '.join(result.effects) or 'none'}**"
+        + (f"; kept as stand-ins (in the model, not claimed): {', '.join(result.stand_ins)}" if result.stand_ins else ""),
         f"- held-out RMSE: base {1e3 * result.before.rmse:.3f} mrad → final {1e3 * result.after.rmse:.3f} mrad "
         f"({len(result.heldout)} trials: {', '.join(j['heldout'])})",
         f"- time: {result.timings.get('total', 0.0):.2f} s",
@@ -206,7 +207,12 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
         lines += ["What each remaining candidate would explain, on the worst training trial:", "",
                   f"![signatures]({figures['signatures']})", ""]
     else:
-        lines += ["The residual is white and at the noise level: no candidate has anything to explain.", ""]
+        lines += ["The residual is what the sensor alone leaves: no candidate has anything to explain.", ""]
+    if result.unexplained:
+        lines += ["## What the library does not explain", "", result.unexplained["summary"] + ".", ""]
+        lines += [f"- refused: {t['effect']} ({t['reason']})" for t in result.unexplained["tried"]]
+        lines += [f"- stand-in: {t['effect']} ({t['reason']})" for t in result.unexplained["stand_ins"]]
+        lines += [""]
     lines += ["## Held-out trials", ""]
     lines += [f"![held-out]({name})" for name in figures["heldout"]]
     lines += ["", "## Training trials (final model)", ""]
@@ -215,16 +221,16 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
 
 
 def _evidence_table(result: IdentifyResult) -> list[str]:
-    rows = ["| round | effect | variant | explained | validation gain | significance | decision |",
+    rows = ["| round | effect | variant | explained | cross-validated gain | significance | decision |",
             "|---|---|---|---|---|---|---|"]
     rounds = result.search.rounds if result.search else []
     for i, ranking in enumerate(rounds, start=1):
         for e in ranking:
             gain = "–" if e.validation_gain is None else f"{100 * e.validation_gain:.1f} %"
             sig = "–" if e.significance is None else f"{e.significance:.1f} σ"
-            decision = "**added**" if e.accepted else e.reason
+            decision = ("**stand-in**: " + e.reason if e.stand_in else "**claimed**") if e.accepted else e.reason
             rows.append(f"| {i} | {e.effect} | {e.variant} | {100 * e.explained:.2f} % | {gain} | {sig} | {decision} |")
     if not rounds:
-        rows.append("| – | – | – | – | – | – | no search: the base residual is white noise, or too few "
-                    "trials to validate, or --max-effects 0 |")
+        stopped = result.search.stopped if result.search else "--max-effects 0"
+        rows.append(f"| – | – | – | – | – | – | no search: {stopped} |")
     return rows

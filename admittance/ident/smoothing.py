@@ -42,9 +42,14 @@ def savgol(y: np.ndarray, window: int, order: int, deriv: int, dt: float) -> np.
 def nonneg_lstsq(a: np.ndarray, y: np.ndarray, lower: np.ndarray) -> np.ndarray:
     """argmin ‖a·x − y‖ subject to x ≥ lower, exactly, for a few unknowns."""
     n = a.shape[1]
+    lower = np.asarray(lower, dtype=float)
+    bounded = [j for j in range(n) if np.isfinite(lower[j])]  # -inf: a free unknown, never at a bound
     best, best_cost = None, math.inf
-    for fixed in itertools.product((False, True), repeat=n):
-        x = np.array(lower, dtype=float)
+    for at_bound in itertools.product((False, True), repeat=len(bounded)):
+        fixed = [False] * n
+        for j, flag in zip(bounded, at_bound):
+            fixed[j] = flag
+        x = np.where(np.isfinite(lower), lower, 0.0)
         free = [j for j in range(n) if not fixed[j]]
         if free:
             rhs = y - a[:, [j for j in range(n) if fixed[j]]] @ x[[j for j in range(n) if fixed[j]]]
@@ -54,7 +59,7 @@ def nonneg_lstsq(a: np.ndarray, y: np.ndarray, lower: np.ndarray) -> np.ndarray:
         cost = float(np.sum((a @ x - y) ** 2))
         if cost < best_cost:
             best, best_cost = x, cost
-    return best if best is not None else np.array(lower, dtype=float)
+    return best if best is not None else np.where(np.isfinite(lower), lower, 0.0)
 
 
 def chi2_sf(q: float, dof: int) -> float:

@@ -22,10 +22,15 @@ def stratified_pick(trials: Sequence[TrialData], stride: int = STRIDE) -> tuple[
     With fewer than two trials nothing is picked (there would be nothing left to fit on)."""
     if len(trials) < 2:
         return [], list(range(len(trials)))
-    order = sorted(range(len(trials)), key=lambda i: _stratum(trials[i]))
+    order = stratum_order(trials)
     picked = sorted(order[1::stride]) or [order[-1]]
     rest = [i for i in range(len(trials)) if i not in picked]
     return picked, rest
+
+
+def stratum_order(trials: Sequence[TrialData]) -> list[int]:
+    """Indices of ``trials`` sorted by (bob distance, direction, name)."""
+    return sorted(range(len(trials)), key=lambda i: _stratum(trials[i]))
 
 
 def _stratum(trial: TrialData) -> tuple:

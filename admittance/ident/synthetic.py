@@ -49,6 +49,8 @@ EFFECT_MAIN = {
     "time_delay": ("time_delay", {}),
     "torque_bias": ("torque_bias", {}),
     "torque_gain": ("torque_gain", {}),
+    "spring": ("spring_stiffness", {"spring_neutral": 0.2}),
+    "friction_ripple": ("friction_ripple_amplitude", {"friction_ripple_period": 6.0, "friction_ripple_phase": 0.3}),
 }
 
 

@@ -7,7 +7,7 @@
 - ``admittance predict DATASET_DIR --params FILE.toml [--out DIR]``: section 3.3's testing of
   fitted parameters against measured torque, with appendix-B-style plots.
 - ``admittance ladder DATASET_DIR --rung EFFECTS ...``: chosen effect sets scored by
-  leave-one-trial-out, for real datasets too small for ``identify``'s inner split.
+  cross-validation (identify's folds and admission tests), each added effect with its verdict.
 - ``admittance convert FORMAT FILE... --out DIR``: recordings in a foreign format (Motive,
   Dynamixel/BAM, DFKI) to a contract dataset folder.
 
@@ -88,9 +88,10 @@ def _register_predict(subparsers) -> None:
 
 def _register_ladder(subparsers) -> None:
     lad = subparsers.add_parser(
-        "ladder", help="score chosen effect sets by leave-one-trial-out on a small dataset",
-        description="Fit each rung (a set of effects) on all trials but one and score it on the one left out, for "
-                    "every trial in turn: for measured datasets too small for identify's inner split.")
+        "ladder", help="score chosen effect sets by cross-validation, with identify's verdict",
+        description="Fit each rung (a set of effects) on identify's cross-validation folds (whole trials, or time "
+                    "segments when there are few) and score it on the data left out, with identify's admission "
+                    "verdict: for asking about effects identify did not try or did not admit.")
     lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
     lad.add_argument("--rung", action="append", required=True, metavar="EFFECTS",
                      help="comma-separated effect names ('' = the base model); repeat for each model")
@@ -200,7 +201,7 @@ def _run_ladder(args) -> int:
     rungs = [tuple(e.strip() for e in rung.split(",") if e.strip()) for rung in args.rung]
     start = dict(_parse_start(item) for item in args.start)
     result = ladder.effect_ladder(dataset, rungs, args.friction, start)
-    print(ladder.to_markdown(result, [tr.name for tr in dataset.trials]), end="")
+    print(ladder.to_markdown(result), end="")
     if args.json:
         _write(args.json.parent, {args.json.name: json.dumps([asdict(r) for r in result], indent=2)})
     if args.params_dir:

@@ -65,14 +65,18 @@ fn direction(omega: f64, drive: f64) -> f64 {
     }
 }
 
-/// The friction level (≥ 0) at velocity `omega`, given the velocity-independent torque `drive` and
-/// the load torque carried by the gearbox (for load-dependent Coulomb).
+/// The friction level (≥ 0) at angle `theta` and velocity `omega`, given the
+/// velocity-independent torque `drive` and the load torque carried by the gearbox (for
+/// load-dependent Coulomb).
 ///
 /// Clipped at 0 so that parameter probes below zero give "no friction" rather than a
 /// friction that pushes the joint.
 #[inline]
-pub fn level(p: &Params, omega: f64, drive: f64, load_torque: f64) -> f64 {
+pub fn level(p: &Params, theta: f64, omega: f64, drive: f64, load_torque: f64) -> f64 {
     let mut level = p.coulomb + direction(omega, drive) * p.coulomb_asym;
+    if p.friction_ripple_amplitude != 0.0 {
+        level += p.friction_ripple_amplitude * (p.friction_ripple_period * theta + p.friction_ripple_phase).sin();
+    }
     if p.stribeck_torque != 0.0 {
         let r = omega / p.stribeck_velocity;
         level += p.stribeck_torque * (-r * r).exp();

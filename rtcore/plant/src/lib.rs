@@ -1,13 +1,14 @@
 //! The pendulum/admittance plant: friction models and a fixed-step batch simulator (no I/O).
 //!
-//! `I·ω' = gain·τ(t − delay) − bias − drift·t − G·sin(θ − offset) − cogging(θ) − B·ω − c·ω|ω| + friction`
+//! `I·ω' = gain·τ(t − delay) − bias − drift·t − G·sin(θ − offset) − cogging(θ) − k·(θ − θ_k) − B·ω − c·ω|ω| + friction`
 //! (docs/architecture.md, Contract 1; docs/plant.md for the reasoning).
 //!
-//! - `params`: the 17-entry parameter vector and its names (`PARAM_NAMES`).
+//! - `params`: the 22-entry parameter vector and its names (`PARAM_NAMES`).
 //! - `friction`: the friction level and the stick / tanh laws.
 //! - `model`: one semi-implicit Euler substep of the plant (`step`), used by the mock bus.
 //! - `trial`: a trial's inputs and its simulation at the sample times.
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
+//! - `inverse`: the model read backwards (the torque a recorded motion needs), for `predict`.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
 //! - `servo`: how a position servo's horn follows its goal (fitted by `fidelity`, inverted by
 //!   the RT loop's compensation).
@@ -29,6 +30,7 @@ pub mod admittance;
 pub mod batch;
 pub mod error;
 pub mod friction;
+pub mod inverse;
 pub mod model;
 pub mod params;
 pub mod servo;

@@ -39,10 +39,11 @@ pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f
     } else {
         0.0
     };
+    let spring = p.spring_stiffness * (state.theta - p.spring_neutral);
     let omega = state.omega;
     let dissipation = p.damping + p.quadratic_drag * omega.abs();
-    let drive = tau_corrected - gravity - cogging;
-    let level = friction::level(p, omega, drive, gravity - tau_corrected);
+    let drive = tau_corrected - gravity - cogging - spring;
+    let level = friction::level(p, state.theta, omega, drive, gravity - tau_corrected);
     state.omega = friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
     state.theta += h * state.omega;
 }

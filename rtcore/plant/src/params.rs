@@ -6,7 +6,7 @@
 use crate::error::{require_finite, PlantError};
 
 /// Number of entries of the parameter vector.
-pub const N_PARAMS: usize = 17;
+pub const N_PARAMS: usize = 22;
 
 /// Parameter names in vector order (SI units; see docs/architecture.md, Contract 1).
 pub const PARAM_NAMES: [&str; N_PARAMS] = [
@@ -27,6 +27,11 @@ pub const PARAM_NAMES: [&str; N_PARAMS] = [
     "torque_drift",
     "tanh_k",
     "torque_gain",
+    "spring_stiffness",
+    "spring_neutral",
+    "friction_ripple_amplitude",
+    "friction_ripple_period",
+    "friction_ripple_phase",
 ];
 
 /// Physical parameters of a joint (motor + gearbox); the load is separate (`Load`).
@@ -67,6 +72,16 @@ pub struct Params {
     /// Dimensionless scale of the measured applied torque: the torque that acts is
     /// `torque_gain · τ_measured` (a driver whose current-based estimate reads high).
     pub torque_gain: f64,
+    /// N·m/rad, an elastic torque −k·(θ − neutral): a cable, a hose, a return spring.
+    pub spring_stiffness: f64,
+    /// rad, the angle where the spring is relaxed.
+    pub spring_neutral: f64,
+    /// N·m, amplitude of a Coulomb level periodic in the angle (gear-mesh friction).
+    pub friction_ripple_amplitude: f64,
+    /// Cycles per revolution of the friction ripple.
+    pub friction_ripple_period: f64,
+    /// rad, phase of the friction ripple.
+    pub friction_ripple_phase: f64,
 }
 
 impl Default for Params {
@@ -91,6 +106,11 @@ impl Default for Params {
             torque_drift: 0.0,
             tanh_k: 100.0,
             torque_gain: 1.0,
+            spring_stiffness: 0.0,
+            spring_neutral: 0.0,
+            friction_ripple_amplitude: 0.0,
+            friction_ripple_period: 0.0,
+            friction_ripple_phase: 0.0,
         }
     }
 }
@@ -119,6 +139,11 @@ impl Params {
             torque_drift: a[14],
             tanh_k: a[15],
             torque_gain: a[16],
+            spring_stiffness: a[17],
+            spring_neutral: a[18],
+            friction_ripple_amplitude: a[19],
+            friction_ripple_period: a[20],
+            friction_ripple_phase: a[21],
         })
     }
 
@@ -142,6 +167,11 @@ impl Params {
             self.torque_drift,
             self.tanh_k,
             self.torque_gain,
+            self.spring_stiffness,
+            self.spring_neutral,
+            self.friction_ripple_amplitude,
+            self.friction_ripple_period,
+            self.friction_ripple_phase,
         ]
     }
 

@@ -97,6 +97,37 @@ pub fn substep_count(dt: f64, max_step: f64) -> usize {
     ((dt / max_step) - 1e-9).ceil().max(1.0) as usize
 }
 
+/// A checked torque series with its interpolating cursor (for `inverse::corrected_torque`).
+pub struct TorqueSeries<'a> {
+    cursor: TorqueCursor<'a>,
+}
+
+impl<'a> TorqueSeries<'a> {
+    /// `t` strictly increasing and finite, `tau` finite and of the same (non-zero) length.
+    pub fn new(t: &'a [f64], tau: &'a [f64]) -> Result<Self, PlantError> {
+        if t.is_empty() || t.len() != tau.len() {
+            return Err(PlantError::Shape(format!(
+                "t and tau must have one non-zero length, got {} and {}",
+                t.len(),
+                tau.len()
+            )));
+        }
+        for (i, (&ti, &v)) in t.iter().zip(tau).enumerate() {
+            require_finite(&format!("t[{i}]"), ti)?;
+            require_finite(&format!("tau[{i}]"), v)?;
+        }
+        if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(PlantError::InvalidValue(format!("t must be strictly increasing at t[{}]", i + 1)));
+        }
+        Ok(TorqueSeries { cursor: TorqueCursor::new(t, tau) })
+    }
+
+    /// The torque at time `q`, linearly interpolated, held at the end values outside the series.
+    pub fn at(&mut self, q: f64) -> f64 {
+        self.cursor.at(q)
+    }
+}
+
 /// Linear interpolation in a time series whose queries mostly move forward (the applied torque
 /// here; the servo model's goal and torque in `crate::servo`).
 pub(crate) struct TorqueCursor<'a> {

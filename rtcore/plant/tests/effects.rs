@@ -165,3 +165,86 @@ fn bias_drift_and_gain_do_not_act_on_a_free_swing() {
     let b = run(&trial, &corrected, FrictionLaw::Stick, at(0.4, 0.0), H);
     assert_eq!(a, b);
 }
+
+#[test]
+fn spring_pulls_to_its_neutral_angle_at_its_own_frequency() {
+    let k = 0.08;
+    let p = Params { spring_stiffness: k, spring_neutral: 0.2, ..bare(I) };
+    let trial = constant_torque_trial(0.0, 2.0, 0.001);
+    let resting = run(&trial, &p, FrictionLaw::Stick, at(0.2, 0.0), 1e-5);
+    assert!(resting.iter().all(|s| (s.theta - 0.2).abs() < 1e-12), "relaxed at its neutral angle");
+    let states = run(&trial, &p, FrictionLaw::Stick, at(0.3, 0.0), 1e-5);
+    assert!(states[1].omega < 0.0, "pulls back towards the neutral angle");
+    // Undamped oscillator about 0.2: θ = 0.2 + 0.1·cos(√(k/I)·t).
+    let w = (k / I).sqrt();
+    for (i, s) in states.iter().enumerate().step_by(97) {
+        let exact = 0.2 + 0.1 * (w * i as f64 * 0.001).cos();
+        assert!((s.theta - exact).abs() < 2e-3, "t = {} s: {} vs {exact}", i as f64 * 0.001, s.theta);
+    }
+}
+
+#[test]
+fn friction_ripple_holds_the_joint_where_its_level_is_high_only() {
+    // Level 0.05 ± 0.02 with the angle (6 per revolution); a torque of 0.06 breaks it loose
+    // where the level is 0.03 (sin = −1) but not where it is 0.07 (sin = +1).
+    let p = Params {
+        coulomb: 0.05,
+        friction_ripple_amplitude: 0.02,
+        friction_ripple_period: 6.0,
+        friction_ripple_phase: 0.0,
+        ..bare(I)
+    };
+    let trial = constant_torque_trial(0.06, 0.05, 0.001);
+    let quarter = std::f64::consts::PI / 12.0; // 6θ = π/2: the level's peak
+    let held = run(&trial, &p, FrictionLaw::Stick, at(quarter, 0.0), H);
+    assert!(held.iter().all(|s| s.theta == quarter), "level 0.07 > 0.06: stuck");
+    let slips = run(&trial, &p, FrictionLaw::Stick, at(-quarter, 0.0), H);
+    assert!(slips.last().unwrap().theta > -quarter + 1e-4, "level 0.03 < 0.06: moves");
+    // A ripple is friction: it never pushes. At rest with no torque nothing moves anywhere.
+    let none = constant_torque_trial(0.0, 0.5, 0.01);
+    for start in [-1.0, -0.3, 0.0, 0.4, 1.2] {
+        assert!(run(&none, &p, FrictionLaw::Stick, at(start, 0.0), H).iter().all(|s| s.theta == start));
+    }
+}
+
+#[test]
+fn required_torque_inverts_a_step_of_the_forward_model() {
+    // From a moving state, one forward substep under torque τ gives an acceleration α; the
+    // inverse model at that state and α returns τ (to first order in the step).
+    let p = Params {
+        damping: 0.03,
+        coulomb: 0.02,
+        coulomb_asym: 0.004,
+        quadratic_drag: 1e-3,
+        cogging_amplitude: 0.004,
+        cogging_period: 8.0,
+        spring_stiffness: 0.05,
+        friction_ripple_amplitude: 0.003,
+        friction_ripple_period: 5.0,
+        angle_offset: 0.02,
+        ..bare(I)
+    };
+    let load = Load { inertia: 1e-3, gravity_torque: 0.3 };
+    for (theta, omega, tau) in [(0.4, 1.5, 0.2), (-0.7, -2.0, -0.1), (0.1, 0.8, 0.0)] {
+        let mut s = at(theta, omega);
+        let h = 1e-7;
+        plant::step(&mut s, &p, &load, FrictionLaw::Stick, tau, 0.0, h);
+        let alpha = (s.omega - omega) / h;
+        let back = plant::inverse::required_torque(&p, &load, FrictionLaw::Stick, theta, omega, alpha, 1e-3);
+        assert!((back - tau).abs() < 1e-4, "θ {theta}, ω {omega}: {back} vs {tau}");
+    }
+}
+
+#[test]
+fn corrected_torque_applies_gain_delay_bias_and_drift() {
+    let p = Params { torque_gain: 0.8, torque_bias: 0.01, torque_drift: 0.002, time_delay: 0.5, ..bare(I) };
+    let t: Vec<f64> = (0..5).map(|i| i as f64).collect();
+    let tau: Vec<f64> = t.iter().map(|x| 2.0 * x).collect();
+    let out = plant::inverse::corrected_torque(&p, &t, &tau).unwrap();
+    // τ(t − 0.5) = 2t − 1 inside the series (held at τ(0) = 0 before it).
+    let expected = [0.0, 1.0, 3.0, 5.0, 7.0].iter().zip(&t).map(|(d, ti)| 0.8 * d - 0.01 - 0.002 * ti);
+    for (o, e) in out.iter().zip(expected) {
+        assert!((o - e).abs() < 1e-12, "{o} vs {e}");
+    }
+    assert!(plant::inverse::corrected_torque(&p, &t, &tau[..3]).is_err());
+}

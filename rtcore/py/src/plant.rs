@@ -1,4 +1,5 @@
-//! Python bindings of the `plant` crate: `PARAM_NAMES`, `Trial`, `simulate_batch`.
+//! Python bindings of the `plant` crate: `PARAM_NAMES`, `Trial`, `simulate_batch`, and the model
+//! read backwards (`required_torque`, `corrected_torque`) for `admittance predict`.
 //!
 //! A `Trial` copies its arrays into Rust once; `simulate_batch` then only reads parameter
 //! rows and initial states, releases the GIL (`py.detach`) and runs the S×T simulations on
@@ -173,6 +174,54 @@ fn simulate_batch<'py>(
         .collect()
 }
 
+/// Reads one parameter vector (`PARAM_NAMES` order) into `Params`.
+fn param_vector(params: &Bound<'_, PyAny>) -> PyResult<Params> {
+    let (data, _) = f64_array(params, "params", 1)?;
+    Params::from_slice(&data).map_err(value_error)
+}
+
+/// The corrected applied torque that makes the joint move with (θ, ω, ω') at each sample: the
+/// plant equation solved for the torque (see `plant::inverse`).
+#[pyfunction]
+#[pyo3(signature = (params, theta, omega, alpha, *, load_inertia=0.0, gravity_torque=0.0, friction="stick", velocity_eps=1e-3))]
+#[allow(clippy::too_many_arguments)]
+fn required_torque<'py>(
+    py: Python<'py>,
+    params: &Bound<'py, PyAny>,
+    theta: &Bound<'py, PyAny>,
+    omega: &Bound<'py, PyAny>,
+    alpha: &Bound<'py, PyAny>,
+    load_inertia: f64,
+    gravity_torque: f64,
+    friction: &str,
+    velocity_eps: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let law: FrictionLaw = friction.parse().map_err(value_error)?;
+    let p = param_vector(params)?;
+    let (theta, _) = f64_array(theta, "theta", 1)?;
+    let (omega, _) = f64_array(omega, "omega", 1)?;
+    let (alpha, _) = f64_array(alpha, "alpha", 1)?;
+    let load = Load { inertia: load_inertia, gravity_torque };
+    let out = plant::inverse::required_torques(&p, &load, law, &theta, &omega, &alpha, velocity_eps)
+        .map_err(value_error)?;
+    Ok(PyArray1::from_vec(py, out))
+}
+
+/// A measured torque series as the model sees it: gain·τ(t − delay) − bias − drift·(t − t₀).
+#[pyfunction]
+fn corrected_torque<'py>(
+    py: Python<'py>,
+    params: &Bound<'py, PyAny>,
+    t: &Bound<'py, PyAny>,
+    tau: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let p = param_vector(params)?;
+    let (t, _) = f64_array(t, "t", 1)?;
+    let (tau, _) = f64_array(tau, "tau", 1)?;
+    let out = plant::inverse::corrected_torque(&p, &t, &tau).map_err(value_error)?;
+    Ok(PyArray1::from_vec(py, out))
+}
+
 /// `None` when the virtual joint is safe to integrate at step `h`, else the reason.
 #[pyfunction]
 fn admittance_check_stable(inertia: f64, damping: f64, coulomb: f64, h: f64) -> Option<String> {
@@ -186,6 +235,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PARAM_DEFAULTS", PyTuple::new(py, Params::default().to_array())?)?;
     m.add_class::<PyTrial>()?;
     m.add_function(wrap_pyfunction!(simulate_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(required_torque, m)?)?;
+    m.add_function(wrap_pyfunction!(corrected_torque, m)?)?;
     m.add_function(wrap_pyfunction!(admittance_check_stable, m)?)?;
     Ok(())
 }

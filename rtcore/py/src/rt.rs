@@ -16,11 +16,11 @@ use rtloop::params::{joint_value, LoopParams};
 use rtloop::sched::{Policy, RtRequest};
 use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
-use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy};
+use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
 use crate::dict_fields::{first_unknown_key, opt};
 use crate::errors::{config_error, device_error};
 
-const LOOP_KEYS: [&str; 19] = [
+const LOOP_KEYS: [&str; 21] = [
     "port",
     "baudrate",
     "protocol",
@@ -40,6 +40,8 @@ const LOOP_KEYS: [&str; 19] = [
     "telemetry_capacity",
     "start_timeout_ms",
     "torque_on_start",
+    "trigger",
+    "phase_lock",
 ];
 
 const JOINT_KEYS: [&str; 20] = [
@@ -164,6 +166,18 @@ fn rt_request(d: &Bound<'_, PyDict>) -> PyResult<RtRequest> {
     Ok(rt)
 }
 
+/// `trigger` ("sample" or "schedule") and `phase_lock` (sample only).
+fn trigger_mode(d: &Bound<'_, PyDict>) -> PyResult<TriggerMode> {
+    let py = d.py();
+    let phase_lock: bool = opt(d, "phase_lock", "config")?.unwrap_or(true);
+    let name: String = opt(d, "trigger", "config")?.unwrap_or_else(|| "sample".into());
+    match name.as_str() {
+        "sample" => Ok(TriggerMode::Sample { phase_lock }),
+        "schedule" => Ok(TriggerMode::Schedule),
+        _ => Err(config_error(py, format!("config.trigger: {name:?} is not \"sample\" or \"schedule\""))),
+    }
+}
+
 fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let py = d.py();
     check_keys(d, &LOOP_KEYS, "config")?;
@@ -176,6 +190,7 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
         .ok_or_else(|| config_error(py, format!("config.protocol: must be 1 or 2, got {protocol}")))?;
     set(d, "rate_hz", "config", &mut c.rate_hz)?;
     c.rt = rt_request(d)?;
+    c.trigger = trigger_mode(d)?;
     set(d, "sync_read_divisor", "config", &mut c.sync_read_divisor)?;
     set(d, "stale_timeout_ms", "config", &mut c.sensor.stale_timeout_ms)?;
     set(d, "deadband", "config", &mut c.sensor.deadband)?;
@@ -389,6 +404,7 @@ impl PyAdmittanceLoop {
         rt.set_item("memory_locked", s.rt.memory_locked)?;
         rt.set_item("cpu", s.rt.cpu)?;
         d.set_item("rt", rt)?;
+        d.set_item("trigger", trigger_dict(py, &self.inner)?)?;
         Ok(d)
     }
 
@@ -416,6 +432,24 @@ impl PyAdmittanceLoop {
     fn rate_hz(&self) -> f64 {
         self.inner.config().rate_hz
     }
+}
+
+/// How the cycles started: counts per cause, the arrival period seen, the phase lock's error.
+fn trigger_dict<'py>(py: Python<'py>, inner: &LoopHandle) -> PyResult<Bound<'py, PyDict>> {
+    let (mode, s) = inner.trigger_stats();
+    let d = PyDict::new(py);
+    d.set_item("mode", mode.name())?;
+    d.set_item("phase_lock", matches!(mode, TriggerMode::Sample { phase_lock: true }))?;
+    let starts = PyDict::new(py);
+    starts.set_item("schedule", s.schedule)?;
+    starts.set_item("open", s.open)?;
+    starts.set_item("arrival", s.arrival)?;
+    starts.set_item("fallback", s.fallback)?;
+    d.set_item("starts", starts)?;
+    d.set_item("sensor_interval_us", s.sensor_interval_us)?;
+    d.set_item("sensor_jitter_us", s.sensor_jitter_us)?;
+    d.set_item("phase_error_us", s.phase_error_us)?;
+    Ok(d)
 }
 
 fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {

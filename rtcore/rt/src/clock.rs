@@ -8,8 +8,15 @@
 //! back to back would burst SyncWrites onto the bus with stale timing; like ros2_control we count
 //! them and jump to the next deadline still in the future (`next += k·period`).
 //!
-//! The clock is a trait so that the deadline arithmetic and the overrun accounting can be tested
-//! against a fake clock, deterministically, without timed assertions.
+//! Why a window: a cycle may start when a force sample arrives (see [`crate::trigger`]), so each
+//! period of the grid is a window `[open, open + window]` in which its one cycle runs; the
+//! schedule-only loop is the special case of a zero-width window. A missed window is one whose
+//! latest start (`open + window`) has passed.
+//!
+//! The clock is a trait so that the deadline arithmetic, the overrun accounting and the
+//! sample-triggered starts can be tested against a fake clock (with a scripted sensor),
+//! deterministically, without timed assertions.
+use crate::doorbell::Doorbell;
 
 /// A monotonic time source the loop can sleep on.
 pub trait Clock {
@@ -17,6 +24,9 @@ pub trait Clock {
     fn now_ns(&self) -> u64;
     /// Sleeps until `deadline_ns` has passed (returns at once if it already has).
     fn sleep_until(&mut self, deadline_ns: u64);
+    /// Sleeps until `bell.seq()` differs from `seq` (a sample was pushed) or `deadline_ns`
+    /// passes. May return early; the caller re-checks.
+    fn wait_for_ring(&mut self, bell: &Doorbell, seq: u32, deadline_ns: u64);
 }
 
 /// CLOCK_MONOTONIC: the clock Python's `time.monotonic_ns()` reads, so force samples stamped in
@@ -58,45 +68,70 @@ impl Clock for MonotonicClock {
             }
         }
     }
+
+    fn wait_for_ring(&mut self, bell: &Doorbell, seq: u32, deadline_ns: u64) {
+        bell.wait(seq, deadline_ns);
+    }
 }
 
-/// The grid of cycle deadlines `start + k·period`, with overrun skipping.
+/// The grid of cycle windows `start + k·period`, with overrun skipping and a bounded phase shift.
 #[derive(Debug, Clone)]
 pub struct Pacer {
     period_ns: u64,
+    window_ns: u64,
     next_ns: u64,
 }
 
 impl Pacer {
-    /// The first deadline is one period after `start_ns`.
+    /// Zero-width windows: the first deadline is one period after `start_ns`.
     pub fn new(start_ns: u64, period_ns: u64) -> Self {
+        Self::with_window(start_ns, period_ns, 0)
+    }
+
+    /// Windows `window_ns` wide (clamped below one period), the first opening one period after
+    /// `start_ns`.
+    pub fn with_window(start_ns: u64, period_ns: u64, window_ns: u64) -> Self {
         let period_ns = period_ns.max(1);
-        Pacer { period_ns, next_ns: start_ns + period_ns }
+        Pacer { period_ns, window_ns: window_ns.min(period_ns - 1), next_ns: start_ns + period_ns }
     }
 
     pub fn period_ns(&self) -> u64 {
         self.period_ns
     }
 
-    /// The deadline the loop sleeps until next.
+    pub fn window_ns(&self) -> u64 {
+        self.window_ns
+    }
+
+    /// When the next window opens: the deadline a schedule-only loop sleeps until.
     pub fn next_deadline_ns(&self) -> u64 {
         self.next_ns
     }
 
-    /// Called before sleeping: if `now_ns` is already past the next deadline, skips every
-    /// deadline that has passed and returns how many were missed (the overruns).
+    /// The latest start of the next window's cycle.
+    pub fn fallback_ns(&self) -> u64 {
+        self.next_ns + self.window_ns
+    }
+
+    /// Called before waiting: if `now_ns` is already past the next window's latest start, skips
+    /// every window that has passed and returns how many were missed (the overruns).
     pub fn skip_missed(&mut self, now_ns: u64) -> u64 {
-        if now_ns <= self.next_ns {
+        if now_ns <= self.fallback_ns() {
             return 0;
         }
-        let missed = (now_ns - self.next_ns) / self.period_ns + 1;
+        let missed = (now_ns - self.fallback_ns()) / self.period_ns + 1;
         self.next_ns += missed * self.period_ns;
         missed
     }
 
-    /// Called after the cycle of the current deadline ran: moves to the following one.
+    /// Called after the cycle of the current window ran: moves to the following one.
     pub fn advance(&mut self) {
         self.next_ns += self.period_ns;
+    }
+
+    /// Moves the grid by `delta_ns` (the phase lock's correction), never before `not_before_ns`.
+    pub fn shift(&mut self, delta_ns: i64, not_before_ns: u64) {
+        self.next_ns = self.next_ns.saturating_add_signed(delta_ns).max(not_before_ns);
     }
 }
 
@@ -131,6 +166,10 @@ pub(crate) mod fake {
             if deadline_ns > self.now.get() {
                 self.now.set(deadline_ns + self.wake_latency_ns);
             }
+        }
+        /// No sensor behind this clock: nothing rings, so the wait lasts to its deadline.
+        fn wait_for_ring(&mut self, _bell: &super::Doorbell, _seq: u32, deadline_ns: u64) {
+            self.sleep_until(deadline_ns);
         }
     }
 }
@@ -172,6 +211,28 @@ mod tests {
         let deadline = clock.now_ns() + 200_000;
         clock.sleep_until(deadline);
         assert!(clock.now_ns() >= deadline);
+    }
+
+    #[test]
+    fn a_window_is_missed_only_once_its_latest_start_has_passed() {
+        let mut pacer = Pacer::with_window(0, 100, 90);
+        assert_eq!((pacer.next_deadline_ns(), pacer.fallback_ns()), (100, 190));
+        assert_eq!(pacer.skip_missed(190), 0, "late within the window is not an overrun");
+        assert_eq!(pacer.skip_missed(191), 1);
+        assert_eq!((pacer.next_deadline_ns(), pacer.fallback_ns()), (200, 290));
+        // A window can never reach the next one: at least one period minus the window between.
+        assert_eq!(Pacer::with_window(0, 100, 500).window_ns(), 99);
+    }
+
+    #[test]
+    fn a_phase_shift_moves_the_grid_but_never_into_the_past() {
+        let mut pacer = Pacer::with_window(0, 100, 90);
+        pacer.shift(-7, 0);
+        assert_eq!(pacer.next_deadline_ns(), 93);
+        pacer.shift(-50, 60);
+        assert_eq!(pacer.next_deadline_ns(), 60);
+        pacer.advance();
+        assert_eq!(pacer.next_deadline_ns(), 160);
     }
 
     proptest::proptest! {

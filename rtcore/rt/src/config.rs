@@ -10,6 +10,7 @@ use crate::cycle::JointWiring;
 use crate::joint::TickMap;
 use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
 use crate::sched::RtRequest;
+use crate::trigger::TriggerMode;
 use dxl::Protocol;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -59,6 +60,8 @@ pub struct LoopConfig {
     pub protocol: Protocol,
     pub rate_hz: f64,
     pub rt: RtRequest,
+    /// What starts a cycle: a force sample's arrival (default) or the fixed schedule.
+    pub trigger: TriggerMode,
     pub joints: Vec<JointConfig>,
     /// Read present positions every N cycles; 0 = never.
     pub sync_read_divisor: u64,
@@ -83,6 +86,7 @@ impl Default for LoopConfig {
             protocol: Protocol::V2,
             rate_hz: 1000.0,
             rt: RtRequest::default(),
+            trigger: TriggerMode::default(),
             joints: Vec::new(),
             sync_read_divisor: 10,
             sensor: SensorParams { deadband: 0.0, lowpass_hz: 0.0, stale_timeout_ms: 50.0 },

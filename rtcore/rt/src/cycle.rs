@@ -9,7 +9,9 @@
 //! 3. `condition_force`: bias, deadband, low-pass.
 //! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
 //!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
-//!    deadlines' time), or a hold (velocity zero, no integration) while the force is stale.
+//!    deadlines' time; the deadline is the grid point, never the cycle's start, which a sample
+//!    may trigger anywhere in the window), or a hold (velocity zero, no integration) while the
+//!    force is stale.
 //!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
 //!    step is guarded: gains that are not usable, a state that is not finite or leaves the
 //!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
@@ -18,7 +20,8 @@
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
-//! 7. `publish`: telemetry records (with each joint's fault bits and the loop's mode) and counters.
+//! 7. `publish`: telemetry records (with the model's time, each joint's fault bits and the
+//!    loop's mode) and counters.
 //!
 //! Bus errors are counted and the cycle goes on: the next cycle writes fresh goals anyway.
 use crate::bus::{BusError, BusErrorKind, JointBus, Transport};
@@ -199,19 +202,24 @@ impl Controller {
         self.joints.iter().map(|j| j.gains)
     }
 
-    /// Runs the cycle whose deadline was `deadline_ns`.
-    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64) {
+    /// Runs the cycle of the grid point `grid_ns`, due at `due_ns`.
+    ///
+    /// The two differ when a sample starts the cycle (`trigger`): the grid point (the window's
+    /// opening) is what the model's clock counts its steps against; the due time (the opening,
+    /// the sample's push or the window's end) is what the wake-up's lateness and the read's
+    /// deadline are measured from. On the schedule both are the deadline.
+    pub fn run_cycle<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, grid_ns: u64, due_ns: u64) {
         let wake_ns = clock.now_ns();
         self.adopt_params();
         self.advance_ramp();
         let intake = self.take_force(wake_ns);
         let force = self.condition_force(&intake.newest.forces);
-        let steps = self.steps_due(deadline_ns);
+        let steps = self.steps_due(grid_ns);
         self.step_joints(&force, intake.stale, steps);
         let written = self.write_goals(t);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
-        let read = self.read_present(t, deadline_ns + self.period_ns - self.period_ns / 10);
-        self.publish(wake_ns, wake_ns.saturating_sub(deadline_ns), latency_ns, read);
+        let read = self.read_present(t, due_ns + self.period_ns - self.period_ns / 10);
+        self.publish(wake_ns, wake_ns.saturating_sub(due_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
     }
 
@@ -383,6 +391,7 @@ impl Controller {
             let record = Record {
                 cycle: self.cycle,
                 t_ns: wake_ns,
+                deadline_ns: self.model_ns.unwrap_or(wake_ns),
                 id: slot.wiring.id as i64,
                 force: slot.force,
                 torque: slot.torque,
@@ -447,4 +456,4 @@ fn hold_at_good(slot: &mut JointSlot) {
 
 #[cfg(test)]
 #[path = "cycle_tests.rs"]
-mod tests;
+pub(crate) mod tests;

@@ -64,7 +64,7 @@ impl Rig {
             self.force.push(ForceSample { t_ns: self.clock.now_ns(), forces: [fx, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         }
         let mut bus = self.bus.clone();
-        self.ctl.run_cycle(&mut bus, &self.clock, deadline);
+        self.ctl.run_cycle(&mut bus, &self.clock, deadline, deadline);
         self.telemetry.pop().unwrap()
     }
 
@@ -243,53 +243,56 @@ impl Transport for SlowBus {
     }
 }
 
-#[test]
-fn overruns_are_counted_and_skipped_on_the_grid() {
+/// Ten cycles through the runner in `mode`, a fresh sample pushed into the ring before each
+/// (bypassing the doorbell, so sample-mode cycles start at their windows' ends); the 5th
+/// cycle's write takes 2.5 periods. Returns the rig, its start time and the records.
+fn run_with_an_overrun(mode: crate::trigger::TriggerMode) -> (Rig, u64, Vec<Record>) {
     let mut r = rig(free_joint(), &[(1, 2048)]);
     let cost = std::rc::Rc::new(std::cell::Cell::new(100_000));
     let mut bus = SlowBus { inner: r.bus.clone(), clock: r.clock.clone(), cost_ns: cost.clone() };
     let start = r.clock.now_ns();
     let mut clock = r.clock.clone();
     let mut n = 0;
-    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), || {
+    let now = r.clock.clone();
+    let bell = crate::doorbell::Doorbell::default();
+    let (shared, force) = (r.shared.clone(), &mut r.force);
+    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &shared, &bell, mode, || {
         n += 1;
-        if n == 5 {
-            cost.set(2_500_000); // this cycle's write takes 2.5 periods
-        } else {
-            cost.set(100_000);
-        }
+        cost.set(if n == 5 { 2_500_000 } else { 100_000 }); // this cycle's write takes 2.5 periods
+        force.push(ForceSample { t_ns: now.now_ns(), forces: [2.0, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         n <= 10
     });
+    let records = std::iter::from_fn(|| r.telemetry.pop().ok()).collect();
+    (r, start, records)
+}
+
+#[test]
+fn overruns_are_counted_and_skipped_on_the_grid() {
+    let (r, start, records) = run_with_an_overrun(crate::trigger::TriggerMode::Schedule);
     let stats = &r.shared.stats;
     assert_eq!(stats.cycles.load(Ordering::Relaxed), 10);
     assert_eq!(stats.overruns.load(Ordering::Relaxed), 2, "deadlines 6 and 7 were lost");
-    let wakes: Vec<u64> = std::iter::from_fn(|| r.telemetry.pop().ok()).map(|rec| rec.t_ns - start).collect();
+    let wakes: Vec<u64> = records.iter().map(|rec| rec.t_ns - start).collect();
     let expected: Vec<u64> = [1, 2, 3, 4, 5, 8, 9, 10, 11, 12].iter().map(|k| k * PERIOD).collect();
     assert_eq!(wakes, expected, "every wake is on the grid, none is doubled up");
 }
 
 #[test]
 fn an_overrun_is_integrated_so_the_model_keeps_the_deadlines_time() {
-    let mut r = rig(free_joint(), &[(1, 2048)]);
-    let cost = std::rc::Rc::new(std::cell::Cell::new(100_000));
-    let mut bus = SlowBus { inner: r.bus.clone(), clock: r.clock.clone(), cost_ns: cost.clone() };
-    let mut clock = r.clock.clone();
-    let mut n = 0;
-    let force = std::cell::RefCell::new(&mut r.force);
-    let now = r.clock.clone();
-    crate::runner::run(&mut r.ctl, &mut bus, &mut clock, &r.shared.clone(), || {
-        n += 1;
-        cost.set(if n == 5 { 2_500_000 } else { 100_000 });
-        force.borrow_mut().push(ForceSample { t_ns: now.now_ns(), forces: [2.0, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
-        n <= 10
-    });
-    let records: Vec<Record> = std::iter::from_fn(|| r.telemetry.pop().ok()).collect();
-    // 10 cycles on 12 deadlines (6 and 7 lost): the model took 12 steps of h, θ_n = a·h²·n(n+1)/2.
-    let a = 2.0 * 0.1 / 0.02;
-    let steps = 12.0;
-    let expected = a * 1e-6 * steps * (steps + 1.0) / 2.0;
-    let last = records.last().unwrap();
-    assert!((last.theta - expected).abs() < 1e-12, "{} vs {expected}", last.theta);
+    // On the schedule, and with the sample trigger (cycles at their windows' ends here): either
+    // way the steps follow the grid, not the starts.
+    for mode in [crate::trigger::TriggerMode::Schedule, crate::trigger::TriggerMode::default()] {
+        let (_, start, records) = run_with_an_overrun(mode);
+        // 10 cycles on 12 deadlines (6 and 7 lost): the model took 12 steps of h, θ_n = a·h²·n(n+1)/2.
+        let a = 2.0 * 0.1 / 0.02;
+        let steps = 12.0;
+        let expected = a * 1e-6 * steps * (steps + 1.0) / 2.0;
+        let last = records.last().unwrap();
+        assert!((last.theta - expected).abs() < 1e-12, "{mode:?}: {} vs {expected}", last.theta);
+        // Each record's deadline is the model's time: the grid point, the lost ones stepped over.
+        let deadlines: Vec<u64> = records.iter().map(|rec| (rec.deadline_ns - start) / PERIOD).collect();
+        assert_eq!(deadlines, [1, 2, 3, 4, 5, 8, 9, 10, 11, 12], "{mode:?}");
+    }
 }
 
 fn lagging_servo() -> plant::servo::ServoModel {
@@ -348,7 +351,7 @@ fn cycle_at(r: &mut Rig, deadline: u64, fx: f64) -> Record {
     clock.sleep_until(deadline);
     r.force.push(ForceSample { t_ns: r.clock.now_ns(), forces: [fx, 0.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
     let mut bus = r.bus.clone();
-    r.ctl.run_cycle(&mut bus, &r.clock, deadline);
+    r.ctl.run_cycle(&mut bus, &r.clock, deadline, deadline);
     r.telemetry.pop().unwrap()
 }
 
@@ -421,7 +424,7 @@ fn a_fault_with_compensation_on_keeps_the_led_goal() {
 }
 
 /// Counts the allocations made by the current thread (const thread-locals never allocate).
-mod counting {
+pub(crate) mod counting {
     use std::alloc::{GlobalAlloc, Layout, System};
     use std::cell::Cell;
 
@@ -494,7 +497,7 @@ fn a_cycle_allocates_nothing() {
             r.force.push(ForceSample { t_ns: r.clock.now_ns(), forces: [1.0, 2.0, 0.0, 0.0, 0.0, 0.0] }).unwrap();
         }
         let before = counting::count();
-        r.ctl.run_cycle(&mut NullBus, &r.clock, deadline);
+        r.ctl.run_cycle(&mut NullBus, &r.clock, deadline, deadline);
         allocations += counting::count() - before;
         while r.telemetry.pop().is_ok() {}
     }

@@ -13,12 +13,14 @@ use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::{monotonic_ns, MonotonicClock};
 use crate::config::LoopConfig;
 use crate::cycle::{Controller, ControllerParts};
+use crate::doorbell::{ArrivalEstimator, Doorbell};
 use crate::params::{LoopParams, ParamValue, Reach};
 use crate::port::SerialTransport;
 use crate::sched;
 use crate::sensor::ForceSample;
 use crate::shared::Shared;
 use crate::telemetry::{Record, StatsSnapshot};
+use crate::trigger::{TriggerMode, TriggerSnapshot};
 use std::fmt;
 use std::sync::atomic::Ordering;
 use std::sync::{mpsc, Arc, Mutex};
@@ -55,19 +57,36 @@ impl fmt::Display for StartError {
 
 impl std::error::Error for StartError {}
 
-/// The force-sample producer handed to sensor readers.
+/// The force-sample producer handed to sensor readers. A push puts the sample in the ring and
+/// rings the loop's doorbell, which starts the cycle when the loop waits for a sample.
 #[derive(Clone)]
-pub struct ForceSink(Arc<Mutex<rtrb::Producer<ForceSample>>>);
+pub struct ForceSink {
+    inner: Arc<Mutex<SinkState>>,
+    bell: Arc<Doorbell>,
+}
+
+struct SinkState {
+    ring: rtrb::Producer<ForceSample>,
+    arrivals: ArrivalEstimator,
+}
 
 impl ForceSink {
+    pub(crate) fn new(ring: rtrb::Producer<ForceSample>, bell: Arc<Doorbell>) -> Self {
+        ForceSink { inner: Arc::new(Mutex::new(SinkState { ring, arrivals: ArrivalEstimator::default() })), bell }
+    }
+
     /// A sample the loop can use: finite forces (a NaN would reach the goal tick, and a NaN goal
     /// is a jump to the end of the range) stamped on CLOCK_MONOTONIC (a wall-clock stamp lies in
     /// the far future, so the sample would never go stale).
     pub fn check(sample: &ForceSample) -> Result<(), String> {
+        Self::check_at(sample, monotonic_ns())
+    }
+
+    fn check_at(sample: &ForceSample, now_ns: u64) -> Result<(), String> {
         if let Some(bad) = sample.forces.iter().find(|f| !f.is_finite()) {
             return Err(format!("forces must be finite, got {bad}"));
         }
-        if sample.t_ns > monotonic_ns() + 1_000_000_000 {
+        if sample.t_ns > now_ns + 1_000_000_000 {
             return Err(format!(
                 "t_ns {} is in the future of CLOCK_MONOTONIC; stamp samples with time.monotonic_ns()",
                 sample.t_ns
@@ -79,10 +98,24 @@ impl ForceSink {
     /// False when the sample is dropped: the ring is full, or the sample is invalid (see
     /// `ForceSink::check`).
     pub fn push(&self, sample: ForceSample) -> bool {
-        if Self::check(&sample).is_err() {
+        self.push_at(sample, monotonic_ns())
+    }
+
+    /// `push` at a given CLOCK_MONOTONIC time (the tests' fake clock).
+    pub(crate) fn push_at(&self, sample: ForceSample, now_ns: u64) -> bool {
+        if Self::check_at(&sample, now_ns).is_err() {
             return false;
         }
-        self.0.lock().map(|mut p| p.push(sample).is_ok()).unwrap_or(false)
+        let Ok(mut state) = self.inner.lock() else { return false };
+        if state.ring.push(sample).is_err() {
+            return false;
+        }
+        if let Some(timing) = state.arrivals.observe(now_ns) {
+            self.bell.publish(timing);
+        }
+        drop(state); // the wake-up syscall need not hold up other pushers
+        self.bell.ring();
+        true
     }
 }
 
@@ -100,6 +133,7 @@ pub struct LoopHandle {
     shared: Arc<Shared>,
     params: Mutex<ParamsWriter>,
     sink: ForceSink,
+    bell: Arc<Doorbell>,
     telemetry: Mutex<rtrb::Consumer<Record>>,
     idle: Mutex<Option<Controller>>,
     thread: Mutex<Option<Running>>,
@@ -115,6 +149,7 @@ impl LoopHandle {
         let (telemetry_tx, telemetry_rx) = rtrb::RingBuffer::new(config.telemetry_capacity);
         let (params_in, params_out) = triple_buffer::triple_buffer(&initial);
         let ids = config.ids();
+        let bell = Arc::new(Doorbell::default());
         let controller = Controller::new(ControllerParts {
             rate_hz: config.rate_hz,
             joints: config.wiring(),
@@ -131,7 +166,8 @@ impl LoopHandle {
             reach: config.reach(),
             shared,
             params: Mutex::new(ParamsWriter { input: params_in, current: initial }),
-            sink: ForceSink(Arc::new(Mutex::new(force_tx))),
+            sink: ForceSink::new(force_tx, bell.clone()),
+            bell,
             telemetry: Mutex::new(telemetry_rx),
             idle: Mutex::new(Some(controller)),
             thread: Mutex::new(None),
@@ -167,10 +203,11 @@ impl LoopHandle {
         }
         let (ready_tx, ready_rx) = mpsc::channel();
         let shared = self.shared.clone();
-        let request = self.config.rt;
+        let bell = self.bell.clone();
+        let (request, trigger) = (self.config.rt, self.config.trigger);
         let spawned = std::thread::Builder::new()
             .name("admittance-rt".into())
-            .spawn(move || rt_thread(controller, transport, shared, request, ready_tx));
+            .spawn(move || rt_thread(controller, transport, RtThread { shared, bell, request, trigger }, ready_tx));
         let handle = spawned.map_err(|e| StartError::Thread(format!("cannot spawn the loop thread: {e}")))?;
         ready_rx
             .recv_timeout(Duration::from_secs(5))
@@ -196,6 +233,7 @@ impl LoopHandle {
         let handle = self.thread.lock().map_err(|_| "loop state poisoned".to_string())?.take();
         let Some(handle) = handle else { return Ok(()) };
         self.shared.stop.store(true, Ordering::Relaxed);
+        self.bell.wake(); // a loop waiting for a sample sees the stop at once
         let (mut controller, mut transport) = handle.join().map_err(|_| "the loop thread panicked".to_string())?;
         if self.shared.stats.rt.lock().map(|r| r.memory_locked).unwrap_or(false) {
             sched::release_memory_lock();
@@ -259,6 +297,11 @@ impl LoopHandle {
         self.shared.stats.snapshot(self.config.rate_hz)
     }
 
+    /// How the cycles started (sample arrivals, the schedule), and the sensor timing seen.
+    pub fn trigger_stats(&self) -> (TriggerMode, TriggerSnapshot) {
+        (self.config.trigger, self.shared.trigger.snapshot())
+    }
+
     pub fn warnings(&self) -> Vec<String> {
         self.shared.warnings()
     }
@@ -279,11 +322,18 @@ impl Drop for LoopHandle {
     }
 }
 
+/// What the loop thread takes along besides its controller and bus.
+struct RtThread {
+    shared: Arc<Shared>,
+    bell: Arc<Doorbell>,
+    request: sched::RtRequest,
+    trigger: TriggerMode,
+}
+
 fn rt_thread(
     mut controller: Controller,
     mut transport: Box<dyn Transport>,
-    shared: Arc<Shared>,
-    request: sched::RtRequest,
+    RtThread { shared, bell, request, trigger }: RtThread,
     ready: mpsc::Sender<()>,
 ) -> (Controller, Box<dyn Transport>) {
     sched::prefault_stack();
@@ -294,7 +344,7 @@ fn rt_thread(
     }
     let running = RunningFlag::raise(&shared);
     let _ = ready.send(());
-    crate::runner::run(&mut controller, transport.as_mut(), &mut MonotonicClock, &shared, || true);
+    crate::runner::run(&mut controller, transport.as_mut(), &mut MonotonicClock, &shared, &bell, trigger, || true);
     drop(running);
     (controller, transport)
 }

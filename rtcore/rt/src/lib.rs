@@ -1,8 +1,9 @@
 //! The real-time admittance loop (Contract 5).
 //!
-//! A dedicated thread, optionally SCHED_FIFO with locked memory, wakes on absolute
-//! CLOCK_MONOTONIC deadlines and runs one cycle, top to bottom like ros2's
-//! admittance_controller, each step a named function of [`cycle::Controller`]:
+//! A dedicated thread, optionally SCHED_FIFO with locked memory, runs one cycle per period of
+//! a grid on CLOCK_MONOTONIC, started by a force sample's arrival (or at the end of the
+//! period's window, or on the plain schedule), top to bottom like ros2's admittance_controller,
+//! each step a named function of [`cycle::Controller`]:
 //! newest force sample → tare, deadband, low-pass → joint torque → one admittance step
 //! (`plant::admittance`) → state limits (anti-windup) → goal ticks → one SyncWrite → every
 //! `sync_read_divisor` cycles a read of the present positions.
@@ -13,6 +14,7 @@
 //! them, and the loop ramps the gains towards each new set.
 //!
 //! - [`clock`]: the clock trait, CLOCK_MONOTONIC, the absolute-deadline pacer.
+//! - [`doorbell`], [`trigger`]: a force sample's push wakes the loop; when a cycle starts.
 //! - [`sched`]: SCHED_FIFO, mlockall, affinity, and their fallback report.
 //! - [`histogram`]: fixed log-spaced timing histograms.
 //! - [`sensor`], [`filter`]: force samples in, tare, deadband, low-pass.
@@ -27,6 +29,7 @@
 pub mod bus;
 pub mod clock;
 pub mod compensation;
+pub mod doorbell;
 pub mod fault;
 pub mod filter;
 pub mod histogram;
@@ -41,7 +44,9 @@ pub mod handle;
 pub mod port;
 pub mod runner;
 pub mod shared;
+pub mod trigger;
 
 pub use config::{JointConfig, LoopConfig};
 pub use handle::{ForceSink, LoopHandle, StartError, StopPolicy};
 pub use params::ParamValue;
+pub use trigger::TriggerMode;

@@ -5,12 +5,15 @@
 //! block on. The warnings list is a `Mutex<Vec>` because only setup and shutdown (outside the
 //! cycle) write to it.
 use crate::telemetry::LoopStats;
+use crate::trigger::TriggerStats;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 #[derive(Default)]
 pub struct Shared {
     pub stats: LoopStats,
+    /// How the cycles started (runner only).
+    pub trigger: TriggerStats,
     pub stop: AtomicBool,
     pub running: AtomicBool,
     /// Samples to average for a tare; the loop takes it (swaps in 0) when it starts the tare.

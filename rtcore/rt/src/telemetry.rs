@@ -19,6 +19,11 @@ pub struct Record {
     pub cycle: u64,
     /// CLOCK_MONOTONIC at the cycle's start (its wake-up).
     pub t_ns: u64,
+    /// The cycle's deadline on the model's clock (CLOCK_MONOTONIC): the time the model's state
+    /// has been integrated up to, in whole steps of one period; the grid point this cycle stands
+    /// for, within half a period of the (phase-locked) grid. Recordings stamp rows with it. A
+    /// cycle that took no step (a grid that moved back) repeats the previous one's.
+    pub deadline_ns: u64,
     pub id: i64,
     /// The conditioned force on the joint's axis (after tare, deadband, low-pass).
     pub force: f64,
@@ -29,7 +34,9 @@ pub struct Record {
     pub goal_tick: i64,
     /// The tick read this cycle, or −1 when none was read.
     pub present_tick: i64,
-    /// How late the cycle woke after its deadline.
+    /// How late the cycle woke after the moment it was due: its grid point on the schedule; with
+    /// the sample trigger the window's opening, the push of the sample that started it, or the
+    /// window's end. Not a time base: a cycle may start before `deadline_ns` + this.
     pub period_error_ns: i64,
     /// Arrival of the sample this SyncWrite used first → end of the write; −1 when no new sample.
     pub latency_ns: i64,
@@ -40,9 +47,10 @@ pub struct Record {
 }
 
 /// The field names in layout order, each 8 bytes: (name, numpy type code).
-pub const RECORD_FIELDS: [(&str, &str); 13] = [
+pub const RECORD_FIELDS: [(&str, &str); 14] = [
     ("cycle", "<u8"),
     ("t_ns", "<u8"),
+    ("deadline_ns", "<u8"),
     ("id", "<i8"),
     ("force", "<f8"),
     ("torque", "<f8"),
@@ -61,6 +69,7 @@ impl Record {
     pub fn write_le(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.cycle.to_le_bytes());
         out.extend_from_slice(&self.t_ns.to_le_bytes());
+        out.extend_from_slice(&self.deadline_ns.to_le_bytes());
         out.extend_from_slice(&self.id.to_le_bytes());
         for v in [self.force, self.torque, self.theta, self.omega] {
             out.extend_from_slice(&v.to_le_bytes());
@@ -155,7 +164,7 @@ mod tests {
 
     #[test]
     fn the_byte_layout_matches_the_field_table() {
-        let r = Record { cycle: 1, id: -2, theta: 0.5, latency_ns: -1, fault: 1, mode: 2, ..Default::default() };
+        let r = Record { cycle: 1, deadline_ns: 7, id: -2, theta: 0.5, latency_ns: -1, fault: 1, mode: 2, ..Default::default() };
         let mut out = Vec::new();
         r.write_le(&mut out);
         assert_eq!(out.len(), 8 * RECORD_FIELDS.len());
@@ -164,6 +173,7 @@ mod tests {
             <[u8; 8]>::try_from(&out[8 * k..8 * k + 8]).unwrap()
         };
         assert_eq!(u64::from_le_bytes(field("cycle")), 1);
+        assert_eq!(u64::from_le_bytes(field("deadline_ns")), 7);
         assert_eq!(i64::from_le_bytes(field("id")), -2);
         assert_eq!(f64::from_le_bytes(field("theta")), 0.5);
         assert_eq!(i64::from_le_bytes(field("latency_ns")), -1);
