@@ -41,6 +41,7 @@ LEVEL_WORD = {logging.DEBUG: "debug: ", logging.WARNING: "warning: ", logging.ER
 RATE_PERIOD_S = 10.0
 
 _handler: logging.Handler | None = None
+_command: str | None = None  # the command _handler was set up for
 
 
 def add_verbosity_args(parser: argparse.ArgumentParser) -> None:
@@ -106,7 +107,7 @@ def configure(command: str, verbosity: int = 0, stream: TextIO | None = None,
               journal: bool | None = None) -> logging.Handler:
     """One handler on the root logger for ``command`` (on ``stream``, default stderr); a
     second call replaces the first. ``journal`` None: detected from ``$JOURNAL_STREAM``."""
-    global _handler
+    global _handler, _command
     handler = logging.StreamHandler(stream) if stream is not None else StderrHandler()
     handler.setFormatter(JournalFormatter() if (journal_stream(handler.stream) if journal is None else journal)
                          else PlainFormatter(command))
@@ -114,7 +115,7 @@ def configure(command: str, verbosity: int = 0, stream: TextIO | None = None,
     if _handler is not None:
         root.removeHandler(_handler)
     root.addHandler(handler)
-    _handler = handler
+    _handler, _command = handler, command
     root.setLevel(logging.INFO if verbosity > 0 else logging.WARNING)
     logging.getLogger(ROOT).setLevel(logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0
                                      else logging.INFO)
@@ -151,10 +152,21 @@ def forwarded(say: Callable[[str], None], level: int = logging.INFO) -> Iterator
         ours.propagate = saved[1]
 
 
+def reset() -> None:
+    """Undo :func:`configure` when a command ends, so that the next command run in the same
+    process (tests call ``admittance.cli.main`` many times) starts without its handler."""
+    global _handler
+    if _handler is not None:
+        logging.getLogger().removeHandler(_handler)
+        _handler = None
+        logging.getLogger().setLevel(logging.WARNING)
+        logging.getLogger(ROOT).setLevel(logging.NOTSET)
+
+
 def report_error(command: str, text: str) -> None:
     """The one line of an error that ends a command: through logging when the command set it
     up (so that under systemd it carries its priority), else plainly on stderr."""
-    if _handler is not None and _handler in logging.getLogger().handlers:
+    if _handler is not None and _command == command and _handler in logging.getLogger().handlers:
         logging.getLogger(ROOT).error("%s", text)
     else:
         print(f"admittance {command}: error: {text}", file=sys.stderr)

@@ -24,10 +24,10 @@ def restore_logging():
     root, ours = logging.getLogger(), logging.getLogger(logs.ROOT)
     levels, handlers = (root.level, ours.level), list(root.handlers)
     yield
+    logs.reset()
     root.handlers[:] = handlers
     root.setLevel(levels[0])
     ours.setLevel(levels[1])
-    logs._handler = None
 
 
 def emit(verbosity: int, journal: bool) -> str:
@@ -129,3 +129,17 @@ def test_forwarded_sends_the_packages_lines_to_a_callable_only_for_the_block(res
     log.info("after the block")
     assert said == ["stopped (hold) after 10 cycles", "warning: SCHED_FIFO refused"]
     assert out.getvalue() == "admittance setup: after the block\n"
+
+
+def test_a_command_run_in_process_leaves_no_handler_for_the_next(restore_logging, capsys):
+    """Tests run many commands in one process: the next one's error is its own one line."""
+    from admittance.cli import main
+
+    before = list(logging.getLogger().handlers)
+    assert main(["router", "--listen", free_endpoint(), "--duration", "0.1"]) == 0
+    assert logging.getLogger().handlers == before, "the router's handler was left behind"
+    capsys.readouterr()
+    logs.configure("mock-bench", 0)  # a command called without main(), as some tests do
+    assert main(["thesis", "/nonexistent/dataset"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("admittance thesis: error: "), err
