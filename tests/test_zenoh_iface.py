@@ -232,3 +232,13 @@ def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on(caplog):
     assert iface.poll() == 2
     lines = [r.getMessage() for r in caplog.records if r.name == "test.reply"]
     assert len(lines) == 1 and "could not be sent" in lines[0]
+
+
+def test_router_with_a_malformed_endpoint_is_one_line(capsys):
+    """Zenoh refuses the endpoint while the configuration is built; that is a one-line error too."""
+    from admittance.cli import main
+
+    assert main(["router", "--listen", "not-an-endpoint", "--duration", "0.1"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert "cannot open a session as a router on not-an-endpoint" in err and "Traceback" not in err
+    assert len(err.splitlines()) == 1

@@ -29,9 +29,10 @@ def run_router(zenoh_config: Path | None, listen: list[str] | None, duration: fl
     endpoints = listen or zen.listen or [DEFAULT_LISTEN]
     stop = StopRequest()  # set from a signal handler: no lock (stopsignals.py says why)
     with stop_signals_call(lambda *_: stop.set()):
-        conf = make_config(mode="router", listen=endpoints, connect=zen.connect, scouting=zen.scouting,
-                           security=security_of(zen))
-        session = open_session(conf, f"as a router on {', '.join(endpoints)}")
+        # A function, so that zenoh's refusal of a malformed endpoint becomes open_session's one line.
+        session = open_session(lambda: make_config(mode="router", listen=endpoints, connect=zen.connect,
+                                                   scouting=zen.scouting, security=security_of(zen)),
+                               f"as a router on {', '.join(endpoints)}")
         try:
             acl = f"; commands on {zen.prefix}/** only for {', '.join(zen.operators)}" if zen.operators else ""
             log.info("serving on %s (zid %s)%s; stop with Ctrl-C or SIGTERM", ", ".join(endpoints),
