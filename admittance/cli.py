@@ -15,6 +15,8 @@ import sys
 
 from admittance import __version__
 from admittance.errors import AdmittanceError
+from admittance import logs
+from admittance.logs import report_error
 
 # Modules that register subcommands, in the order they appear in --help.
 SUBCOMMAND_MODULES = (
@@ -46,9 +48,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        return _run(args)
+    finally:
+        logs.reset()  # the next in-process command starts without this one's log handler
+
+
+def _run(args) -> int:
+    try:
         return int(args.func(args) or 0)
     except AdmittanceError as exc:
-        print(f"admittance {args.command}: error: {exc}", file=sys.stderr)
+        report_error(args.command, str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
         return 130

@@ -27,6 +27,12 @@ class DeviceError(AdmittanceError):
     exit_code = 3
 
 
+class RefusedError(AdmittanceError):
+    """A running daemon refused a request, or does not know a name asked for."""
+
+    exit_code = 1
+
+
 # Exit statuses of a run that a fault stopped (sysexits.h; docs/faults.md): systemd restarts the
 # first (Restart=on-failure), and not the second (RestartPreventExitStatus in the unit).
 EXIT_TEMPFAIL = 75  # EX_TEMPFAIL: a device gone (the bus, a servo, the sensor); a restart may find it

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 import tomllib
 
 import numpy as np
@@ -102,7 +103,8 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
     both come out negative; the simulated arm hangs 0.15 rad (100 ticks) off 2048."""
     out = tmp_path / "bench.toml"
     with simulated_bench() as bench:
-        person = SimulatedPerson(bench, positive=positive, press_s=4.0, out=io.StringIO())
+        said = io.StringIO()
+        person = SimulatedPerson(bench, positive=positive, press_s=4.0, out=said)
         opts = wizard.SetupOptions(
             port=bench.bus_port, out=out, baudrates=(57_600,), protocols=(2,), new_baudrate=1_000_000,
             sensor={"kind": "optoforce", "port": bench.sensor_port, "counts_per_newton": [451.89] * 3},
@@ -110,6 +112,8 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
         wizard.run_wizard(opts, person, start_hand=person.start_hand)
         assert bench.bus.register(1, "PWM Limit") == 885  # the dry run's cap was restored
         assert bench.bus.register(1, "Torque Enable") == 0  # and the joint released
+    # the dry run's daemon lines reach the wizard's own output, its stop line saying where it ran
+    assert re.search(r"^stopped \(torque_off\) after \d+ cycles on the simulated bench: ", said.getvalue(), re.M)
     doc = tomllib.loads(out.read_text())
     joint, s = doc["joints"][0], doc["sensor"]
     assert doc["bus"]["baudrate"] == 1_000_000

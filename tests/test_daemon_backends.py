@@ -77,6 +77,26 @@ def test_the_saturation_policy_reaches_the_reader(tmp_path):
         assert reader._converter.hold_saturated is (policy == "hold")
 
 
+def test_the_embedded_bench_runs_its_bus_thread_at_the_loops_priority():
+    """The simulated servos must not answer late where real ones would not: their thread asks
+    for the RT loop's SCHED_FIFO priority (or says why it did not get it)."""
+    import tomllib
+
+    from admittance import data
+    from admittance.daemon.config import parse_config as parse
+
+    doc = tomllib.loads(data.bench_config().read_text())
+    doc.setdefault("loop", {})["rt_priority"] = 7
+    bench, _hand = backends._make_bench(parse(doc, data.bench_config()))
+    bench.start()
+    try:
+        assert wait_until(lambda: bench.bus.timing()["wake_late_us"]["count"] > 0), "the bus thread never ran"
+        rt, warnings = bench.bus.timing()["rt"], bench.bus.timing()["warnings"]
+    finally:
+        bench.stop()
+    assert (rt["policy"], rt["priority"]) == ("SCHED_FIFO", 7) or any("SCHED_FIFO" in w for w in warnings), (rt, warnings)
+
+
 class AlertingBus:
     """A ServoBus stand-in for the start-up check: one servo reporting ``bits``."""
 

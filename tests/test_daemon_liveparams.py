@@ -111,7 +111,6 @@ def supervisor(tmp_path_factory) -> Supervisor:
     """The live path as the daemon runs it: the supervisor's set_params on the real loop (not started)."""
     cfg = config.load_config(write_config(tmp_path_factory.mktemp("live")))
     sup = Supervisor(cfg, backends=None)
-    sup.options.log = lambda line: None
     sup.loop = _rtcore.AdmittanceLoop(loop_config(cfg, "/dev/null-admittance-test"))
     return sup
 

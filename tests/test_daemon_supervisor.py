@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import threading
@@ -169,7 +170,6 @@ class Harness:
         self.tare_ok = tare_ok
         self.loop = None
         self.published = []
-        self.logs = []
 
         @contextlib.contextmanager
         def bench(cfg):
@@ -194,7 +194,7 @@ class Harness:
             self._maybe_fail("sensor")
             return FakeSensor(self.events, sink, self.tare_ok)
 
-        def make_interface(zcfg, codec, handler, log):
+        def make_interface(zcfg, codec, handler):
             self.events.append("zenoh")
             self._maybe_fail("zenoh")
             return SimpleNamespace(publish_state=self.published.append, publish_stats=self.published.append,
@@ -215,7 +215,7 @@ class Harness:
                                  make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
                                  claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
-        options = RunOptions(duration=stop_after, stats_json=self.stats_path, log=self.logs.append)
+        options = RunOptions(duration=stop_after, stats_json=self.stats_path)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
 
     def _maybe_fail(self, step):
@@ -223,7 +223,8 @@ class Harness:
             raise DeviceError(f"{step} failed")
 
 
-def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
+def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path, caplog):
+    caplog.set_level(logging.INFO, "admittance")
     h = Harness(tmp_path, stop_after=0.2)
     assert h.supervisor.run() == 0
     start = h.events[: h.events.index("READY") + 1]
@@ -234,7 +235,9 @@ def test_start_order_then_a_duration_stop_writes_every_stats_key(tmp_path):
                              "release-claim"]
     stats = json.loads(h.stats_path.read_text())
     assert set(STATS_KEYS) <= set(stats) and "daemon" in stats
-    assert any("latency timer" in line for line in h.logs) and any("SCHED_FIFO" in line for line in h.logs)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("latency timer" in line for line in warnings) and any("SCHED_FIFO" in line for line in warnings)
+    assert caplog.records[-1].levelno == logging.INFO and caplog.messages[-1].startswith("stopped (hold) after")
     assert h.published, "state and stats are published while running"
 
 
@@ -314,14 +317,15 @@ def test_every_resource_is_claimed_before_the_first_write_to_a_servo(tmp_path):
     assert "zenoh.serve" not in h.events[:servos], "queries are only served once the loop runs"
 
 
-def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path):
+def test_a_listen_endpoint_beyond_loopback_is_warned_about_at_start(tmp_path, caplog):
     h = Harness(tmp_path, stop_after=0.05, zenoh={"listen": ["tcp/0.0.0.0:7447"]})
     h.supervisor.run()
-    assert any(line.startswith("warning: [zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface")
-               for line in h.logs)
+    assert any(r.levelno == logging.WARNING and r.getMessage().startswith(
+        "[zenoh].listen tcp/0.0.0.0:7447 is reachable from every interface") for r in caplog.records)
+    caplog.clear()
     h = Harness(tmp_path, stop_after=0.05)
     h.supervisor.run()
-    assert not any("[zenoh].listen" in line for line in h.logs), "loopback: no warning"
+    assert not any("[zenoh].listen" in line for line in caplog.messages), "loopback: no warning"
 
 
 def test_an_unexpected_exception_still_writes_stats_with_the_error(tmp_path):
@@ -467,10 +471,36 @@ def test_the_claim_comes_before_any_device_and_a_refused_claim_touches_none(tmp_
     assert refused.events == [], "no bench, no servo check, no sensor: nothing was opened"
 
 
+def _stats(errors: int, simulated: bool, stalls: int = 0) -> dict:
+    timing = {"rt": {"policy": "SCHED_FIFO", "priority": 80}, "stalls": stalls,
+              "reply_late_us": {"max": 3400.0}, "wake_late_us": {"max": 900.0}}
+    return {"cycles": 10_000, "overruns": 0, "bus_errors": errors,
+            "bus_error_kinds": {"write": 0, "read_timeout": errors, "read_corrupt": 0},
+            "sensor_stale_events": 0, "period_us": {"p99": 40.0},
+            "bench": {"simulated": simulated, "simulated_sensor": simulated,
+                      **({"bus": {"timing": timing}} if simulated else {})}}
+
+
+def test_the_stop_line_says_the_bench_is_simulated_and_where_its_errors_came_from():
+    from admittance.daemon.supervisor import summary_line
+
+    clean = summary_line(_stats(0, simulated=True), "hold")
+    assert clean.startswith("stopped (hold) after 10000 cycles on the simulated bench: 0 overruns, 0 bus errors, ")
+    assert "thread" not in clean, "no errors: nothing to explain"
+    starved = summary_line(_stats(3, simulated=True, stalls=2), "hold")
+    assert "3 bus errors (3 read timeouts)" in starved
+    assert "(SCHED_FIFO 80) ran late 2 times (> 0.25 ms, longest 3.4 ms): a loaded machine starved" in starved
+    assert "real servo would not give" in starved
+    punctual = summary_line(_stats(3, simulated=True, stalls=0), "hold")
+    assert "was never more than 0.25 ms late: these errors are not the simulation's lateness" in punctual
+    real = summary_line(_stats(3, simulated=False), "torque_off")
+    assert "simulated" not in real and real.startswith("stopped (torque_off) after 10000 cycles: ")
+
+
 # -- faults (docs/faults.md): told, marked, stopped on with their exit status ----------------------
 
 
-def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp_path):
+def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp_path, caplog):
     """The loop gave a servo up: the daemon holds, applies its torque policy, writes the stats
     (the cause, the status, the fault counts) and raises the FaultStop the CLI exits with."""
     from admittance.errors import FaultStop
@@ -494,10 +524,10 @@ def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp
     stats = json.loads(h.stats_path.read_text())
     assert stats["exit_status"] == 69 and stats["fault_stop"]["cause"] == "unsafe_hardware_error"
     assert stats["faults"]["servo_error"] == 1 and "servo 1 reports" in stats["error"]
-    assert any("servo 1 shut down (electrical shock)" in line for line in h.logs), h.logs
+    assert any("servo 1 shut down (electrical shock)" in line for line in caplog.messages), caplog.messages
 
 
-def test_a_bus_that_stays_lost_exits_75_and_a_torque_off_it_cannot_carry_does_not_change_that(tmp_path):
+def test_a_bus_that_stays_lost_exits_75_and_a_torque_off_it_cannot_carry_does_not_change_that(tmp_path, caplog):
     from admittance.errors import FaultStop
 
     h = Harness(tmp_path, policy="torque_off")
@@ -519,12 +549,12 @@ def test_a_bus_that_stays_lost_exits_75_and_a_torque_off_it_cannot_carry_does_no
     with pytest.raises(FaultStop) as caught:
         h.supervisor.run()
     assert caught.value.exit_code == 75 and "did not come back within 5 s" in str(caught.value)
-    assert any("the Dynamixel bus /dev/fake failed (Input/output error)" in line for line in h.logs), h.logs
-    assert any("torque off failed" in line for line in h.logs)
+    assert any("the Dynamixel bus /dev/fake failed (Input/output error)" in line for line in caplog.messages), caplog.messages
+    assert any("torque off failed" in line for line in caplog.messages)
     assert json.loads(h.stats_path.read_text())["exit_status"] == 75
 
 
-def test_sensor_events_are_told_rate_limited_and_mark_the_loops_cycles(tmp_path):
+def test_sensor_events_are_told_rate_limited_and_mark_the_loops_cycles(tmp_path, caplog):
     import time
 
     h = Harness(tmp_path, stop_after=0.5)
@@ -545,8 +575,8 @@ def test_sensor_events_are_told_rate_limited_and_mark_the_loops_cycles(tmp_path)
 
     h.backends.make_sensor = unplugged
     h.supervisor.run()
-    told = [line for line in h.logs if "failed (EIO)" in line]
-    assert len(told) == 1 and told[0].startswith("warning: sensor: ")
+    told = [line for line in caplog.messages if "failed (EIO)" in line]
+    assert len(told) == 1 and told[0].startswith("sensor: ")
     assert ["sensor_lost"] in h.loop.sensor_faults
     assert h.supervisor.sensor.stale_after_s == h.cfg.loop.stale_timeout_ms / 1000
     stats = json.loads(h.stats_path.read_text())

@@ -102,9 +102,9 @@ def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
             assert f"{prefix}  joint   1" in monitor.stdout  # every bench, from one monitor, as a visitor
 
         as_alice = ["--zenoh-config", str(files["alice"])]
-        changed = admittance("set", "virtual_damping=0.123", "--prefix", "lab/arm2", *as_alice)
+        changed = admittance("set", "virtual_damping=0.123", "--json", "--prefix", "lab/arm2", *as_alice)
         assert changed.returncode == 0 and json.loads(changed.stdout) == {"accepted": True}, changed.stderr
-        values = {p: json.loads(admittance("get", "1.virtual_damping", "--prefix", p, *as_alice).stdout)
+        values = {p: json.loads(admittance("get", "1.virtual_damping", "--json", "--prefix", p, *as_alice).stdout)
                   for p in BENCHES}
         assert values["lab/arm2"] == {"1.virtual_damping": 0.123}
         assert values["lab/arm1"] == values["lab/arm3"] != values["lab/arm2"]  # only the bench addressed
@@ -114,7 +114,7 @@ def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
         assert refused.returncode == 3 and "no daemon answered" in refused.stderr
         tare = admittance("tare", "--prefix", "lab/arm1", "--timeout", "2", "--zenoh-config", str(files["visitor"]))
         assert tare.returncode == 3
-        assert json.loads(admittance("get", "--prefix", "lab/arm1", *as_alice).stdout)["1.virtual_damping"] != 0.5
+        assert json.loads(admittance("get", "--json", "--prefix", "lab/arm1", *as_alice).stdout)["1.virtual_damping"] != 0.5
 
         with login(files["visitor"]) as visitor:  # ROS 2 graph of bench 1, through the router
             tokens = [str(r.ok.key_expr) for r in visitor._session.liveliness().get("@ros2_lv/0/**", timeout=2.0)

@@ -4,6 +4,7 @@ and the `admittance set` / `monitor` commands against them."""
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 
@@ -12,7 +13,8 @@ import pytest
 from admittance.cli import main
 from admittance.daemon.config import ZenohConfig
 from admittance.daemon.messages import Codec, JointState, State, decode
-from admittance.daemon.zenoh_iface import Client, DaemonInterface, RateLimitedLog
+from admittance.daemon.zenoh_iface import Client, DaemonInterface
+from admittance.logs import RateLimitedLog
 from admittance.errors import DeviceError
 
 from helpers import free_endpoint
@@ -46,11 +48,8 @@ class FakeHandler:
 def daemon(request):
     endpoint = free_endpoint()
     params = FakeHandler()
-    logs = []
-    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param), params,
-                            log=logs.append)
+    iface = DaemonInterface(ZenohConfig(prefix="test/arm", listen=[endpoint]), Codec(request.param), params)
     iface.serve()
-    iface.logs = logs
     stop = threading.Event()
     state = State(cycle=7, joints=[JointState(id=1, t=1.0, force=2.0, tau=0.2, theta=0.1, omega=0.0,
                                               goal_tick=2100, present_tick=2099)])
@@ -111,14 +110,31 @@ def test_no_daemon_is_a_clear_device_error():
         client.query_params("nobody/here", timeout=0.5)
 
 
-def test_set_command_shows_the_reply_and_fails_when_rejected(daemon, capsys):
+def test_set_command_says_what_changed_and_fails_when_refused(daemon, capsys):
     endpoint, params, _ = daemon
     assert main(["set", "virtual_damping=0.2", "--prefix", "test/arm", "--connect", endpoint]) == 0
-    assert json.loads(capsys.readouterr().out) == {"accepted": True}
+    assert capsys.readouterr().out == "accepted: 1.virtual_damping 0.05 → 0.2 N·m·s/rad, at once\n"
     assert main(["set", "virtual_damping=-2", "--prefix", "test/arm", "--connect", endpoint]) == 1
-    captured = capsys.readouterr()
-    assert "rejected: virtual_damping must be >= 0" in captured.err
+    assert capsys.readouterr().out == "refused: virtual_damping must be >= 0\n"
     assert params.values["1.virtual_damping"] == 0.2
+    assert main(["set", "1.virtual_damping=0.3", "--json", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    assert json.loads(capsys.readouterr().out) == {"accepted": True}
+    assert main(["set", "virtual_damping=-2", "--json", "--prefix", "test/arm", "--connect", endpoint]) == 1
+    assert json.loads(capsys.readouterr().out)["accepted"] is False
+
+
+def test_get_command_prints_names_values_and_units_or_json(daemon, capsys):
+    endpoint, params, _ = daemon
+    assert main(["get", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split() for line in lines] == [["1.virtual_damping", "0.05", "N·m·s/rad"],
+                                                 ["1.virtual_inertia", "0.02", "kg·m²"]]
+    assert main(["get", "1.virtual_inertia", "--json", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    assert json.loads(capsys.readouterr().out) == {"1.virtual_inertia": 0.02}
+    assert main(["get", "1.virtual_inertia", "1.nope", "--prefix", "test/arm", "--connect", endpoint]) == 1
+    captured = capsys.readouterr()
+    assert captured.out.split() == ["1.virtual_inertia", "0.02", "kg·m²"]
+    assert "unknown parameter(s): 1.nope" in captured.err and captured.err.count("\n") == 1
 
 
 def test_set_command_without_a_daemon_exits_non_zero(capsys):
@@ -139,6 +155,8 @@ def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
 def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsys):
     endpoint, handler, _ = daemon
     assert main(["tare", "--samples", "250", "--prefix", "test/arm", "--connect", endpoint]) == 0
+    assert capsys.readouterr().out.startswith("accepted: the next 250 force samples become the sensor's zero")
+    assert main(["tare", "--samples", "250", "--json", "--prefix", "test/arm", "--connect", endpoint]) == 0
     assert json.loads(capsys.readouterr().out) == {"accepted": True}
     with Client([endpoint]) as client:
         assert client.query("test/arm/tare", {}) == {"accepted": True}  # an empty object: 100 samples
@@ -147,7 +165,7 @@ def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsy
         reply = client.query("test/arm/tare", {"samples": 0})
         assert reply["accepted"] is False and "samples" in reply["reason"]
         assert client.query("test/arm/tare", {"sample": 5})["accepted"] is False
-    assert handler.tares == [250, 100]
+    assert handler.tares == [250, 250, 100]
 
 
 def replies(client, key, payload=None):
@@ -171,7 +189,7 @@ def test_a_wildcard_get_reads_but_never_acts(daemon):
     assert handler.tares == [] and handler.requests == []
 
 
-def test_a_handler_that_raises_costs_one_refusal_not_the_loop(daemon):
+def test_a_handler_that_raises_costs_one_refusal_not_the_loop(daemon, caplog):
     endpoint, handler, iface = daemon
 
     def broken(request):
@@ -184,10 +202,11 @@ def test_a_handler_that_raises_costs_one_refusal_not_the_loop(daemon):
             assert reply["accepted"] is False and "internal error (OverflowError)" in reply["reason"]
         assert client.query_params("test/arm") == {"params": handler.values}, "still answering"
     assert iface.query_errors == 3
-    assert len(iface.logs) == 1 and "OverflowError" in iface.logs[0], "rate-limited: one line"
+    lines = [r.getMessage() for r in caplog.records if r.name == "admittance.daemon.zenoh_iface"]
+    assert len(lines) == 1 and "OverflowError" in lines[0], "rate-limited: one line"
 
 
-def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on():
+def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on(caplog):
     class Query:
         payload, key_expr = None, "k/params"
 
@@ -205,10 +224,21 @@ def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on():
             return self.queue.pop() if self.queue else None
 
     iface = DaemonInterface.__new__(DaemonInterface)
-    logs = []
-    iface._log, iface._codec, iface._handler = RateLimitedLog(logs.append), Codec("json"), FakeHandler()
+    iface._log = RateLimitedLog(logging.getLogger("test.reply"))
+    iface._codec, iface._handler = Codec("json"), FakeHandler()
     iface._queryables = {"k/params": (Channel(), iface._answer_params)}
     iface.queries = iface.query_errors = 0
     iface.prefix = "k"
     assert iface.poll() == 2
-    assert len(logs) == 1 and "could not be sent" in logs[0]
+    lines = [r.getMessage() for r in caplog.records if r.name == "test.reply"]
+    assert len(lines) == 1 and "could not be sent" in lines[0]
+
+
+def test_router_with_a_malformed_endpoint_is_one_line(capsys):
+    """Zenoh refuses the endpoint while the configuration is built; that is a one-line error too."""
+    from admittance.cli import main
+
+    assert main(["router", "--listen", "not-an-endpoint", "--duration", "0.1"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert "cannot open a session as a router on not-an-endpoint" in err and "Traceback" not in err
+    assert len(err.splitlines()) == 1

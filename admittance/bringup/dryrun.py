@@ -72,23 +72,26 @@ def _write_caps(bus: ServoBus, caps: dict[int, int], item: str) -> None:
 
 def run_dry(doc: dict[str, Any], where: Path, seconds: float, fraction: float, *,
             start_hand: Callable[[], None] = lambda: None, log: Callable[[str], None] = print,
-            bus_options: dict | None = None) -> dict[str, Any]:
-    """Run the session; returns the loop's statistics (the --stats-json object)."""
+            bus_options: dict | None = None, bench_stats: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Run the session; returns the loop's statistics (the --stats-json object). The daemon's
+    lines (its stop line among them) go to ``log``; ``bench_stats``, on the simulated bench, is
+    its counters, so that the stop line says the bench is simulated and where errors came from."""
     from admittance.daemon import config
     from admittance.daemon.backends import BenchPorts, real_backends
     from admittance.daemon.supervisor import RunOptions, Supervisor
+    from admittance.logs import forwarded
 
     cfg = config.parse_config(dry_run_doc(doc), where)
 
     @contextlib.contextmanager
     def ports(_cfg: Any) -> Iterator[BenchPorts]:
-        yield BenchPorts(cfg.bus.port, cfg.sensor.port, start_hand)
+        yield BenchPorts(cfg.bus.port, cfg.sensor.port, start_hand, bench_stats)
 
     backends = dataclasses.replace(real_backends(), start_bench=ports)
     with tempfile.TemporaryDirectory() as tmp:
         stats_path = Path(tmp) / "stats.json"
-        options = RunOptions(duration=seconds, stats_json=stats_path, log=log)
-        with output_capped(cfg.bus.port, cfg.bus.baudrate, cfg.bus.protocol, [j.id for j in cfg.joints], fraction,
-                           bus_options):
+        options = RunOptions(duration=seconds, stats_json=stats_path)
+        with forwarded(log), output_capped(cfg.bus.port, cfg.bus.baudrate, cfg.bus.protocol,
+                                           [j.id for j in cfg.joints], fraction, bus_options):
             Supervisor(cfg, backends, options).run()
         return json.loads(stats_path.read_text())

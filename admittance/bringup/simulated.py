@@ -61,6 +61,10 @@ class SimulatedPerson:
         """The dry run's pushes, once the loop runs (never during its tare)."""
         self._follow(lambda s: 0.15 * math.sin(2 * math.pi * 0.5 * s))
 
+    def bench_stats(self) -> dict:
+        """The simulated bench's counters, for the dry run's stop line."""
+        return self.bench.stats()
+
     def _follow(self, shape) -> None:
         t0 = time.monotonic()
         self.bench.profile = lambda t: self.positive * shape(time.monotonic() - t0)

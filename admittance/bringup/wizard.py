@@ -191,7 +191,8 @@ def _dry_run(opts: SetupOptions, doc: dict, prompter: Prompter, start_hand: Call
     prompter.act("dry-run", "During the session, push the handle gently: the arm should follow, "
                             "and stop when you let go.")
     stats = dryrun.run_dry(doc, opts.out, opts.dry_run_s, opts.output_limit, start_hand=start_hand,
-                           log=prompter.say, bus_options=opts.bus_options)
+                           log=prompter.say, bus_options=opts.bus_options,
+                           bench_stats=getattr(prompter, "bench_stats", None))
     prompter.say(f"  dry run: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                  f"{stats['bus_errors']} bus errors, {stats['sensor_samples']} force samples")
 

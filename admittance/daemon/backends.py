@@ -58,7 +58,7 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
         links = bench.links
         pty_sensor = links["sensor"] or bench.sensor_port
         sensor_port = pty_sensor or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
-        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go)
+        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go, bench.stats)
     finally:
         bench.stop()
 
@@ -67,6 +67,7 @@ class BenchPorts(NamedTuple):
     bus: str
     sensor: str
     start_hand: Callable[[], None]  # called once the loop runs (a no-op on real hardware)
+    stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's counters (None on hardware)
 
 
 class DelayedHand:
@@ -103,7 +104,8 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
         servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile,
         sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
         counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
-        hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None))
+        hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None,
+        rt_priority=cfg.loop.rt_priority))  # the loop's scheduling: the mock is not late where a servo is not
     hand = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
     bench.profile = hand
     return bench, hand

@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Any
 
-from admittance.errors import AdmittanceError, ConfigError
+from admittance.errors import AdmittanceError, ConfigError, RefusedError
+from admittance.logs import add_verbosity_args, configure
+
+log = logging.getLogger(__name__)
 
 DEFAULT_PREFIX = "bench/arm1"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -39,13 +43,19 @@ def register(subparsers) -> None:
     run.add_argument("--check", action="store_true", help="validate the configuration, print it and exit")
     run.add_argument("--print-example-config", action="store_true",
                      help="print the example configuration of a real bench and exit (start one with > my.toml)")
+    add_verbosity_args(run)
     run.set_defaults(func=cmd_run)
 
     monitor = subparsers.add_parser(
-        "monitor", help="live view of a running daemon's state and timing",
-        description="Subscribe to <prefix>/state and <prefix>/stats of a running daemon and show each joint's "
-                    "state and the loop's timing; redraws in place on a terminal, plain lines otherwise.")
+        "monitor", help="live view of running daemons' state, timing and parameters",
+        description="Subscribe to the state, stats and liveliness of every daemon under --prefix and show each "
+                    "joint's state, the loop's mode, faults, timing and live virtual parameters, marking a daemon "
+                    "gone (its liveliness token withdrawn) or stale (no state for 1 s); SI units unless "
+                    "--degrees. Redraws in place on a terminal, plain lines otherwise.")
     _remote_args(monitor)
+    monitor.add_argument("--degrees", action="store_true",
+                         help="show every angle and angular rate in degrees (default: rad, rad/s; the rendering "
+                              "error in mrad)")
     monitor.add_argument("--duration", type=_positive, metavar="S",
                          help="stop after S seconds (default: run until Ctrl-C)")
     monitor.set_defaults(func=cmd_monitor)
@@ -53,7 +63,8 @@ def register(subparsers) -> None:
     setp = _request_command(
         subparsers, "set", cmd_set, help="change parameters of a running daemon (all or nothing)",
         description="Set live parameters, e.g. `admittance set virtual_damping=0.08 1.virtual_inertia=0.03`. "
-                    "A bare name applies to every joint, <id>.name to one joint.")
+                    "A bare name applies to every joint, <id>.name to one joint. Prints what changed "
+                    "(old → new, and how it arrives) or why it was refused; exit 1 when refused.")
     setp.add_argument("assignments", nargs="+", metavar="NAME=VALUE",
                       help="a live key (docs/daemon.md) and its value in the key's unit; <id>.NAME for one joint")
 
@@ -65,7 +76,8 @@ def register(subparsers) -> None:
 
     get = _request_command(
         subparsers, "get", cmd_get, help="read a running daemon's live parameters",
-        description="Print the live parameters of the daemon at --prefix as JSON (all, or the NAMEs given).")
+        description="Print the live parameters of the daemon at --prefix (all, or the NAMEs given): name, "
+                    "value and unit, or a JSON object with --json.")
     get.add_argument("names", nargs="*", metavar="NAME", help="parameters to print, e.g. 1.virtual_damping (default: all)")
 
     router = subparsers.add_parser(
@@ -76,6 +88,7 @@ def register(subparsers) -> None:
                         help=f"endpoint to listen on (default: the file's listen, else {DEFAULT_ENDPOINT}; repeatable)")
     router.add_argument("--zenoh-config", type=Path, metavar="FILE", help="a TOML file with a [zenoh] table (default: none)")
     router.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: run until SIGINT/SIGTERM)")
+    add_verbosity_args(router)
     router.set_defaults(func=cmd_router)
 
 
@@ -84,6 +97,8 @@ def _request_command(subparsers, name: str, func, **texts) -> argparse.ArgumentP
     parser = subparsers.add_parser(name, **texts)
     _remote_args(parser)
     parser.add_argument("--timeout", type=_positive, default=3.0, metavar="S", help="wait this long for a reply, in s (default 3)")
+    parser.add_argument("--json", action="store_true", dest="as_json",
+                        help="print the daemon's reply as JSON, for scripts (default: in words)")
     parser.set_defaults(func=func)
     return parser
 
@@ -113,6 +128,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 
+    configure("run", args.verbosity)
     stop = StopRequest()
     # After a run the process only exits; a late stop signal (a second SIGTERM during teardown)
     # must not cut that exit short and turn a clean stop into -15. `--check` and
@@ -161,7 +177,7 @@ def _stats_of_a_failed_start(args: argparse.Namespace, error: ConfigError) -> No
     try:
         write_stats_file(args.stats_json, error_fields(error))
     except AdmittanceError as exc:
-        print(f"admittance run: warning: {exc}", file=sys.stderr)
+        log.warning("%s", exc)
 
 
 def remote_client(args: argparse.Namespace):
@@ -184,7 +200,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     with remote_client(args) as client:
         subscription = client.try_stream_benches(args.prefix)
         try:
-            view = View(args.prefix, sys.stdout, sys.stdout.isatty())
+            view = View(args.prefix, sys.stdout, sys.stdout.isatty(), degrees=args.degrees)
             return run_monitor(subscription, view, args.duration)
         finally:
             subscription.close()
@@ -206,38 +222,51 @@ def parse_assignments(items: list[str]) -> dict[str, float | list[float]]:
 
 
 def cmd_set(args: argparse.Namespace) -> int:
-    return _remote_request(args, "params", parse_assignments(args.assignments))
+    """Set, and say what changed (old → new and how it arrives) or why not; 1 when refused."""
+    from admittance.daemon.replies import set_reply_text
+
+    request = parse_assignments(args.assignments)
+    with remote_client(args) as client:
+        key = f"{args.prefix}/params"
+        before = {} if args.as_json else _params(client.query(key, None, timeout=args.timeout))
+        reply = client.query(key, request, timeout=args.timeout)
+        accepted = bool(reply.get("accepted", False))
+        after = _params(client.query(key, None, timeout=args.timeout)) if accepted and not args.as_json else {}
+    print(json.dumps(reply) if args.as_json else set_reply_text(request, reply, before, after))
+    return 0 if accepted else 1
 
 
 def cmd_tare(args: argparse.Namespace) -> int:
-    return _remote_request(args, "tare", {"samples": args.samples})
+    from admittance.daemon.replies import tare_reply_text
 
-
-def _remote_request(args: argparse.Namespace, leaf: str, request: dict) -> int:
-    """Send one request to ``<prefix>/<leaf>``, print the reply; 1 when the daemon rejects it."""
     with remote_client(args) as client:
-        reply = client.query(f"{args.prefix}/{leaf}", request, timeout=args.timeout)
-    print(json.dumps(reply))
-    if not reply.get("accepted", False):
-        print(f"admittance {args.command}: rejected: {reply.get('reason', 'no reason given')}", file=sys.stderr)
-        return 1
-    return 0
+        reply = client.query(f"{args.prefix}/tare", {"samples": args.samples}, timeout=args.timeout)
+    print(json.dumps(reply) if args.as_json else tare_reply_text(args.samples, reply))
+    return 0 if reply.get("accepted", False) else 1
+
+
+def _params(reply: dict[str, Any]) -> dict[str, Any]:
+    params = reply.get("params")
+    return params if isinstance(params, dict) else {}
 
 
 def cmd_get(args: argparse.Namespace) -> int:
     """Print the live parameters (all, or the names asked for); 1 when a name is unknown."""
+    from admittance.daemon.replies import params_table
+
     with remote_client(args) as client:
-        params = client.query(f"{args.prefix}/params", None, timeout=args.timeout).get("params", {})
+        params = _params(client.query(f"{args.prefix}/params", None, timeout=args.timeout))
+    shown = {n: params[n] for n in args.names if n in params} if args.names else params
+    if args.as_json or shown:
+        print(json.dumps(shown, sort_keys=True) if args.as_json else params_table(shown))
     unknown = [n for n in args.names if n not in params]
-    print(json.dumps({n: params[n] for n in args.names if n in params} if args.names else params, sort_keys=True))
     if unknown:
-        print(f"admittance get: unknown parameter(s): {', '.join(unknown)} (known: {', '.join(sorted(params))})",
-              file=sys.stderr)
-        return 1
+        raise RefusedError(f"unknown parameter(s): {', '.join(unknown)} (known: {', '.join(sorted(params))})")
     return 0
 
 
 def cmd_router(args: argparse.Namespace) -> int:
     from admittance.daemon.router import run_router
 
+    configure("router", args.verbosity)
     return run_router(args.zenoh_config, args.listen, args.duration)

@@ -1,48 +1,103 @@
-"""``admittance monitor``: a live terminal view of the daemons' state and timing over Zenoh.
+"""``admittance monitor``: a live terminal view of the daemons' state, timing and parameters over Zenoh.
 
 ``--prefix`` may name one bench (``bench/arm1``) or a level above several (``bench``): every
 bench that publishes ``<bench>/state`` under it gets its own block, in key order, so a lab
 with a router sees all its benches from one monitor.
 
+What it shows must be true *now*, not when the last message came:
+
+- a bench whose liveliness token (``<bench>/alive``) was withdrawn is marked **gone**, with how
+  long ago; a bench whose state stopped arriving (``STATE_STALE_S``) is marked **stale**, and so
+  are its timing figures when the stats stopped (``STATS_STALE_S``). Values shown then are the
+  last ones received, and say so;
+- SI units everywhere (rad, rad/s; the rendering error in mrad), or with ``--degrees`` every
+  angle and angular rate in degrees (parameters keep the units ``set`` takes);
+- one name per quantity, the same as in the docs, the stats and the stop line: *wake-up
+  lateness* (``period_us``), *force-to-write latency* (``latency_us``), *stale-sensor holds*
+  (``sensor_stale_events``), *rendering error* (``rendering_rms``);
+- the loop's mode and faults (from the state and stats), and the live virtual parameters
+  (``<prefix>/**/params`` is read every ``PARAMS_PERIOD_S``: a read, which never sets).
+
 On a terminal it redraws one screen in place with ANSI escapes (no curses: it must work over
 ssh and in any terminal, and needs no extra package). When stdout is not a terminal (a pipe,
-a log file, a test) it prints plain lines instead, one per joint at most every
-``PLAIN_PERIOD_S``, so the output stays greppable.
+a log file, a test) it prints plain lines instead: each bench's joints at most every
+``PLAIN_PERIOD_S`` when new state came, a loop line per stats message, and one line whenever a
+bench goes, comes back, goes stale or its parameters change, so the output stays greppable.
 
-The view only formats dicts; the subscription comes from :mod:`zenoh_iface`, so the
-formatting is unit-tested without a network.
+The view only formats dicts fed to it (``View.feed``) against a clock it is given; the
+subscriptions come from :mod:`zenoh_iface`, so all of this is unit-tested without a network.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, TextIO
 
+from admittance.daemon.quantities import NAMES, bus_errors_text
 from admittance.errors import DeviceError
 
 REDRAW_PERIOD_S = 0.1
 PLAIN_PERIOD_S = 0.5
+PARAMS_PERIOD_S = 2.0
+STATE_STALE_S = 1.0  # the state comes at ≥ 50 Hz: a second without one is a stalled daemon or link
+STATS_STALE_S = 3.0  # the stats come about once a second
 CLEAR = "\x1b[H\x1b[2J"
+# The parameters the monitor shows (the loop's gains and the compensation's weight); `get` has all.
+SHOWN_PARAMS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 
 
-def joint_line(joint: dict[str, Any]) -> str:
+@dataclass(frozen=True)
+class Units:
+    """SI (rad) or degrees for every angle and angular rate the view shows."""
+
+    degrees: bool = False
+
+    def angle(self, rad: float) -> str:
+        return f"{math.degrees(rad):+8.2f}°" if self.degrees else f"{rad:+8.4f} rad"
+
+    def rate(self, rad_s: float) -> str:
+        return f"{math.degrees(rad_s):+8.2f} °/s" if self.degrees else f"{rad_s:+7.3f} rad/s"
+
+    def small_angle(self, rad: float) -> str:
+        return f"{math.degrees(rad):.3f}°" if self.degrees else f"{1e3 * rad:.2f} mrad"
+
+
+def joint_line(joint: dict[str, Any], units: Units = Units()) -> str:
     present = joint.get("present_tick")
-    line = (f"joint {joint['id']:>3}  force {joint['force']:+8.3f} N  tau {joint['tau']:+7.3f} N·m  "
-            f"theta {math.degrees(joint['theta']):+8.2f}°  omega {joint['omega']:+7.3f} rad/s  "
+    line = (f"joint {joint['id']:>3}  force {joint['force']:+8.3f} N  torque {joint['tau']:+7.3f} N·m  "
+            f"angle {units.angle(joint['theta'])}  velocity {units.rate(joint['omega'])}  "
             f"goal {joint['goal_tick']:>5}  present {present if present is not None else '-':>5}")
-    if joint.get("position") is not None:  # newer daemons: the rendering error, measured − model
-        line += f"  error {math.degrees(joint['position'] - joint['theta']):+6.2f}°"
+    if joint.get("rendering_rms") is not None:
+        line += f"  {NAMES['rendering_rms']} {units.small_angle(joint['rendering_rms'])}"
+    if joint.get("fault"):
+        line += f"  FAULT {', '.join(fault_names(joint['fault']))}"
     return line
 
 
-def rendering_line(stats: dict[str, Any]) -> list[str]:
+def fault_names(bits: int) -> list[str]:
+    """The fault kinds of a joint's ``fault`` bits (by bit number if the extension is missing)."""
+    try:
+        from admittance._rtcore import FAULT_KINDS
+    except ImportError:  # a monitor on a machine without the loop's build
+        FAULT_KINDS = []
+    return [FAULT_KINDS[k] if k < len(FAULT_KINDS) else f"bit {k}" for k in range(64) if bits >> k & 1]
+
+
+def loop_line(stats: dict[str, Any]) -> str:
+    return (f"loop    {stats.get('rate_hz', 0):8.1f} Hz  cycles {stats.get('cycles', 0)}  "
+            f"overruns {stats.get('overruns', 0)}  {bus_errors_text(stats)}")
+
+
+def rendering_line(stats: dict[str, Any], units: Units = Units()) -> list[str]:
     """The horn's distance from the model, per joint (the daemon's running RMS, last ~1 s)."""
     rms = stats.get("rendering_rms") or {}
     if not rms:
         return []
-    joints = "  ".join(f"joint {jid} {1e3 * value:6.2f} mrad" for jid, value in sorted(rms.items()))
-    return [f"render  |present − model| RMS  {joints}"]
+    joints = "  ".join(f"joint {jid} {units.small_angle(value)}" for jid, value in sorted(rms.items()))
+    return [f"{NAMES['rendering_rms']} (RMS of present − model angle, ~1 s)  {joints}"]
 
 
 def fault_line(stats: dict[str, Any]) -> list[str]:
@@ -56,96 +111,177 @@ def fault_line(stats: dict[str, Any]) -> list[str]:
     return [f"faults  {mode}  " + "  ".join(f"{kind} {n}" for kind, n in sorted(counts.items())) + lost]
 
 
-def stats_lines(stats: dict[str, Any]) -> list[str]:
+def stats_lines(stats: dict[str, Any], units: Units = Units()) -> list[str]:
     rt = stats.get("rt", {})
     period, latency = stats.get("period_us", {}), stats.get("latency_us", {})
     return [
-        f"loop   {stats.get('rate_hz', 0):8.1f} Hz  cycles {stats.get('cycles', 0)}  "
-        f"overruns {stats.get('overruns', 0)}  bus errors {stats.get('bus_errors', 0)}",
-        f"jitter p50 {period.get('p50', 0):7.1f} µs  p99 {period.get('p99', 0):7.1f}  "
+        loop_line(stats),
+        f"{NAMES['period_us']:<22}  p50 {period.get('p50', 0):7.1f} µs  p99 {period.get('p99', 0):7.1f}  "
         f"p99.9 {period.get('p999', 0):7.1f}  max {period.get('max', 0):7.1f}",
-        f"latency p50 {latency.get('p50', 0):6.1f} µs  p99 {latency.get('p99', 0):7.1f}  "
+        f"{NAMES['latency_us']:<22}  p50 {latency.get('p50', 0):7.1f} µs  p99 {latency.get('p99', 0):7.1f}  "
         f"max {latency.get('max', 0):7.1f}",
-        f"sensor samples {stats.get('sensor_samples', 0)}  stale events {stats.get('sensor_stale_events', 0)}  "
+        f"sensor  samples {stats.get('sensor_samples', 0)}  {NAMES['sensor_stale_events']} {stats.get('sensor_stale_events', 0)}  "
         f"rt {rt.get('policy', '?')} prio {rt.get('priority', 0)} "
-        f"mlock {'yes' if rt.get('memory_locked') else 'no'}",
-        *rendering_line(stats),
+        f"memory locked {'yes' if rt.get('memory_locked') else 'no'}",
+        *rendering_line(stats, units),
         *fault_line(stats),
     ]
 
 
-def screen(prefix: str, state: dict[str, Any] | None, stats: dict[str, Any] | None) -> str:
-    lines = [f"admittance monitor  {prefix}", ""]
-    if state is None:
-        lines.append(f"waiting for {prefix}/state ...")
+def params_lines(params: dict[str, Any]) -> list[str]:
+    """The live virtual parameters, one line per joint, with the units ``set`` takes."""
+    from admittance.daemon.config import JOINT_LIVE
+
+    joints: dict[str, list[str]] = {}
+    for name, value in params.items():
+        jid, _, key = name.partition(".")
+        if key in SHOWN_PARAMS and isinstance(value, (int, float)):
+            unit = JOINT_LIVE[key][1].get("unit", "")
+            joints.setdefault(jid, []).append(f"{key} {value:.4g}{' ' + unit if unit else ''}")
+    return [f"params  joint {jid}: " + "  ".join(items) for jid, items in sorted(joints.items())]
+
+
+@dataclass
+class BenchSeen:
+    """What the monitor knows about one bench, and when it learnt it (the view's clock)."""
+
+    state: dict[str, Any] | None = None
+    state_at: float | None = None
+    stats: dict[str, Any] | None = None
+    stats_at: float | None = None
+    params: dict[str, Any] | None = None
+    alive: bool | None = None  # None: no liveliness token seen (yet)
+    alive_at: float | None = None
+
+    def status(self, now: float) -> str:
+        """``alive``, ``GONE ...`` or ``STALE ...``: what is true of the bench now."""
+        if self.alive is False:
+            return f"GONE {now - (self.alive_at or now):.1f} s ago (its liveliness token was withdrawn)"
+        if self.state_at is not None and now - self.state_at > STATE_STALE_S:
+            return f"STALE: no state for {now - self.state_at:.1f} s"
+        return "alive" if self.alive else "no liveliness token yet"
+
+    def stale(self, now: float) -> bool:
+        return self.alive is False or (self.state_at is not None and now - self.state_at > STATE_STALE_S)
+
+    def stats_stale(self, now: float) -> bool:
+        return self.alive is False or (self.stats_at is not None and now - self.stats_at > STATS_STALE_S)
+
+
+def bench_block(name: str, seen: BenchSeen, now: float, units: Units) -> list[str]:
+    """One bench: a header with its status, mode and faults; its joints, parameters and timing."""
+    state, stats = seen.state, seen.stats
+    mode = (state or {}).get("mode") or (stats or {}).get("mode") or "?"
+    events = {k: n for k, n in ((stats or {}).get("faults") or {}).items() if n}
+    faults = ", ".join(f"{k} ×{n}" for k, n in events.items()) or "none"
+    lines = [f"== {name}  {seen.status(now)}  mode {mode}  fault events {faults}"]
+    old = f"  [last received {now - seen.state_at:.1f} s ago]" if seen.stale(now) and seen.state_at else ""
+    lines += [joint_line(j, units) + old for j in state.get("joints", [])] if state else ["waiting for state ..."]
+    lines += params_lines(seen.params) if seen.params else []
+    if stats:
+        timing = stats_lines(stats, units)
+        if seen.stats_stale(now) and seen.stats_at is not None:
+            timing[0] += f"  [stale: stats {now - seen.stats_at:.1f} s old]"
+        lines += timing
     else:
-        lines += [joint_line(j) for j in state.get("joints", [])]
-    lines.append("")
-    lines += stats_lines(stats) if stats else [f"waiting for {prefix}/stats ..."]
+        lines.append("waiting for stats ...")
+    return lines
+
+
+def screen_many(prefix: str, benches: dict[str, BenchSeen], now: float, units: Units = Units()) -> str:
+    lines = [f"admittance monitor  {prefix}" + (f"/**  ({len(benches)} benches)" if len(benches) > 1 else "")]
+    if not benches:
+        lines += ["", f"waiting for {prefix}/state ..."]
+    for name in sorted(benches):
+        lines += ["", *bench_block(name, benches[name], now, units)]
     return "\n".join(lines)
 
 
-def screen_many(prefix: str, benches: dict[str, dict[str, Any]]) -> str:
-    """One block per bench (its state and stats), or the single-bench screen when only one is there."""
-    if len(benches) <= 1:
-        bench, seen = next(iter(benches.items()), (prefix, {}))
-        return screen(bench, seen.get("state"), seen.get("stats"))
-    blocks = [f"admittance monitor  {prefix}/**  ({len(benches)} benches)"]
-    for bench in sorted(benches):
-        seen = benches[bench]
-        blocks += ["", f"== {bench}"]
-        state, stats = seen.get("state"), seen.get("stats")
-        blocks += [joint_line(j) for j in state.get("joints", [])] if state else ["waiting for state ..."]
-        blocks += stats_lines(stats)[:1] if stats else []
-    return "\n".join(blocks)
-
-
 class View:
-    """Keeps the latest state and stats of each bench and writes them to ``out`` (redraw or plain lines)."""
+    """Keeps what each bench sent and writes it to ``out`` (a redraw, or plain lines)."""
 
-    def __init__(self, prefix: str, out: TextIO, tty: bool) -> None:
+    def __init__(self, prefix: str, out: TextIO, tty: bool, degrees: bool = False,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.prefix = prefix
         self.out = out
         self.tty = tty
-        self.benches: dict[str, dict[str, Any]] = {}
-        self._next_plain = 0.0
+        self.units = Units(degrees)
+        self.clock = clock
+        self.benches: dict[str, BenchSeen] = {}
         self.received = 0
+        self._next_plain = 0.0
+        self._printed: dict[str, dict[str, Any]] = {}  # plain mode: what each bench's lines last said
 
     @property
     def state(self) -> dict[str, Any] | None:
-        return self.benches.get(self.prefix, {}).get("state")
+        seen = self.benches.get(self.prefix)
+        return seen.state if seen else None
 
     def feed(self, kind: str, message: dict[str, Any], bench: str | None = None) -> None:
-        self.received += 1
+        """``state``, ``stats`` or ``params`` (the reply's ``params``) messages, or ``alive``
+        (``{"alive": bool}``, from the liveliness subscriber)."""
         bench = bench or self.prefix
-        self.benches.setdefault(bench, {})[kind] = message
-        if kind == "stats" and not self.tty:
-            label = self._label(bench)
-            lines = [stats_lines(message)[0], *rendering_line(message), *fault_line(message)]
-            self.out.write("\n".join(label + line for line in lines) + "\n")
+        now = self.clock()
+        seen = self.benches.setdefault(bench, BenchSeen())
+        if kind == "alive":
+            seen.alive, seen.alive_at = bool(message.get("alive")), now
+        elif kind == "params":
+            seen.params = message.get("params", message)
+        elif kind in ("state", "stats"):
+            self.received += 1
+            setattr(seen, kind, message)
+            setattr(seen, f"{kind}_at", now)
+            if kind == "stats" and not self.tty:
+                self.out.write("".join(f"{self._label(bench)}{line}\n" for line in
+                                       [loop_line(message), *rendering_line(message, self.units),
+                                        *fault_line(message)]))
 
     def _label(self, bench: str) -> str:
         return "" if bench == self.prefix else f"{bench}  "
 
-    def render(self, now: float) -> None:
+    def render(self, now: float | None = None) -> None:
+        now = self.clock() if now is None else now
         if self.tty:
-            self.out.write(CLEAR + screen_many(self.prefix, self.benches) + "\n")
-        elif now >= self._next_plain and any("state" in seen for seen in self.benches.values()):
+            self.out.write(CLEAR + screen_many(self.prefix, self.benches, now, self.units) + "\n")
+        elif now >= self._next_plain:
             self._next_plain = now + PLAIN_PERIOD_S
             for bench in sorted(self.benches):
-                for joint in self.benches[bench].get("state", {}).get("joints", []):
-                    self.out.write(self._label(bench) + joint_line(joint) + "\n")
+                self.out.write("".join(self._label(bench) + line + "\n" for line in self._plain_news(bench, now)))
         self.out.flush()
+
+    def _plain_news(self, bench: str, now: float) -> list[str]:
+        """What changed for ``bench`` since the last plain lines: its status, its parameters, new state."""
+        seen, printed = self.benches[bench], self._printed.setdefault(bench, {})
+        lines = []
+        status = seen.status(now).split(" ")[0]  # the word, not the growing age
+        if status != printed.get("status") and (seen.alive is not None or status != "no"):
+            lines.append(seen.status(now) if status != "no" else "no liveliness token yet")
+            printed["status"] = status
+        shown = params_lines(seen.params) if seen.params else []
+        if shown and shown != printed.get("params"):
+            lines += shown
+            printed["params"] = shown
+        if seen.state is not None and seen.state_at != printed.get("state_at") and not seen.stale(now):
+            lines += [joint_line(j, self.units) for j in seen.state.get("joints", [])]
+            printed["state_at"] = seen.state_at
+        return lines
 
 
 def run_monitor(subscription: Any, view: View, duration: float | None) -> int:
-    """Feed and render until ``duration`` passes (or forever); DeviceError if nothing ever came."""
+    """Feed and render until ``duration`` passes (or forever); DeviceError if nothing ever came.
+    ``subscription.drain()`` gives ``(kind, message[, bench])``; its ``request_params()``, if it
+    has one, asks every bench for its parameters (the replies come through ``drain``)."""
     start = time.monotonic()
+    next_params = start
+    request_params = getattr(subscription, "request_params", None)
     try:
         while duration is None or time.monotonic() - start < duration:
+            if request_params is not None and time.monotonic() >= next_params:
+                request_params()
+                next_params = time.monotonic() + PARAMS_PERIOD_S
             for item in subscription.drain():
                 view.feed(*item)
-            view.render(time.monotonic())
+            view.render()
             time.sleep(REDRAW_PERIOD_S)
     except KeyboardInterrupt:
         pass

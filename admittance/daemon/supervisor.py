@@ -30,6 +30,11 @@ faults on the loop's cycles and, when the policy gives up (the loop's stop reque
 gone too long), stops the same clean way and exits with the fault's status (69 or 75). The
 systemd watchdog pings only while the loop cycles *and* is healthy (``FaultWatch.health``).
 
+Everything it says goes through ``logging`` (``admittance.logs`` sets the handler up): the
+start line, parameter changes and the one-line summary at stop at info, each warning once
+(and at most a few a second from one source), the start order's steps and the status every
+second at debug.
+
 ``--stats-json`` is written on every way out: a clean stop, and an error too (with an
 ``error`` field, the exit status, and whatever the loop had counted), before the error goes on
 to the CLI's one line and non-zero status.
@@ -42,7 +47,7 @@ from __future__ import annotations
 
 import contextlib
 import json
-import sys
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -56,21 +61,26 @@ from admittance.daemon.faults import FaultWatch
 from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
+from admittance.daemon.quantities import NAMES, bus_errors_text
 from admittance.daemon.recording import DEFAULT_GAP_S, Recorder
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 from admittance.errors import AdmittanceError, DeviceError, FaultStop
+from admittance.logs import RateLimitedLog
 
 STATS_PERIOD_S = 1.0
 FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
 TARE_MIN_RATE_HZ = 30.0
+WARNING_BURST = 5  # distinct warnings from one source (the loop, the bench) per 10 s, then held back
+STALL_MS = 0.25  # the simulated bus thread's stall threshold (rtcore/dxlsim/src/server.rs, STALL)
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
 class RunOptions:
     duration: float | None = None
     stats_json: Path | None = None
-    log: Callable[[str], None] = field(default=lambda line: print(f"admittance run: {line}", file=sys.stderr))
     # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals). Anything
     # with set/is_set/wait; a StopRequest because signal handlers set it (a threading.Event can deadlock).
     stop: StopRequest = field(default_factory=StopRequest)
@@ -85,7 +95,7 @@ class Backends:
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
     make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
     make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
-    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler, log=) -> DaemonInterface
+    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
     # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
     claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
 
@@ -132,10 +142,12 @@ class Supervisor:
         self.rendering = telemetry.RenderingError(cfg)
         self._t0 = 0.0
         self._warned: set[str] = set()
+        self._warn_limit = RateLimitedLog(log, burst=WARNING_BURST)
         self.watchdog: Watchdog | None = None
         self.faults = FaultWatch(cfg, self._event)
         self.fault_stop: FaultStop | None = None
         self._healthy = True
+        self._bench_stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's, if any
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -159,10 +171,11 @@ class Supervisor:
         self.stop_event.set()
 
     def _start(self, stack: contextlib.ExitStack) -> None:
-        self.notifier.status("starting: devices")
+        self._step("starting: devices")
         stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
         ports = stack.enter_context(self.backends.start_bench(self.cfg))
-        bus_port, sensor_port, start_hand = ports
+        bus_port, sensor_port, start_hand = ports[:3]
+        self._bench_stats = ports[3] if len(ports) > 3 else None
         for warning in endpoints.exposure_warnings(self.cfg.zenoh):
             self._warn(warning)
         self._open_interface(stack)
@@ -170,7 +183,7 @@ class Supervisor:
         self.loop = self.backends.make_loop(self.cfg, bus_port)
         gate = GatedSink(self.loop.force_sink())
         self._open_sensor(stack, sensor_port, gate)
-        self.notifier.status("starting: bus")
+        self._step("starting: bus")
         self._check_servos(stack, bus_port)  # the first write to a servo
         self._tare()
         self._start_loop(stack, bus_port)
@@ -182,9 +195,14 @@ class Supervisor:
         status = self._status_line()
         self.notifier.ready(status)
         z = self.cfg.zenoh
-        self.options.log(f"{status}; zenoh {z.prefix}/* on {', '.join(z.listen) or 'zenoh defaults'}; "
-                         "stop with Ctrl-C or SIGTERM")
+        log.info("%s; zenoh %s/* on %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
+                 ", ".join(z.listen) or "zenoh defaults")
         start_hand()
+
+    def _step(self, text: str) -> None:
+        """A start-order step: systemd's STATUS, and a debug line."""
+        self.notifier.status(text)
+        log.debug("%s", text)
 
     def _check_servos(self, stack: contextlib.ExitStack, bus_port: str) -> None:
         for warning in self.backends.check_servos(self.cfg, bus_port):
@@ -194,7 +212,7 @@ class Supervisor:
 
     def _open_sensor(self, stack: contextlib.ExitStack, port: str, sink: GatedSink) -> None:
         """Open the sensor's device; it streams into the closed gate until the loop runs."""
-        self.notifier.status("starting: sensor")
+        self._step("starting: sensor")
         self.sensor = self.backends.make_sensor(self.cfg, port, sink)
         # Its events (unplugged, back, stale, saturated) are told and marked by the fault watch;
         # it calls a silence "stale" at the loop's own threshold.
@@ -204,7 +222,7 @@ class Supervisor:
         stack.callback(self.sensor.stop)
 
     def _start_loop(self, stack: contextlib.ExitStack, bus_port: str) -> None:
-        self.notifier.status("starting: loop")
+        self._step("starting: loop")
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         if self.recorder is not None:
             self.recorder.t0 = self._t0
@@ -216,7 +234,7 @@ class Supervisor:
         stack.callback(self._stop_loop)
 
     def _tare(self) -> None:
-        self.notifier.status("starting: tare")
+        self._step("starting: tare")
         n = self.cfg.sensor.tare_samples
         if n == 0:
             return
@@ -265,8 +283,8 @@ class Supervisor:
         """Open the Zenoh session (claims the endpoint); it serves queries once the loop runs."""
         if self.backends.make_interface is None:
             return
-        self.notifier.status("starting: zenoh")
-        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self, log=self.options.log)
+        self._step("starting: zenoh")
+        self.interface = self.backends.make_interface(self.cfg.zenoh, self._codec, self)
         stack.callback(self.interface.close)
         self.ecosystem.start_views(stack, self.cfg, self.interface)
 
@@ -293,16 +311,22 @@ class Supervisor:
             self._event(f"{exc} (the fault's stop goes on)")  # a torque off the lost bus cannot carry
         self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
         self._drain()
-        self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint()}
-        self.options.log(self._summary_line(self.final_stats))
+        self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint(),
+                            "bench": self.bench_report()}
+        log.info("%s", summary_line(self.final_stats, self.cfg.stop.torque_policy))
 
-    def _summary_line(self, stats: dict[str, Any]) -> str:
-        """What a user wants to see at the end of a run: how many cycles, how well timed."""
-        period = stats.get("period_us", {})
-        return (f"stopped ({self.cfg.stop.torque_policy}) after {stats.get('cycles', 0)} cycles: "
-                f"{stats.get('overruns', 0)} overruns, {stats.get('bus_errors', 0)} bus errors, "
-                f"{stats.get('sensor_stale_events', 0)} stale-sensor events; "
-                f"wake-up lateness p99 {period.get('p99', float('nan')):.0f} µs")
+    def bench_report(self) -> dict[str, Any]:
+        """The stats' ``bench``: whether the bus and the sensor are simulated and, on the simulated
+        bench, its own counters (the bus thread's lateness and scheduling, the sensor's)."""
+        simulated = self._bench_stats is not None
+        report: dict[str, Any] = {"simulated": simulated,
+                                  "simulated_sensor": simulated or self.cfg.sensor.kind == "mock"}
+        if simulated:
+            try:
+                report.update(self._bench_stats())
+            except Exception as exc:  # the bench's counters must not cost the run its stats
+                report["error"] = clip(f"{type(exc).__name__}: {exc}", 200)
+        return report
 
     # -- the main thread's tick --------------------------------------------------------------
 
@@ -363,25 +387,36 @@ class Supervisor:
 
     def _publish_stats(self) -> None:
         for warning in self.loop.warnings():
-            self._warn(warning)
+            self._warn(warning, source="loop")
+        for warning in self._bench_warnings():
+            self._warn(warning, source="bench")
         if not self.loop.running():
             raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
         stats = {**self.loop.stats(), "rendering_rms": self.rendering.by_joint()}
-        self.notifier.status(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
-                             f"{stats['sensor_stale_events']} stale-sensor holds")
+        self._step(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
+                   f"{stats['sensor_stale_events']} {NAMES['sensor_stale_events']}")
         if self.interface is not None:
             self.interface.publish_stats(stats_message(stats))
         self.ecosystem.record("stats", stats)
 
-    def _warn(self, text: str) -> None:
-        """A warning told once for the whole run."""
+    def _bench_warnings(self) -> list[str]:
+        """What the simulated bench could not get (its bus thread's SCHED_FIFO), like the loop's."""
+        if self._bench_stats is None:
+            return []
+        with contextlib.suppress(Exception):
+            return list(self._bench_stats().get("bus", {}).get("timing", {}).get("warnings", []))
+        return []
+
+    def _warn(self, text: str, source: str = "daemon") -> None:
+        """Each warning once; at most WARNING_BURST distinct ones per source per 10 s."""
         if text not in self._warned:
             self._warned.add(text)
-            self._event(text)
+            self._warn_limit(source, text)
+            self.ecosystem.record("event", f"warning: {text}")
 
     def _event(self, text: str) -> None:
-        """A warning each time it happens (the fault watch rate-limits its own)."""
-        self.options.log(f"warning: {text}")
+        """A warning each time it happens (the fault watch rate-limits its own, per kind)."""
+        log.warning("%s", text)
         self.ecosystem.record("event", f"warning: {text}")
 
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
@@ -398,7 +433,7 @@ class Supervisor:
             return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            self.options.log(f"params set: {clip(json.dumps(request, sort_keys=True), 400)}")
+            log.info("params set: %s", clip(json.dumps(request, sort_keys=True), 400))
             if self.recorder is not None:
                 self.recorder.set_targets(self.loop.params())
             self.ecosystem.record("params", self.get_params(), request)
@@ -407,7 +442,7 @@ class Supervisor:
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
         self.loop.tare(samples)
-        self.options.log(f"tare requested over the next {samples} samples")
+        log.info("tare requested over the next %d samples", samples)
         self.ecosystem.record("event", f"tare over the next {samples} samples")
         return True, ""
 
@@ -428,8 +463,9 @@ class Supervisor:
         stats = dict(self.final_stats or {})
         if error is None and not stats:
             return
-        if stats:  # the loop ran: its rendering error too, on an error's way out as well
+        if stats:  # the loop ran: its rendering error and the bench too, on an error's way out as well
             stats.setdefault("rendering_rms", self.rendering.by_joint())
+            stats.setdefault("bench", self.bench_report())
         stats["daemon"] = {
             "queries": getattr(self.interface, "queries", 0),
             "query_errors": getattr(self.interface, "query_errors", 0),
@@ -448,7 +484,41 @@ class Supervisor:
         except DeviceError as exc:
             if error is None:
                 raise
-            self.options.log(f"warning: {exc}")
+            log.warning("%s", exc)
+
+
+def summary_line(stats: dict[str, Any], policy: str) -> str:
+    """What a user wants to see at the end of a run: how many cycles, how well timed, which bus
+    errors, and on the simulated bench whether its own thread was late (the errors are then the
+    simulation's, which a real bus would not have)."""
+    period = stats.get("period_us", {})
+    bench = stats.get("bench", {})
+    where = " on the simulated bench" if bench.get("simulated") else (
+        " with a simulated sensor" if bench.get("simulated_sensor") else "")
+    line = (f"stopped ({policy}) after {stats.get('cycles', 0)} cycles{where}: "
+            f"{stats.get('overruns', 0)} overruns, {bus_errors_text(stats)}, "
+            f"{stats.get('sensor_stale_events', 0)} {NAMES['sensor_stale_events']}; "
+            f"{NAMES['period_us']} p99 {period.get('p99', float('nan')):.0f} µs")
+    if bench.get("simulated") and stats.get("bus_errors", 0):
+        line += "; " + bench_lateness_text(bench.get("bus", {}).get("timing", {}))
+    return line
+
+
+def bench_lateness_text(timing: dict[str, Any]) -> str:
+    """Whether the simulated bus's own thread was late, by its own counters."""
+    if not timing:
+        return "the simulated bus reported no timing"
+    rt = timing.get("rt", {})
+    thread = f"the simulated bus's thread ({rt.get('policy', '?')} {rt.get('priority', 0)})"
+    stalls = timing.get("stalls", 0)
+    if not stalls:
+        return f"{thread} was never more than {STALL_MS:g} ms late: these errors are not the simulation's lateness"
+    longest = max(timing.get("reply_late_us", {}).get("max", 0.0), timing.get("wake_late_us", {}).get("max", 0.0))
+    # Late even at SCHED_FIFO: on a pty, poll and read wait for the kernel's tty worker (a
+    # SCHED_OTHER kworker) to hand the bytes over, and a loaded machine starves that worker.
+    return (f"{thread} ran late {stalls} times (> {STALL_MS:g} ms, longest {longest / 1e3:.1f} ms): "
+            "a loaded machine starved the simulation and its pseudo-terminals, whose late replies "
+            "a real servo would not give")
 
 
 def error_fields(error: BaseException) -> dict[str, Any]:

@@ -26,9 +26,8 @@ order, before any servo is written; the queryables and the liveliness token are 
 from __future__ import annotations
 
 import json
+import logging
 import re
-import sys
-import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -39,9 +38,12 @@ from admittance.daemon.messages import (
 )
 from admittance.daemon.schema import clip
 from admittance.errors import AdmittanceError, ConfigError, DataError, DeviceError
+from admittance.logs import RateLimitedLog
 
 QUERY_BACKLOG = 32
-LOG_PERIOD_S = 10.0  # at most one line per kind of query problem per this long
+PARAMS_TIMEOUT_S = 2.0  # the monitor's reads of the parameters
+MAX_PARAMS_REQUESTS = 4  # reads of the parameters in flight at once (a slow router must not pile them up)
+log = logging.getLogger(__name__)
 
 
 def make_config(*, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
@@ -100,33 +102,14 @@ class Handler(Protocol):
     def tare(self, samples: int) -> tuple[bool, str]: ...
 
 
-class RateLimitedLog:
-    """At most one line per ``key`` per ``period`` seconds; the next one says how many were skipped."""
-
-    def __init__(self, log: Callable[[str], None], period: float = LOG_PERIOD_S) -> None:
-        self._log = log
-        self._period = period
-        self._last: dict[str, float] = {}
-        self._skipped: dict[str, int] = {}
-
-    def __call__(self, key: str, text: str) -> None:
-        now = time.monotonic()
-        if now - self._last.get(key, -self._period) < self._period:
-            self._skipped[key] = self._skipped.get(key, 0) + 1
-            return
-        skipped = self._skipped.pop(key, 0)
-        self._last[key] = now
-        self._log(text + (f" ({skipped} more like it since the last line)" if skipped else ""))
-
-
 class DaemonInterface:
     """``<prefix>/state``, ``/stats`` (publications), ``/params``, ``/tare`` (queryables), ``/alive``."""
 
-    def __init__(self, zcfg, codec: Codec, handler: Handler, log: Callable[[str], None] | None = None) -> None:
+    def __init__(self, zcfg, codec: Codec, handler: Handler) -> None:
         self.prefix = zcfg.prefix
         self._codec = codec
         self._handler = handler
-        self._log = RateLimitedLog(log or (lambda line: print(line, file=sys.stderr)))
+        self._log = RateLimitedLog(log)  # at most one line per kind of query problem per 10 s
         listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
         self._session = open_session(
             lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
@@ -184,13 +167,13 @@ class DaemonInterface:
             reply = answer(payload, str(query.key_expr) == key)
         except Exception as exc:  # a handler's bug must cost one refusal, never the daemon
             self.query_errors += 1
-            self._log("handler", f"warning: {key}: a query failed inside the daemon and was refused: "
+            self._log("handler", f"{key}: a query failed inside the daemon and was refused: "
                                  f"{type(exc).__name__}: {clip(str(exc), 120)}")
             reply = SetReply(accepted=False, reason=f"internal error ({type(exc).__name__}); see the daemon's log")
         try:
             query.reply(key, self._codec.encode(reply), encoding=self._encoding)
         except Exception as exc:  # the asker left, the session is closing: nothing to undo
-            self._log("reply", f"warning: {key}: a reply could not be sent: {type(exc).__name__}: "
+            self._log("reply", f"{key}: a reply could not be sent: {type(exc).__name__}: "
                                f"{clip(str(exc), 120)}")
 
     def _answer_params(self, payload: bytes, exact: bool) -> ParamsReply | SetReply:
@@ -258,21 +241,38 @@ class Client:
         return _Polled(self._session.declare_subscriber(f"{prefix}/*", zenoh.handlers.RingChannel(16)))
 
     def try_stream_benches(self, prefix: str) -> Any:
-        """Like try_stream, for every bench under ``prefix``: drain() gives (leaf, message, bench)."""
-        return _Polled(self._session.declare_subscriber(f"{prefix}/**", zenoh.handlers.RingChannel(256)),
-                       with_bench=True)
+        """Like try_stream, for every bench under ``prefix``, for the monitor: drain() gives
+        (kind, message, bench) for each state and stats, each liveliness change of
+        ``<bench>/alive`` (``("alive", {"alive": bool}, bench)``, the tokens present at the start
+        included) and each reply to ``request_params()`` (``("params", {"params": ...}, bench)``)."""
+        session = self._session
+        data = session.declare_subscriber(f"{prefix}/**", zenoh.handlers.RingChannel(256))
+        alive = session.liveliness().declare_subscriber(f"{prefix}/**/alive", zenoh.handlers.FifoChannel(256),
+                                                         history=True)
+        # A read of every bench's parameters (a wildcard get only ever reads: zenoh_iface's rule).
+        request = lambda: session.get(f"{prefix}/**/params", zenoh.handlers.FifoChannel(64),  # noqa: E731
+                                      timeout=PARAMS_TIMEOUT_S)
+        return _Polled(data, with_bench=True, alive=alive, request_params=request)
 
     def alive(self, prefix: str, timeout: float = 2.0) -> bool:
         return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))
 
 
 class _Polled:
-    def __init__(self, subscriber: Any, with_bench: bool = False) -> None:
+    def __init__(self, subscriber: Any, with_bench: bool = False, alive: Any = None,
+                 request_params: Callable[[], Any] | None = None) -> None:
         self._subscriber = subscriber
         self._with_bench = with_bench
+        self._alive = alive
+        self._request = request_params
+        self._params_replies: list[Any] = []  # the handlers of gets still answering
+
+    def request_params(self) -> None:
+        if self._request is not None and len(self._params_replies) < MAX_PARAMS_REQUESTS:
+            self._params_replies.append(self._request())
 
     def drain(self) -> list[tuple]:
-        out = []
+        out = self._drain_alive() + self._drain_params()
         while (sample := self._subscriber.try_recv()) is not None:
             bench, _, leaf = str(sample.key_expr).rpartition("/")
             if leaf not in ("state", "stats"):
@@ -284,6 +284,34 @@ class _Polled:
             out.append((leaf, message, bench) if self._with_bench else (leaf, message))
         return out
 
+    def _drain_alive(self) -> list[tuple]:
+        out = []
+        while self._alive is not None and (sample := self._alive.try_recv()) is not None:
+            bench = str(sample.key_expr).rpartition("/")[0]
+            out.append(("alive", {"alive": sample.kind == zenoh.SampleKind.PUT}, bench))
+        return out
+
+    def _drain_params(self) -> list[tuple]:
+        out, pending = [], []
+        for replies in self._params_replies:
+            try:
+                while (reply := replies.try_recv()) is not None:
+                    if reply.ok is None:
+                        continue  # refused (access control) or failed: the view keeps what it had
+                    try:
+                        message = decode(reply.ok.payload.to_bytes())
+                    except DataError:
+                        continue
+                    if isinstance(message, dict) and isinstance(message.get("params"), dict):
+                        out.append(("params", message, str(reply.ok.key_expr).rpartition("/")[0]))
+                pending.append(replies)
+            except zenoh.ZError:  # the get is over (every queryable answered, or its timeout)
+                continue
+        self._params_replies = pending
+        return out
+
     def close(self) -> None:
         self._subscriber.undeclare()
+        if self._alive is not None:
+            self._alive.undeclare()
 

@@ -82,6 +82,9 @@ class BenchConfig:
     # A hand gripping the horn: (inertia kg·m², damping N·m·s/rad, stiffness N·m/rad); None = a pure torque.
     hand: tuple[float, float, float] | None = None
     first_order_lag: float | None = None  # s: every servo lags its goal instead of firmware + motor
+    # The bus thread's SCHED_FIFO priority (0 = SCHED_OTHER; None = MockBus's default, the RT
+    # loop's): the simulated servos must not answer late where real ones never would.
+    rt_priority: int | None = None
 
 
 def params_path(model: str) -> Path:
@@ -171,7 +174,7 @@ class MockBench:
         )
         self._link_dir = tempfile.mkdtemp(prefix="admittance-bench-")
         try:
-            self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay, f"{self._link_dir}/dxl")
+            self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay, f"{self._link_dir}/dxl", cfg.rt_priority)
             if cfg.hand is not None:
                 try:
                     self.bus.set_hand(self.hand_servo_id, *cfg.hand)
@@ -272,7 +275,9 @@ class MockBench:
         return ports
 
     def stats(self) -> dict[str, Any]:
-        return {"bus": self.bus.stats(), "sensor": self.sensor.stats()}
+        """The bus's counters and its thread's timing (``MockBus.timing``: how late it ran, its
+        scheduling), and the sensor's counters."""
+        return {"bus": {**self.bus.stats(), "timing": self.bus.timing()}, "sensor": self.sensor.stats()}
 
 
 def _per_axis(counts_per_newton: float | Sequence[float]) -> tuple[float, ...]:
@@ -281,12 +286,13 @@ def _per_axis(counts_per_newton: float | Sequence[float]) -> tuple[float, ...]:
     return tuple(float(c) for c in counts_per_newton)
 
 
-def _mock_bus(specs: list[dict[str, Any]], baudrate: int, wire_delay: bool, link: str) -> Any:
+def _mock_bus(specs: list[dict[str, Any]], baudrate: int, wire_delay: bool, link: str, rt_priority: int | None) -> Any:
     from admittance import _rtcore
 
     if not hasattr(_rtcore, "MockBus"):
         raise DeviceError("this build of admittance._rtcore has no MockBus: rebuild it with `make ext`")
+    priority = {} if rt_priority is None else {"rt_priority": rt_priority}
     try:
-        return _rtcore.MockBus(servos=specs, baudrate=baudrate, wire_delay=wire_delay, link_path=link)
+        return _rtcore.MockBus(servos=specs, baudrate=baudrate, wire_delay=wire_delay, link_path=link, **priority)
     except (ValueError, TypeError, KeyError) as exc:
         raise ConfigError(f"the simulated bus refused the servos: {exc}") from None

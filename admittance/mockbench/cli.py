@@ -18,12 +18,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import signal
+import logging
 import sys
 import threading
 import time
 
 from admittance.errors import ConfigError
+from admittance.logs import add_verbosity_args, configure
+
+log = logging.getLogger(__name__)
+DEFAULT_RT_PRIORITY = 80  # the daemon's default [loop].rt_priority: a daemon driving this bench is its equal
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -61,6 +65,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until a signal)")
     parser.add_argument("--control", metavar="PATH", help="take fault commands on a Unix socket at PATH (one line each, a JSON reply; default: none)")
     parser.add_argument("--faults", metavar="FILE", help="play a timed fault script: 'SECONDS COMMAND' per line (default: none)")
+    parser.add_argument("--rt-priority", type=rt_priority, default=DEFAULT_RT_PRIORITY, metavar="N",
+                        help="SCHED_FIFO priority of the bus thread, 1..99, falling back to SCHED_OTHER with a "
+                             f"warning when refused; 0 = SCHED_OTHER (default {DEFAULT_RT_PRIORITY}, the daemon's loop)")
+    add_verbosity_args(parser)
     parser.set_defaults(func=run)
 
 
@@ -77,6 +85,17 @@ def parse_effects(items: list[str]) -> dict[str, float]:
     return effects
 
 
+def rt_priority(text: str) -> int:
+    """A SCHED_FIFO priority 0..99 (0 = SCHED_OTHER); argparse turns the error into one line."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"a priority is 0..99 (0 = SCHED_OTHER), not '{text}'")
+    return value
+
+
 def parse_can_id(text: str) -> int:
     """An identifier in any base Python reads (0x100, 256); argparse turns the error into one line."""
     try:
@@ -86,6 +105,17 @@ def parse_can_id(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from admittance.daemon.stopsignals import StopRequest, stop_signals_call
+
+    configure("mock-bench", args.verbosity)
+    # Set from a signal handler, so a StopRequest: a threading.Event's lock can deadlock when a
+    # second signal lands inside the first one's handler (stopsignals.py).
+    stop = StopRequest()
+    with stop_signals_call(lambda *_: stop.set()):
+        return _run(args, stop)
+
+
+def _run(args: argparse.Namespace, stop) -> int:
     from admittance.mockbench.bench import BenchConfig, MockBench
     from admittance.mockbench.control import ControlServer
     from admittance.mockbench.faults import FaultScript
@@ -113,11 +143,11 @@ def run(args: argparse.Namespace) -> int:
         can_channel=args.can_channel,
         can_id=args.can_id,
         seed=args.seed,
+        rt_priority=args.rt_priority,
     )
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     with MockBench(config) as bench, contextlib.ExitStack() as stack:
+        for warning in bench.bus.timing()["warnings"]:
+            log.warning("%s", warning)
         ports = bench.ports(links=bool(args.control or args.faults))
         if args.control:
             server = ControlServer(bench, args.control)

@@ -20,7 +20,6 @@ one ``SECONDS COMMAND`` per line, seconds after the bench started, ``#`` for com
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -172,8 +171,9 @@ class FaultScript:
             raise ConfigError(f"--faults: {path} has more than {MAX_SCRIPT_LINES} lines")
         return cls([step for number, line in enumerate(lines, 1) if (step := _step(path, number, line))])
 
-    def play(self, bench: Any, stop: threading.Event, t0: float | None = None) -> None:
-        """Run each step at its time after ``t0`` (default now) until done or ``stop`` is set."""
+    def play(self, bench: Any, stop: Any, t0: float | None = None) -> None:
+        """Run each step at its time after ``t0`` (default now) until done or ``stop`` (anything with
+        ``wait(timeout) -> bool``: a StopRequest, an Event) is set."""
         t0 = time.monotonic() if t0 is None else t0
         for step in self.steps:
             if stop.wait(max(0.0, t0 + step.at_s - time.monotonic())):

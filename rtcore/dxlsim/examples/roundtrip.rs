@@ -19,7 +19,7 @@ fn bus(wire_delay: bool, return_delay: i64) -> MockBus {
     let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
     let config = ServoConfig { registers: vec![("Return Delay Time".into(), return_delay)], ..ServoConfig::new(1, params) };
     let bus = build_bus(vec![config], BAUD).expect("a valid configuration");
-    let config = BusConfig { baudrate: BAUD, wire_delay, physics_rate_hz: 2000.0 };
+    let config = BusConfig { baudrate: BAUD, wire_delay, physics_rate_hz: 2000.0, rt_priority: 0 };
     MockBus::new(bus, config).expect("a pseudo-terminal")
 }
 

@@ -30,6 +30,6 @@ pub mod table;
 pub mod units;
 
 pub use bus::Bus;
-pub use server::{BusConfig, MockBus, Stats};
+pub use server::{BusConfig, MockBus, Stats, TimingReport};
 pub use servo::{Servo, ServoSpec, Snapshot};
 pub use setup::{build_bus, ServoConfig};

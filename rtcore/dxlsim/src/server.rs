@@ -12,6 +12,15 @@
 //! (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its servo's
 //! Return Delay Time. Without `wire_delay` replies go out at once.
 //!
+//! Scheduling and honesty about it: a real servo's firmware answers on time whatever the host
+//! does, but this thread is one more thread of a loaded machine. It therefore asks for the
+//! scheduling the RT loop gets (`rt_priority`: SCHED_FIFO at that priority when permitted, the
+//! same fallback to SCHED_OTHER and the same warning as the loop, via `rtloop::sched`), and
+//! measures how late it ran by its own clock (`Timing`): each reply's write behind its due
+//! time, each timed wait's return behind its deadline, and the stalls (either later than
+//! `STALL`). A client that times out on a simulated bus can so be told whether the simulation
+//! was late, which a real bus never is.
+//!
 //! Physics runs at a fixed substep (default 2 kHz) up to the wall clock, both on every wait
 //! timeout (≤ 1 ms) and before a packet is answered, so reads see current positions. If the
 //! thread was starved for more than `MAX_CATCH_UP`, the lost time is skipped (and counted)
@@ -26,12 +35,14 @@
 use std::collections::VecDeque;
 use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use dxl::{protocol1, protocol2, DecodeError, Kind, Packet, Protocol};
+use rtloop::histogram::{Histogram, Percentiles};
+use rtloop::sched::{self, Policy, RtReport, RtRequest};
 
 use crate::bus::{Bus, Counters, Reply};
 use crate::pty::Pty;
@@ -44,8 +55,10 @@ const MAX_CATCH_UP: Duration = Duration::from_millis(250);
 /// after which a servo waits for a new header. Clients write a packet in one call, so on a
 /// pty a packet's bytes arrive together and only a truncated packet ever waits this long.
 const INTER_BYTE_TIMEOUT: Duration = Duration::from_micros(1500);
-/// The bus thread's timer slack (ns): wake-ups land within this of their deadline.
-const TIMER_SLACK_NS: libc::c_ulong = 1_000;
+/// A reply or a wake-up later than this is a stall of the thread: a quarter of a 1 kHz loop's
+/// period, beyond which a 1 kHz client's read window (most of a period, less the wire time) is
+/// at risk. Only a count; the histograms keep every lateness.
+pub const STALL: Duration = Duration::from_micros(250);
 /// Replies beyond this many unsent bytes are dropped (a client that stopped reading).
 const MAX_PENDING_OUTPUT: usize = 64 * 1024;
 
@@ -55,6 +68,43 @@ pub struct BusConfig {
     pub baudrate: u32,
     pub wire_delay: bool,
     pub physics_rate_hz: f64,
+    /// The bus thread's SCHED_FIFO priority (1..=99; refused → SCHED_OTHER with a warning);
+    /// 0 = SCHED_OTHER.
+    pub rt_priority: i32,
+}
+
+/// How late the bus thread ran, by its own clock, and the scheduling it obtained.
+#[derive(Default)]
+pub struct Timing {
+    /// Each reply: when it was written − when it was due (its emulated wire and Return Delay Time).
+    reply_late: Histogram,
+    /// Each timed wait that ended at or after its deadline: the return − the deadline. A wait
+    /// that bytes ended early is not a sample (how late the thread saw them is not measurable).
+    wake_late: Histogram,
+    stalls: AtomicU64,
+    report: Mutex<(RtReport, Vec<String>)>,
+}
+
+impl Timing {
+    fn record(&self, histogram: &Histogram, late: Duration) {
+        histogram.record(late.as_nanos() as u64);
+        if late > STALL {
+            self.stalls.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// What `timing()` reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TimingReport {
+    pub reply_late_us: Percentiles,
+    pub wake_late_us: Percentiles,
+    /// Replies and wake-ups later than `STALL`.
+    pub stalls: u64,
+    /// The bus thread's scheduling (the default SCHED_OTHER report before it started).
+    pub rt: RtReport,
+    /// Why it did not get what it asked for (SCHED_FIFO refused), once each.
+    pub warnings: Vec<String>,
 }
 
 /// I/O and timing counters of the thread, next to the bus's own.
@@ -96,6 +146,7 @@ pub struct MockBus {
     config: BusConfig,
     stop: Arc<AtomicBool>,
     thread: Mutex<Option<JoinHandle<io::Result<()>>>>,
+    timing: Arc<Timing>,
 }
 
 /// The bus's end of the wire: the pty while plugged in, and the stable link to it.
@@ -116,6 +167,10 @@ impl MockBus {
             let message = format!("physics rate {} Hz is outside 1..=1e6", config.physics_rate_hz);
             return Err(io::Error::new(io::ErrorKind::InvalidInput, message));
         }
+        if !(0..=99).contains(&config.rt_priority) {
+            let message = format!("rt_priority {} is outside 0..=99", config.rt_priority);
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, message));
+        }
         let pty = Pty::open()?;
         let port = Port { path: pty.path().to_string(), pty: Some(Arc::new(pty)), link: None, generation: 0 };
         Ok(MockBus {
@@ -124,6 +179,7 @@ impl MockBus {
             config,
             stop: Arc::new(AtomicBool::new(false)),
             thread: Mutex::new(None),
+            timing: Arc::new(Timing::default()),
         })
     }
 
@@ -220,7 +276,8 @@ impl MockBus {
             return Ok(());
         }
         self.stop.store(false, Ordering::SeqCst);
-        let mut worker = Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone());
+        let mut worker =
+            Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone(), self.timing.clone());
         *handle = Some(std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?);
         Ok(())
     }
@@ -244,6 +301,19 @@ impl MockBus {
     pub fn stats(&self) -> Stats {
         let shared = self.lock();
         Stats { bus: shared.bus.counters, io: shared.io }
+    }
+
+    /// How late the bus thread ran (by its own clock) and the scheduling it obtained.
+    pub fn timing(&self) -> TimingReport {
+        let t = &self.timing;
+        let (rt, warnings) = t.report.lock().map(|r| r.clone()).unwrap_or_default();
+        TimingReport {
+            reply_late_us: t.reply_late.percentiles(),
+            wake_late_us: t.wake_late.percentiles(),
+            stalls: t.stalls.load(Ordering::Relaxed),
+            rt,
+            warnings,
+        }
     }
 }
 
@@ -337,10 +407,17 @@ struct Worker {
     bus_free: Instant,
     /// When the last bytes arrived (for the inter-byte timeout).
     last_rx: Instant,
+    timing: Arc<Timing>,
 }
 
 impl Worker {
-    fn new(port: Arc<Mutex<Port>>, shared: Arc<Mutex<Shared>>, config: BusConfig, stop: Arc<AtomicBool>) -> Worker {
+    fn new(
+        port: Arc<Mutex<Port>>,
+        shared: Arc<Mutex<Shared>>,
+        config: BusConfig,
+        stop: Arc<AtomicBool>,
+        timing: Arc<Timing>,
+    ) -> Worker {
         let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
         let generation = port.lock().unwrap_or_else(|p| p.into_inner()).generation;
         let now = Instant::now();
@@ -358,13 +435,26 @@ impl Worker {
             output: VecDeque::new(),
             bus_free: now,
             last_rx: now,
+            timing,
+        }
+    }
+
+    /// The loop's scheduling for this thread (SCHED_FIFO at `rt_priority`, or SCHED_OTHER),
+    /// with the loop's fallback and warning, and its minimal timer slack: the emulated delays
+    /// are sleeps, which the default 50 µs slack would make late by that much.
+    fn schedule_thread(&self) {
+        let priority = self.config.rt_priority;
+        let policy = if priority > 0 { Policy::Fifo } else { Policy::Other };
+        let request = RtRequest { policy, priority, lock_memory: false, cpu: None };
+        let (report, warnings) = sched::apply_to_current_thread(&request);
+        let warnings = warnings.into_iter().map(|w| format!("simulated bus thread: {w}")).collect();
+        if let Ok(mut slot) = self.timing.report.lock() {
+            *slot = (report, warnings);
         }
     }
 
     fn run(&mut self) -> io::Result<()> {
-        // The default 50 µs timer slack would make every emulated delay late by that much.
-        // SAFETY: PR_SET_TIMERSLACK only changes this thread's timer slack; failure is harmless.
-        unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, TIMER_SLACK_NS) };
+        self.schedule_thread();
         let mut buf = [0u8; 4096];
         while !self.stop.load(Ordering::SeqCst) {
             self.advance_physics();
@@ -374,7 +464,7 @@ impl Worker {
                 continue;
             };
             self.flush_due(&pty)?;
-            if pty.wait_readable(self.wait_time())? {
+            if self.wait(&pty)? {
                 let n = pty.read(&mut buf)?;
                 self.receive(&buf[..n]);
             } else {
@@ -420,6 +510,19 @@ impl Worker {
         self.steps_done += n;
         shared.io.physics_steps += n;
         shared.bus.publish();
+    }
+
+    /// Waits for bytes (see `wait_time`); true when some arrived. A wait that ends at or after
+    /// its deadline records how late the thread got to run again.
+    fn wait(&self, pty: &Pty) -> io::Result<bool> {
+        let timeout = self.wait_time();
+        let deadline = Instant::now() + timeout;
+        let readable = pty.wait_readable(timeout)?;
+        let now = Instant::now();
+        if now >= deadline {
+            self.timing.record(&self.timing.wake_late, now - deadline);
+        }
+        Ok(readable)
     }
 
     /// How long to wait for bytes: until the next reply is due, at most `MAX_WAIT`.
@@ -509,7 +612,8 @@ impl Worker {
     fn flush_due(&mut self, pty: &Pty) -> io::Result<()> {
         let now = Instant::now();
         while self.schedule.front().is_some_and(|(due, _)| *due <= now) {
-            let Some((_, bytes)) = self.schedule.pop_front() else { break };
+            let Some((due, bytes)) = self.schedule.pop_front() else { break };
+            self.timing.record(&self.timing.reply_late, now - due);
             if self.output.len() + bytes.len() > MAX_PENDING_OUTPUT {
                 self.lock().io.dropped_reply_bytes += bytes.len() as u64;
             } else {

@@ -14,7 +14,7 @@ fn running_bus(protocol: Protocol) -> MockBus {
     let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
     let configs = [1, 2].map(|id| ServoConfig { protocol, ..ServoConfig::new(id, params) }).to_vec();
     let bus = build_bus(configs, BAUD).expect("valid configuration");
-    let mock = MockBus::new(bus, BusConfig { baudrate: BAUD, wire_delay: true, physics_rate_hz: 2000.0 }).unwrap();
+    let mock = MockBus::new(bus, BusConfig { baudrate: BAUD, wire_delay: true, physics_rate_hz: 2000.0, rt_priority: 0 }).unwrap();
     mock.start().unwrap();
     mock
 }
@@ -150,4 +150,29 @@ fn an_alert_reaches_the_rust_client_as_a_real_servo_sends_it() {
         c.read(1, torque_address, &mut torque).unwrap();
         assert_eq!(torque, [0], "{protocol:?}: the shutdown keeps torque off");
     }
+}
+
+#[test]
+fn the_bus_thread_reports_its_scheduling_and_how_late_its_replies_went_out() {
+    let params = Params { motor_inertia: 0.0147, damping: 0.035, coulomb: 0.084, ..Params::default() };
+    let bus = build_bus(vec![ServoConfig::new(1, params)], BAUD).expect("valid configuration");
+    let config = BusConfig { baudrate: BAUD, wire_delay: true, physics_rate_hz: 2000.0, rt_priority: 10 };
+    assert!(MockBus::new(build_bus(vec![ServoConfig::new(1, params)], BAUD).unwrap(), BusConfig { rt_priority: 100, ..config })
+        .is_err(), "a priority beyond 99 is refused");
+    let mock = MockBus::new(bus, config).unwrap();
+    assert_eq!(mock.timing().rt.policy, "SCHED_OTHER", "nothing obtained before the thread runs");
+    mock.start().unwrap();
+    let mut c = client(&mock, Protocol::V2);
+    for _ in 0..20 {
+        c.ping(1).unwrap();
+    }
+    let timing = mock.timing();
+    match timing.rt.policy {
+        "SCHED_FIFO" => assert!(timing.rt.priority == 10 && timing.warnings.is_empty(), "{timing:?}"),
+        _ => assert!(timing.warnings.len() == 1 && timing.warnings[0].contains("SCHED_FIFO"), "{timing:?}"),
+    }
+    assert_eq!(timing.reply_late_us.count, 20, "one lateness per reply");
+    assert!(timing.wake_late_us.count > 0, "the idle thread's timed waits are measured");
+    assert!(timing.reply_late_us.max >= 0.0 && timing.stalls <= timing.reply_late_us.count + timing.wake_late_us.count);
+    mock.stop().unwrap();
 }

@@ -11,8 +11,9 @@ use dxlsim::servo::Snapshot;
 use dxlsim::{build_bus, BusConfig, MockBus, ServoConfig};
 use plant::{param_index, FrictionLaw, Load, Params, PARAM_NAMES};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{PyDict, PyList, PyTuple};
 use crate::dict_fields::{first_unknown_key, opt};
+use crate::rt::percentiles;
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
@@ -151,7 +152,8 @@ impl PyMockBus {
 #[pymethods]
 impl PyMockBus {
     #[new]
-    #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0, link_path=None))]
+    #[pyo3(signature = (servos, baudrate=1_000_000, wire_delay=true, physics_rate_hz=2000.0, link_path=None,
+                        rt_priority=DEFAULT_RT_PRIORITY))]
     fn new(
         py: Python<'_>,
         servos: &Bound<'_, PyAny>,
@@ -159,17 +161,22 @@ impl PyMockBus {
         wire_delay: bool,
         physics_rate_hz: f64,
         link_path: Option<std::path::PathBuf>,
+        rt_priority: i64,
     ) -> PyResult<Self> {
         if !(physics_rate_hz.is_finite() && (100.0..=100_000.0).contains(&physics_rate_hz)) {
             return Err(config_error(py, format!("physics_rate_hz must be within 100..=100000, got {physics_rate_hz}")));
         }
+        let rt_priority = i32::try_from(rt_priority)
+            .ok()
+            .filter(|p| (0..=99).contains(p))
+            .ok_or_else(|| config_error(py, format!("rt_priority must be within 0..=99 (0 = SCHED_OTHER), got {rt_priority}")))?;
         let baudrate = u32::try_from(baudrate)
             .ok()
             .filter(|b| *b > 0)
             .ok_or_else(|| config_error(py, format!("baudrate must be a positive bit rate, got {baudrate}")))?;
         let configs = servo_configs(servos)?;
         let bus = build_bus(configs, baudrate).map_err(|e| config_error(py, e))?;
-        let config = BusConfig { baudrate, wire_delay, physics_rate_hz };
+        let config = BusConfig { baudrate, wire_delay, physics_rate_hz, rt_priority };
         let inner = MockBus::new(bus, config)
             .map_err(|e| device_error(py, format!("cannot open a pseudo-terminal for the mock bus: {e}")))?;
         if let Some(link) = link_path {
@@ -328,7 +335,29 @@ impl PyMockBus {
         }
         Ok(d)
     }
+
+    /// How late the bus thread ran by its own clock, and its scheduling: `reply_late_us` (each
+    /// reply's write behind its due time) and `wake_late_us` (each timed wait's return behind
+    /// its deadline), each {p50, p99, p999, max, mean, count}; `stalls` (either later than
+    /// 250 µs); `rt` {policy, priority} obtained; `warnings` (SCHED_FIFO refused).
+    fn timing<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = self.inner.timing();
+        let d = PyDict::new(py);
+        d.set_item("reply_late_us", percentiles(py, &t.reply_late_us)?)?;
+        d.set_item("wake_late_us", percentiles(py, &t.wake_late_us)?)?;
+        d.set_item("stalls", t.stalls)?;
+        let rt = PyDict::new(py);
+        rt.set_item("policy", t.rt.policy)?;
+        rt.set_item("priority", t.rt.priority)?;
+        d.set_item("rt", rt)?;
+        d.set_item("warnings", PyList::new(py, t.warnings)?)?;
+        Ok(d)
+    }
 }
+
+/// The bus thread's SCHED_FIFO priority unless told otherwise: the RT loop's own default
+/// (`AdmittanceLoop`'s `rt_priority`), so that a loop and a mock built with defaults are equals.
+const DEFAULT_RT_PRIORITY: i64 = 50;
 
 /// The motor constants the simulated servos of `model` use: `kt` (N·m/A at the output shaft),
 /// `resistance` (Ω) and `max_pwm` (the duty cap); None for a model without them. The bring-up

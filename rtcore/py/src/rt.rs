@@ -259,7 +259,7 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     Ok(c)
 }
 
-fn percentiles<'py>(py: Python<'py>, p: &Percentiles) -> PyResult<Bound<'py, PyDict>> {
+pub(crate) fn percentiles<'py>(py: Python<'py>, p: &Percentiles) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("p50", p.p50)?;
     d.set_item("p99", p.p99)?;
@@ -423,7 +423,8 @@ impl PyAdmittanceLoop {
     }
 
     /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads,
-    /// faults: events per fault kind, and mode: "running", "holding" or "faulted").
+    /// bus_error_kinds: bus_errors by where they came from, faults: events per fault kind, and
+    /// mode: "running", "holding" or "faulted").
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.stats();
         let d = PyDict::new(py);
@@ -434,6 +435,11 @@ impl PyAdmittanceLoop {
         d.set_item("latency_us", percentiles(py, &s.latency_us)?)?;
         d.set_item("work_us", percentiles(py, &s.work_us)?)?;
         d.set_item("bus_errors", s.bus_errors)?;
+        let kinds = PyDict::new(py);
+        for (name, errors) in &s.bus_error_kinds {
+            kinds.set_item(*name, *errors)?;
+        }
+        d.set_item("bus_error_kinds", kinds)?;
         d.set_item("sensor_samples", s.sensor_samples)?;
         d.set_item("sensor_stale_events", s.sensor_stale_events)?;
         d.set_item("telemetry_drops", s.telemetry_drops)?;

@@ -98,6 +98,54 @@ impl fmt::Display for BusError {
 
 impl std::error::Error for BusError {}
 
+/// Where a bus error of the loop came from, for the stats' `bus_error_kinds`: a user who sees
+/// bus errors must be able to tell a servo's silence from a corrupt wire or a dead port.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BusErrorKind {
+    /// The cycle's SyncWrite could not be written.
+    Write,
+    /// A read's replies did not all arrive before its deadline.
+    ReadTimeout,
+    /// A reply failed its CRC/checksum or framing.
+    ReadCorrupt,
+    /// A servo answered the read with an error status.
+    ReadServoError,
+    /// The read request could not go out, or the port failed while reading.
+    ReadIo,
+}
+
+impl BusErrorKind {
+    pub const ALL: [BusErrorKind; 5] = [
+        BusErrorKind::Write,
+        BusErrorKind::ReadTimeout,
+        BusErrorKind::ReadCorrupt,
+        BusErrorKind::ReadServoError,
+        BusErrorKind::ReadIo,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            BusErrorKind::Write => "write",
+            BusErrorKind::ReadTimeout => "read_timeout",
+            BusErrorKind::ReadCorrupt => "read_corrupt",
+            BusErrorKind::ReadServoError => "read_servo_error",
+            BusErrorKind::ReadIo => "read_io",
+        }
+    }
+}
+
+impl BusError {
+    /// The kind of a failed read (`read_present`, `read_register`).
+    pub fn read_kind(&self) -> BusErrorKind {
+        match self {
+            BusError::Timeout { .. } => BusErrorKind::ReadTimeout,
+            BusError::Decode(_) => BusErrorKind::ReadCorrupt,
+            BusError::Servo { .. } => BusErrorKind::ReadServoError,
+            BusError::Io(_) | BusError::Encode(_) | BusError::BadRequest { .. } => BusErrorKind::ReadIo,
+        }
+    }
+}
+
 /// Hardware Error Status on every Protocol 2.0 model of the table (MX(2.0), XM430, XL330).
 /// Protocol 1.0 has no such item: its status error byte carries the bits instead.
 pub const P2_HARDWARE_ERROR_ADDRESS: u16 = 70;
@@ -754,7 +802,9 @@ mod tests {
         assert_eq!(bus.read_present(&mut t, 0).unwrap(), &[7]);
         assert_eq!(bus.health()[0].alerts, 1);
         t.0.lock().unwrap().error = 0x08; // range: the read itself failed
-        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Servo { id: 3, raw: 0x08 })));
+        let error = bus.read_present(&mut t, 0).unwrap_err();
+        assert!(matches!(error, BusError::Servo { id: 3, raw: 0x08 }));
+        assert_eq!(error.read_kind(), BusErrorKind::ReadServoError);
         assert_eq!(bus.health()[0], ServoHealth { last_error: 0x08, statuses: 2, errors: 2, alerts: 1 });
     }
 
@@ -766,7 +816,9 @@ mod tests {
         assert!(bus.read_torque_enable(&mut t, 1, 0).unwrap());
         assert!(!bus.read_torque_enable(&mut t, 0, 0).unwrap());
         assert_eq!(bus.read_hardware_error(&mut t, 1, 0).unwrap(), 0x24);
-        assert!(matches!(bus.read_hardware_error(&mut t, 0, 0), Err(BusError::Timeout { missing: 1 })));
+        let error = bus.read_hardware_error(&mut t, 0, 0).unwrap_err();
+        assert!(matches!(error, BusError::Timeout { missing: 1 }));
+        assert_eq!(error.read_kind(), BusErrorKind::ReadTimeout);
         assert!(matches!(bus.read_register(&mut t, 2, 64, 1, 0), Err(BusError::BadRequest { index: 2, .. })));
         assert!(matches!(bus.read_register(&mut t, 0, 64, 5, 0), Err(BusError::BadRequest { size: 5, .. })));
         let mut want = [0u8; 16];

@@ -32,7 +32,7 @@
 //! every joint (`BusLost`) until it is back, and `recovery` asks for a stop if it is not back
 //! within the policy's timeout. A joint that its recovery holds (a servo shut down, silent, or
 //! being brought back) holds the same way: its model frozen at its last good state.
-use crate::bus::{BusError, JointBus, Transport};
+use crate::bus::{BusError, BusErrorKind, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
 use crate::fault::{FaultKind, Faults, LoopMode};
@@ -278,8 +278,8 @@ impl Controller {
 
     /// Counts a bus error; one that says the port is gone makes the link lost and hands the
     /// port to the transport to reopen.
-    fn bus_error(&mut self, t: &mut dyn Transport, e: &BusError, now_ns: u64) {
-        LoopStats::add(&self.shared.stats.bus_errors, 1);
+    fn bus_error(&mut self, t: &mut dyn Transport, e: &BusError, kind: BusErrorKind, now_ns: u64) {
+        self.shared.stats.bus_error(kind);
         if e.link_gone() && self.link_lost_since.is_none() {
             self.link_lost_since = Some(now_ns);
             self.shared.link.lost_since_ns.store(now_ns.max(1), Ordering::Relaxed);
@@ -314,7 +314,7 @@ impl Controller {
             self.reanchor(k, *tick);
         }
         if let Err(e) = &result {
-            self.bus_error(t, e, now_ns);
+            self.bus_error(t, e, e.read_kind(), now_ns);
         }
         self.recovery.on_result(k, action, result.map_err(drop), now_ns);
     }
@@ -445,7 +445,7 @@ impl Controller {
         match self.bus.write_goals(t, &self.goals) {
             Ok(()) => true,
             Err(e) => {
-                self.bus_error(t, &e, now_ns);
+                self.bus_error(t, &e, BusErrorKind::Write, now_ns);
                 false
             }
         }
@@ -506,7 +506,7 @@ impl Controller {
                 }
                 self.read_retry = false;
             }
-            Err(e) => self.bus_error(t, &e, now_ns),
+            Err(e) => self.bus_error(t, &e, e.read_kind(), now_ns),
         }
         any
     }

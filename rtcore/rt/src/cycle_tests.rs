@@ -201,6 +201,9 @@ fn bus_errors_are_counted_and_the_loop_goes_on() {
     let rec = r.cycle_with(Some(1.0));
     assert!(rec.latency_ns >= 0);
     assert_eq!(r.shared.stats.bus_errors.load(Ordering::Relaxed), 5);
+    let kinds = r.shared.stats.snapshot(RATE).bus_error_kinds;
+    assert_eq!(kinds[0], ("write", 5), "{kinds:?}");
+    assert_eq!(kinds.iter().map(|k| k.1).sum::<u64>(), 5, "every error has one kind: {kinds:?}");
     assert_eq!(r.shared.stats.cycles.load(Ordering::Relaxed), 6);
 }
 

@@ -6,6 +6,7 @@
 //!
 //! Why counters are atomics: the RT thread writes them with uncontended relaxed operations and
 //! Python reads them whenever it likes; there is no lock the loop could wait on.
+use crate::bus::BusErrorKind;
 use crate::fault::{FaultCounters, LoopMode};
 use crate::histogram::{Histogram, Percentiles};
 use crate::sched::RtReport;
@@ -87,6 +88,8 @@ pub struct LoopStats {
     pub cycles: AtomicU64,
     pub overruns: AtomicU64,
     pub bus_errors: AtomicU64,
+    /// `bus_errors` split by where they came from, in `BusErrorKind::ALL` order.
+    bus_error_kinds: [AtomicU64; BusErrorKind::ALL.len()],
     pub sensor_samples: AtomicU64,
     pub sensor_stale_events: AtomicU64,
     pub telemetry_drops: AtomicU64,
@@ -111,6 +114,8 @@ pub struct StatsSnapshot {
     pub latency_us: Percentiles,
     pub work_us: Percentiles,
     pub bus_errors: u64,
+    /// (kind name, errors), every kind.
+    pub bus_error_kinds: Vec<(&'static str, u64)>,
     pub sensor_samples: u64,
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
@@ -126,6 +131,12 @@ impl LoopStats {
         counter.fetch_add(n, Relaxed);
     }
 
+    /// Counts one bus error, in the total and under its kind.
+    pub fn bus_error(&self, kind: BusErrorKind) {
+        self.bus_errors.fetch_add(1, Relaxed);
+        self.bus_error_kinds[kind as usize].fetch_add(1, Relaxed);
+    }
+
     pub fn snapshot(&self, rate_hz: f64) -> StatsSnapshot {
         StatsSnapshot {
             cycles: self.cycles.load(Relaxed),
@@ -135,6 +146,7 @@ impl LoopStats {
             latency_us: self.latency.percentiles(),
             work_us: self.work.percentiles(),
             bus_errors: self.bus_errors.load(Relaxed),
+            bus_error_kinds: BusErrorKind::ALL.iter().map(|k| (k.name(), self.bus_error_kinds[*k as usize].load(Relaxed))).collect(),
             sensor_samples: self.sensor_samples.load(Relaxed),
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
