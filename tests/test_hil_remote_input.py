@@ -186,7 +186,8 @@ def test_hostile_payloads_neither_kill_nor_misdrive_the_joint(daemon):
     assert "Traceback" not in stderr
 
     stats = json.loads((tmp / "stats.json").read_text())
-    assert stats["faults"] == {"model_state_invalid": 0}, "an invalid model state got through"
+    assert stats["faults"]["model_state_invalid"] == 0, "an invalid model state got through"
+    assert not any(stats["faults"].values()), stats["faults"]
     assert stats["daemon"]["query_errors"] == 0, "a handler raised (the refusal is a crash averted, still a bug)"
     rec = read_recording(tmp / "rec")
     assert np.ptp(rec["theta_goal"]) > 0.05, "the hand moved the joint (else no jump could show)"

@@ -18,7 +18,7 @@ import pytest
 
 from admittance import _rtcore
 
-SYNC_READ, SYNC_WRITE, BULK_READ = 0x82, 0x83, 0x92
+READ, SYNC_READ, SYNC_WRITE, BULK_READ = 0x02, 0x82, 0x83, 0x92
 IDS = (1, 2, 3)
 REGISTERS = {2: dict(goal=116, size=4, present=132, torque=64), 1: dict(goal=30, size=2, present=36, torque=24)}
 
@@ -45,12 +45,22 @@ class FakeServos(threading.Thread):
                 self.packets.append(packet)
                 if packet.get("instruction") in (SYNC_READ, BULK_READ):
                     self.answer()
+                elif packet.get("instruction") == READ and packet.get("id") in IDS:
+                    self.answer_read(packet)
 
     def answer(self) -> None:
         size = REGISTERS[self.protocol]["size"]
         for i in IDS:
             tick = (2048 + i).to_bytes(size, "little")
             os.write(self.master, _rtcore.encode_status(i, 0, tick, protocol=self.protocol))
+
+    def answer_read(self, packet: dict) -> None:
+        """The recovery's checks (docs/faults.md): Torque Enable reads 1 (on), anything else
+        (Hardware Error Status) 0; one byte each."""
+        params = packet["params"]
+        address = int.from_bytes(params[:2], "little") if self.protocol == 2 else params[0]
+        value = 1 if address == REGISTERS[self.protocol]["torque"] else 0
+        os.write(self.master, _rtcore.encode_status(packet["id"], 0, bytes([value]), protocol=self.protocol))
 
     def close(self) -> None:
         self.done.set()
