@@ -84,21 +84,54 @@ def test_a_cycle_that_took_no_step_supersedes_the_row_before_it(tmp_path):
     assert rows["fault"][19] == 1 and rows["cycle"][19] == 20
 
 
+def all_rows(folder: Path) -> np.ndarray:
+    return np.vstack([np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2) for path in sorted(folder.glob("joint1_*.csv"))])
+
+
 def test_a_hold_or_a_fault_between_two_reads_marks_the_next_row(tmp_path):
-    """Reads every 5th cycle; cycle 7 held (stale force: mode holding), cycle 18 faulted (the
-    state guard, fault bit 1): rows 10 and 20 say so, even the one whose fault fell after the
+    """Reads every 2nd cycle; cycle 37 held (stale force: mode holding), cycle 79 faulted (the
+    state guard, fault bit 1): rows 38 and 80 say so, even the one whose fault fell after the
     batch's last read (carried into the next batch)."""
     rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
-    first, second = batch(0.0, 20, read_every=5), batch(0.02, 20, read_every=5)
-    first["mode"][7] = 1.0
-    first["mode"][18], first["fault"][18] = 2.0, 1.0
+    first, second = batch(0.0, 80, read_every=2), batch(0.08, 80, read_every=2)
+    first["mode"][37] = 1.0
+    first["mode"][79], first["fault"][79] = 2.0, 1.0
     rec.append(1, first)
     rec.append(1, second)
     rec.close()
-    rows = np.loadtxt(tmp_path / "joint1_000.csv", delimiter=",", skiprows=1)
+    rows = all_rows(tmp_path)
     cycles, held = rows[:, COLUMNS.index("cycle")], rows[:, COLUMNS.index("held")]
-    assert list(cycles[held == 1]) == [10.0, 20.0]
-    assert list(cycles[rows[:, COLUMNS.index("fault")] == 1]) == [20.0]
+    assert list(cycles[held == 1]) == [38.0, 80.0]
+    assert list(cycles[rows[:, COLUMNS.index("fault")] == 1]) == [80.0]
+
+
+def test_where_the_model_did_not_follow_the_torque_a_new_trial_starts(tmp_path):
+    """A trial is one continuous solution of the model. A hold, and a stall longer than the loop
+    catches up (the model lost that time), each start a new trial, marked held; a stall the loop
+    caught up does not. The session.mcap's dataset is cut at the same rows."""
+    from admittance._rtcore import MAX_CATCH_UP_STEPS
+    from admittance.ident.loaders import _segments
+    from admittance.daemon.recording import trial_starts
+
+    period = 1e-3
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=period)
+    caught_up = (MAX_CATCH_UP_STEPS - 1) * period  # a stall the model integrates through
+    lost = (MAX_CATCH_UP_STEPS + 5) * period  # a stall whose time the model restarts after
+    a, b = batch(0.0, 100), batch(0.1 + caught_up, 100)
+    c = batch(b["t"][-1] + period + lost, 100)
+    c["mode"][50] = 1.0  # a held cycle inside the last stretch
+    for part in (a, b, c):
+        rec.append(1, part)
+    rec.close()
+    trials = load_dataset(tmp_path).trials
+    assert [t.n_samples for t in trials] == [200, 50, 50], "cut at the lost time and at the hold"
+    rows = all_rows(tmp_path)
+    assert list(rows[rows[:, COLUMNS.index("held")] == 1, COLUMNS.index("cycle")]) == [c["cycle"][0], c["cycle"][50]]
+    # The MCAP's reader cuts by the same rule (trial_starts) and the same lapse detection.
+    t = np.concatenate([a["t"], b["t"], c["t"]])
+    held = np.zeros(len(t))
+    held[[200, 250]] = 1
+    assert [len(s) for s in _segments(t, np.union1d(*trial_starts(t, held, 0.25)), 10.0)] == [200, 50, 50]
 
 
 def test_targets_go_into_each_segments_manifest_entry(tmp_path):

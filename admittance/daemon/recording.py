@@ -10,7 +10,13 @@ model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, 
 checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
 on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
 own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
-because the force was stale, or a fault held a joint.
+because the force was stale, or a fault held a joint; and after a stall longer than the loop
+catches up (``MAX_CATCH_UP_STEPS`` steps: the model restarted its time at the late deadline, so
+it never integrated the torque over the rest of the stall).
+
+A trial must be one continuous solution of the model, so a row with ``held`` = 1 starts a new
+segment (:func:`trial_starts`): otherwise an open-loop refit integrates the torque over time the
+model did not (a loaded machine's stalls biased the refit's inertia by 7 %).
 
 Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
 (so `identify` with theta := theta_model returns the configured I, B, F):
@@ -64,6 +70,7 @@ from typing import Any, TextIO
 import numpy as np
 import tomli_w
 
+from admittance._rtcore import MAX_CATCH_UP_STEPS
 from admittance.daemon.telemetry import MODE_RUNNING, fault_names
 from admittance.errors import ConfigError
 
@@ -87,12 +94,13 @@ class Recorder:
 
     def __init__(self, folder: Path, joints: list[tuple[int, str]], *, measured_theta: bool, t0: float,
                  segment_s: float = 10.0, joint_info: dict[int, dict] | None = None,
-                 gap_s: float = DEFAULT_GAP_S) -> None:
+                 gap_s: float = DEFAULT_GAP_S, period_s: float | None = None) -> None:
         self.folder = folder
         self.t0 = t0
         self.measured_theta = measured_theta
         self.segment_s = segment_s
         self.gap_s = gap_s
+        self.period_s = period_s  # the loop's period: to see where the model lost time (model_lapses)
         # Per joint: the last written row's t, the last cycle's t (written or not); the gaps.
         self._last_row_t: dict[int, float] = {}
         self._last_cycle_t: dict[int, float] = {}
@@ -194,22 +202,24 @@ class Recorder:
         return {k: v[:-1] for k, v in columns.items()}
 
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:
-        rows, self._carry[joint_id] = recorded_rows(columns, measured_theta=self.measured_theta, t0=self.t0,
-                                                    carry=self._carry.get(joint_id, (0, 0)))
+        previous_cycle = self._last_cycle_t.get(joint_id)
+        rows, self._carry[joint_id] = recorded_rows(
+            columns, measured_theta=self.measured_theta, t0=self.t0, carry=self._carry.get(joint_id, (0, 0)),
+            period_s=self.period_s, previous_t=None if previous_cycle is None else previous_cycle + self.t0)
         if len(columns["t"]):
             self._last_cycle_t[joint_id] = float(columns["t"][-1] - self.t0)
         t = rows["t"]
         if len(t) == 0:
             return 0
-        previous = self._last_row_t.get(joint_id, t[0])
-        starts = np.flatnonzero(np.diff(np.concatenate([[previous], t])) > self.gap_s)  # rows after a gap
+        gaps, breaks = trial_starts(t, rows["held"], self.gap_s, self._last_row_t.get(joint_id))
         written = 0
-        for piece in np.split(np.arange(len(t)), starts):
+        for piece in np.split(np.arange(len(t)), np.union1d(gaps, breaks)):
             if len(piece) == 0:
                 continue
-            if piece[0] in starts:
+            if piece[0] in gaps:
                 self._gap(joint_id, self._last_row_t[joint_id], float(t[piece[0]]), int(rows["fault"][piece[0]]))
-            elif t[piece[0]] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS:
+            elif (piece[0] in breaks and self._segment_rows[joint_id] > 0) or \
+                    (t[piece[0]] - self._segment_start[joint_id] >= self.segment_s and self._segment_rows[joint_id] >= MIN_ROWS):
                 self._next_segment(joint_id, float(t[piece[0]]))
             written += self._write_rows(joint_id, {c: rows[c][piece] for c in COLUMNS})
         return written
@@ -301,17 +311,44 @@ def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> t
     return acc[group], int(acc[-1]) if len(keep) and not keep[-1] else 0
 
 
+def gap_seconds(rate_hz: float, sync_read_divisor: int) -> float:
+    """Rows further apart than this are a gap: the servo unread for ten read periods (a retried
+    read is never that late), at least ``DEFAULT_GAP_S``."""
+    return max(DEFAULT_GAP_S, 10.0 * sync_read_divisor / rate_hz)
+
+
+def trial_starts(t: np.ndarray, held: np.ndarray, gap_s: float, previous_t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the rows that must start a new trial: after a gap (``t`` more than ``gap_s``
+    after the previous row; ``previous_t``: the row before ``t[0]``), and where the model did not
+    follow the torque since the previous row (``held``). Returns (gaps, breaks), disjoint."""
+    previous = t[0] if previous_t is None else previous_t
+    after_gap = np.diff(np.concatenate([[previous], t])) > gap_s
+    return np.flatnonzero(after_gap), np.flatnonzero((held > 0) & ~after_gap)
+
+
+def model_lapses(t: np.ndarray, period_s: float | None, previous_t: float | None = None) -> np.ndarray:
+    """1 on a cycle whose deadline ``t`` (s) came after a stall longer than the loop catches up:
+    the model lost that time (docs/realtime.md). ``previous_t``: the cycle before ``t[0]``."""
+    if not period_s or len(t) == 0:
+        return np.zeros(len(t), np.int64)
+    before = np.concatenate([[t[0] if previous_t is None else previous_t], t[:-1]])
+    return (t - before > (MAX_CATCH_UP_STEPS + 0.5) * period_s).astype(np.int64)
+
+
 def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
-                  carry: tuple[int, int] = (0, 0)) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+                  carry: tuple[int, int] = (0, 0), period_s: float | None = None,
+                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
     """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
     cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
     reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
-    previous row. Also the (held, fault) carry."""
+    previous row. Also the (held, fault) carry. With the loop's ``period_s``, a cycle where the
+    model lost time counts as held (``previous_t``: the absolute deadline before ``columns``')."""
     columns = with_defaults(columns)
     n = len(columns["t"])
     keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
     keep &= columns["superseded"] == 0
-    held, held_carry = since_previous_row(held_cycles(columns["mode"]), keep, carry[0])
+    lapsed = held_cycles(columns["mode"]) | model_lapses(columns["t"], period_s, previous_t)
+    held, held_carry = since_previous_row(lapsed, keep, carry[0])
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
     fault, fault_carry = since_previous_row(faults, keep, carry[1])

@@ -62,7 +62,7 @@ from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.quantities import NAMES, bus_errors_text
-from admittance.daemon.recording import DEFAULT_GAP_S, Recorder
+from admittance.daemon.recording import Recorder, gap_seconds
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 from admittance.errors import AdmittanceError, DeviceError, FaultStop
@@ -251,10 +251,9 @@ class Supervisor:
             return
         joints = [(j.id, j.model) for j in self.cfg.joints]
         lp = self.cfg.loop
-        # A gap: the servo unread for ten read periods (a retried read is never that late).
-        gap_s = max(DEFAULT_GAP_S, 10.0 * lp.sync_read_divisor / lp.rate_hz)
         self.recorder = Recorder(folder, joints, measured_theta=lp.sync_read_divisor > 0, t0=0.0,
-                                 segment_s=self.cfg.record.segment_s, joint_info=self.joint_info(), gap_s=gap_s)
+                                 segment_s=self.cfg.record.segment_s, joint_info=self.joint_info(),
+                                 gap_s=gap_seconds(lp.rate_hz, lp.sync_read_divisor), period_s=1.0 / lp.rate_hz)
         stack.callback(self.recorder.close)
 
     def joint_info(self) -> dict[int, dict]:

@@ -497,31 +497,44 @@ def read_recording(path: str | Path) -> Recording:
     return Recording(path, session, joints, params, stats, events, truncated)
 
 
-def _segments(t: np.ndarray, segment_s: float) -> list[np.ndarray]:
-    """Row indices per segment of segment_s seconds; a last segment too short to fit is dropped."""
-    index = np.floor(t / segment_s).astype(int)
-    out = [np.flatnonzero(index == k) for k in np.unique(index)]
-    if len(out) > 1 and len(out[-1]) < DATASET_MIN_SAMPLES:
-        out.pop()
+def _segments(t: np.ndarray, starts: np.ndarray, segment_s: float) -> list[np.ndarray]:
+    """Row indices per segment: a new one at each of ``starts`` (a gap, or where the model did not
+    follow the torque: recording.trial_starts) and every ``segment_s`` seconds after; a piece
+    too short to fit is dropped (the CSV recorder drops it too), the last only if not alone."""
+    out = []
+    for piece in np.split(np.arange(len(t)), starts):
+        if len(piece):
+            index = np.floor((t[piece] - t[piece[0]]) / segment_s).astype(int)
+            out += [piece[index == k] for k in np.unique(index)]
+    if len(out) > 1:
+        out = [seg for seg in out[:-1] if len(seg) >= DATASET_MIN_SAMPLES] + \
+              ([out[-1]] if len(out[-1]) >= DATASET_MIN_SAMPLES else [])
     return out
 
 
 def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]:
     """Per joint, the rows the session's CSV dataset has (recording.recorded_rows: one per cycle
     that read the servo, the next cycle's torque, held and fault since the previous row, times
-    from t0), cut into segments of ``segment_s`` seconds."""
-    from admittance.daemon.recording import recorded_rows, with_next_cycle
+    from t0), cut as the recorder cuts them: at gaps, where the model did not follow the torque,
+    and into segments of ``segment_s`` seconds."""
+    from admittance.daemon.recording import gap_seconds, recorded_rows, trial_starts, with_next_cycle
 
     measured = bool(rec.session.get("measured_theta", True))
     t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
+    rate_hz = rec.session.get("rate_hz")
+    divisors = {int(j["id"]): int(j.get("sync_read_divisor", 1)) for j in rec.session.get("joints", []) if "id" in j}
     out = {}
     for jid in sorted(rec.joints):
         cols = with_next_cycle(dict(rec.joints[jid]))
         if not np.isfinite(cols["t_wake"]).all():
             cols["t_wake"] = cols["t"]  # an older file
-        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0)
-        out[jid] = [{k: v[index] for k, v in rows.items()} for index in _segments(rows["t"], segment_s)] \
-            if rows["t"].size else []
+        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0, period_s=1.0 / rate_hz if rate_hz else None)
+        if not rows["t"].size:
+            out[jid] = []
+            continue
+        gap_s = gap_seconds(rate_hz, divisors.get(jid, 1)) if rate_hz else float("inf")
+        starts = np.union1d(*trial_starts(rows["t"], rows["held"], gap_s))
+        out[jid] = [{k: v[index] for k, v in rows.items()} for index in _segments(rows["t"], starts, segment_s)]
     return out
 
 

@@ -583,6 +583,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // The telemetry's `mode` codes and `fault` bits, by name: LOOP_MODES[mode], FAULT_KINDS[bit].
     m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
+    // Model steps a late cycle catches up at most; a longer stall loses its time (recording.py).
+    m.add("MAX_CATCH_UP_STEPS", rtloop::cycle::MAX_CATCH_UP_STEPS)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;

@@ -76,8 +76,9 @@ struct JointSlot {
 }
 
 /// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
-/// longer stall loses the rest of its time rather than jumping the goal by that much motion.
-const MAX_CATCH_UP_STEPS: u64 = 10;
+/// longer stall loses the rest of its time rather than jumping the goal by that much motion
+/// (recordings cut their trial there: the model did not follow the torque over the lost time).
+pub const MAX_CATCH_UP_STEPS: u64 = 10;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
