@@ -106,12 +106,13 @@ def test_a_hold_or_a_fault_between_two_reads_marks_the_next_row(tmp_path):
 
 
 def test_where_the_model_did_not_follow_the_torque_a_new_trial_starts(tmp_path):
-    """A trial is one continuous solution of the model. A hold, and a stall longer than the loop
-    catches up (the model lost that time), each start a new trial, marked held; a stall the loop
-    caught up does not. The session.mcap's dataset is cut at the same rows."""
+    """A trial is one continuous solution of the model. A stall longer than the loop catches up
+    (the model lost that time) starts a new trial, a stall the loop caught up does not; a hold's
+    rows form a trial of their own (the recording covers the run), and the rows after it the
+    next. The session.mcap's dataset is cut by the same rule."""
     from admittance._rtcore import MAX_CATCH_UP_STEPS
-    from admittance.ident.loaders import _segments
     from admittance.daemon.recording import trial_starts
+    from admittance.ident.loaders import _segments
 
     period = 1e-3
     rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=period)
@@ -119,19 +120,19 @@ def test_where_the_model_did_not_follow_the_torque_a_new_trial_starts(tmp_path):
     lost = (MAX_CATCH_UP_STEPS + 5) * period  # a stall whose time the model restarts after
     a, b = batch(0.0, 100), batch(0.1 + caught_up, 100)
     c = batch(b["t"][-1] + period + lost, 100)
-    c["mode"][50] = 1.0  # a held cycle inside the last stretch
+    c["mode"][50:70] = 1.0  # a hold inside the last stretch
     for part in (a, b, c):
         rec.append(1, part)
     rec.close()
     trials = load_dataset(tmp_path).trials
-    assert [t.n_samples for t in trials] == [200, 50, 50], "cut at the lost time and at the hold"
+    assert [t.n_samples for t in trials] == [200, 50, 20, 30], "cut at the lost time, the hold's start and end"
     rows = all_rows(tmp_path)
-    assert list(rows[rows[:, COLUMNS.index("held")] == 1, COLUMNS.index("cycle")]) == [c["cycle"][0], c["cycle"][50]]
-    # The MCAP's reader cuts by the same rule (trial_starts) and the same lapse detection.
+    assert list(rows[rows[:, COLUMNS.index("held")] == 1, COLUMNS.index("cycle")]) == list(c["cycle"][50:70])
+    # The MCAP's reader cuts by the same rule (trial_starts).
     t = np.concatenate([a["t"], b["t"], c["t"]])
-    held = np.zeros(len(t))
-    held[[200, 250]] = 1
-    assert [len(s) for s in _segments(t, np.union1d(*trial_starts(t, held, 0.25)), 10.0)] == [200, 50, 50]
+    held, lapse = np.zeros(len(t)), np.zeros(len(t))
+    held[250:270], lapse[200] = 1, 1
+    assert [len(s) for s in _segments(t, np.union1d(*trial_starts(t, held, lapse, 0.25)), 10.0)] == [200, 50, 20, 30]
 
 
 def test_targets_go_into_each_segments_manifest_entry(tmp_path):

@@ -10,13 +10,16 @@ model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, 
 checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
 on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
 own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
-because the force was stale, or a fault held a joint; and after a stall longer than the loop
-catches up (``MAX_CATCH_UP_STEPS`` steps: the model restarted its time at the late deadline, so
-it never integrated the torque over the rest of the stall).
+because the force was stale, or a fault held a joint. After a stall longer than the loop
+catches up (``MAX_CATCH_UP_STEPS`` steps) the model restarted its time at the late deadline and
+never integrated the torque over the rest of the stall: a *lapse*, which leaves no column but
+starts a new segment.
 
-A trial must be one continuous solution of the model, so a row with ``held`` = 1 starts a new
-segment (:func:`trial_starts`): otherwise an open-loop refit integrates the torque over time the
-model did not (a loaded machine's stalls biased the refit's inertia by 7 %).
+A trial must be one continuous solution of the model, so a new segment starts after time the
+model lost, where a hold begins, and after a hold of two rows or more (:func:`trial_starts`; such
+a hold's rows form a segment of their own, so the recording still covers the run): otherwise an open-loop refit integrates
+the torque over time the model did not follow it (a loaded machine's stalls biased the refit's
+inertia by 7 %).
 
 Two alignments make ``theta_model`` against ``tau`` exactly the dataset contract's simulator
 (so `identify` with theta := theta_model returns the configured I, B, F):
@@ -113,6 +116,7 @@ class Recorder:
         self._pending: dict[int, dict[str, np.ndarray]] = {}
         # Per joint: (held, fault) of the cycles after its last written row (see recorded_rows).
         self._carry: dict[int, tuple[int, int]] = {}
+        self._last_rows_held: dict[int, tuple[float, float]] = {}  # held of the last two rows, newest first
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
@@ -211,7 +215,10 @@ class Recorder:
         t = rows["t"]
         if len(t) == 0:
             return 0
-        gaps, breaks = trial_starts(t, rows["held"], self.gap_s, self._last_row_t.get(joint_id))
+        last_held = self._last_rows_held.get(joint_id, (0.0, 0.0))
+        gaps, breaks = trial_starts(t, rows["held"], rows["lapse"], self.gap_s, self._last_row_t.get(joint_id),
+                                    last_held)
+        self._last_rows_held[joint_id] = tuple(np.concatenate([last_held[::-1], rows["held"]])[-1:-3:-1])
         written = 0
         for piece in np.split(np.arange(len(t)), np.union1d(gaps, breaks)):
             if len(piece) == 0:
@@ -317,13 +324,20 @@ def gap_seconds(rate_hz: float, sync_read_divisor: int) -> float:
     return max(DEFAULT_GAP_S, 10.0 * sync_read_divisor / rate_hz)
 
 
-def trial_starts(t: np.ndarray, held: np.ndarray, gap_s: float, previous_t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def trial_starts(t: np.ndarray, held: np.ndarray, lapse: np.ndarray, gap_s: float, previous_t: float | None = None,
+                 previous_held: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the rows that must start a new trial: after a gap (``t`` more than ``gap_s``
-    after the previous row; ``previous_t``: the row before ``t[0]``), and where the model did not
-    follow the torque since the previous row (``held``). Returns (gaps, breaks), disjoint."""
+    after the previous row; ``previous_t``: the row before ``t[0]``); after time the model lost
+    (``lapse``); where a hold begins (the interval before a held row was not followed, the row's
+    state is a good start); and after a hold of two rows or more, whose rows then form a trial of
+    their own, so the recording still covers the run (``previous_held``: ``held`` of the row
+    before ``t[0]`` and of the one before that). Returns (gaps, breaks), disjoint."""
     previous = t[0] if previous_t is None else previous_t
     after_gap = np.diff(np.concatenate([[previous], t])) > gap_s
-    return np.flatnonzero(after_gap), np.flatnonzero((held > 0) & ~after_gap)
+    h = np.concatenate([previous_held[::-1], held]) > 0
+    begins = h[2:] & ~h[1:-1]
+    ends = ~h[2:] & h[1:-1] & h[:-2]
+    return np.flatnonzero(after_gap), np.flatnonzero(((lapse > 0) | begins | ends) & ~after_gap)
 
 
 def model_lapses(t: np.ndarray, period_s: float | None, previous_t: float | None = None) -> np.ndarray:
@@ -347,8 +361,10 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     n = len(columns["t"])
     keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
     keep &= columns["superseded"] == 0
-    lapsed = held_cycles(columns["mode"]) | model_lapses(columns["t"], period_s, previous_t)
-    held, held_carry = since_previous_row(lapsed, keep, carry[0])
+    # Bit 0: held; bit 1: the model lost time. Both gathered since the previous row.
+    flags = held_cycles(columns["mode"]) | (model_lapses(columns["t"], period_s, previous_t) << 1)
+    flags, held_carry = since_previous_row(flags, keep, carry[0])
+    held, lapse = flags & 1, flags >> 1
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
     fault, fault_carry = since_previous_row(faults, keep, carry[1])
@@ -356,5 +372,5 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
             "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
             "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
-            "held": held.astype(float), "fault": fault.astype(float)}
+            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float)}
     return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)

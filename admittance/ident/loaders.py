@@ -533,7 +533,7 @@ def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]
             out[jid] = []
             continue
         gap_s = gap_seconds(rate_hz, divisors.get(jid, 1)) if rate_hz else float("inf")
-        starts = np.union1d(*trial_starts(rows["t"], rows["held"], gap_s))
+        starts = np.union1d(*trial_starts(rows["t"], rows["held"], rows["lapse"], gap_s))
         out[jid] = [{k: v[index] for k, v in rows.items()} for index in _segments(rows["t"], starts, segment_s)]
     return out
 
