@@ -516,8 +516,8 @@ def bench_lateness_text(timing: dict[str, Any]) -> str:
     # Late even at SCHED_FIFO: on a pty, poll and read wait for the kernel's tty worker (a
     # SCHED_OTHER kworker) to hand the bytes over, and a loaded machine starves that worker.
     return (f"{thread} ran late {stalls} times (> {STALL_MS:g} ms, longest {longest / 1e3:.1f} ms): "
-            "a loaded machine starved the simulation and its pseudo-terminals, whose late replies "
-            "a real servo would not give")
+            "the simulation answered late through its pseudo-terminals (their kernel worker is not "
+            "real-time, and any load delays it), which a real servo would not")
 
 
 def error_fields(error: BaseException) -> dict[str, Any]:
