@@ -83,7 +83,7 @@ def session(work: Path, name: str, *, params: Path, profile: str, seconds: float
     """One `admittance run` of the embedded bench, recorded; (recording folder, stats)."""
     doc = tomllib.loads(BENCH.read_text())
     doc["joints"][0].update({"params": str(params), **(joint or {})})
-    doc["loop"]["stale_timeout_ms"] = 1000.0  # a starved reader must not hold the joint: not under test
+    doc["loop"]["stale_timeout_ms"] = 500.0  # the schema's most: a starved reader must not hold the joint (not under test)
     doc["loop"]["sync_read_divisor"] = 2  # rows every 2 ms: the 3 Hz hand's torque between rows is a line
     doc["bench"].update({"profile": profile, **(bench or {})})
     doc["zenoh"] = {"prefix": f"bench/{name}", "listen": [f"tcp/127.0.0.1:{free_port()}"]}
