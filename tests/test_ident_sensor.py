@@ -93,3 +93,16 @@ def test_coloured_noise_at_rest_is_recognised_and_whitened():
     creeping = noise + 0.004 * np.sin(np.arange(n) / 60)  # the joint still moves where the model sticks
     assert rest_noise([creeping], [at_rest]) is None
     assert not noise_verdict([np.zeros(n)], [creeping], Sensor(), [at_rest]).nothing_left
+
+
+def test_a_residual_exactly_constant_at_rest_has_no_rest_noise_and_no_crash():
+    """A noiseless angle (a recording's model angle where the model sticks) leaves a residual
+    that is exactly constant at rest: there is no noise to model there, and the verdict still
+    comes (it divided by zero once, in `admittance fidelity` on a compensated session)."""
+    n = 2000
+    at_rest = np.zeros(n, bool)
+    at_rest[500:] = True
+    residual = np.where(at_rest, 0.0, 0.001 * np.sin(np.arange(n) / 30))
+    assert rest_noise([residual], [at_rest]) is None
+    verdict = noise_verdict([np.zeros(n)], [residual], Sensor(), [at_rest])
+    assert math.isfinite(verdict.rmse)

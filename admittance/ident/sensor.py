@@ -223,13 +223,16 @@ def rest_noise(residuals: Sequence[np.ndarray], at_rest: Sequence[np.ndarray]) -
                 pieces.append(piece - piece.mean())
     if sum(p.size for p in pieces) < MIN_REST_SAMPLES:
         return None
-    var = sum(float(p @ p) for p in pieces) / sum(p.size for p in pieces)
-    lag1 = sum(float(p[1:] @ p[:-1]) for p in pieces) / sum(float(p @ p) for p in pieces)
+    energy = sum(float(p @ p) for p in pieces)
+    if energy <= 0.0:  # a residual exactly constant at rest (a noiseless angle): no noise to model
+        return None
+    var = energy / sum(p.size for p in pieces)
+    lag1 = sum(float(p[1:] @ p[:-1]) for p in pieces) / energy
     rho = max(lag1, 0.0)
     if rho > MAX_NOISE_CORRELATION:  # that slow, it is the joint moving, not a sensor's noise
         return None
     _, p_white = ljung_box([p[1:] - rho * p[:-1] for p in pieces])
-    if p_white <= WHITE_P or var <= 0:
+    if p_white <= WHITE_P:
         return None
     return float(math.sqrt(var)), float(rho)
 
