@@ -55,3 +55,11 @@ def test_stratified_pick_small():
     assert stratified_pick([_trial("a", 0.2, "cw")]) == ([], [0])
     picked, rest = stratified_pick([_trial("a", 0.2, "cw"), _trial("b", 0.3, "cw")])
     assert len(picked) == 1 and len(rest) == 1
+
+
+def test_an_empty_piece_adds_nothing_to_the_autocorrelation_time():
+    """A trial cut to nothing (a fidelity segment with no held-in sample) is skipped, not an
+    FFT of length 0."""
+    t = np.linspace(0, 6, 700)
+    smooth = [0.003 * np.sin(3 * t)]
+    assert autocorrelation_time([*smooth, np.empty(0), np.zeros(1)]) == autocorrelation_time(smooth)

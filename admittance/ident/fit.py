@@ -305,6 +305,8 @@ def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) ->
     num = np.zeros(max_lag + 1)
     den = 0.0
     for r in residuals:
+        if r.size < 2:  # an empty or one-sample piece has no correlation to add
+            continue
         x = r - r.mean()
         n = x.size
         lags = min(max_lag, n - 1)
