@@ -125,7 +125,7 @@ EFFECTS: dict[str, Effect] = {
 
 
 def default_vector() -> np.ndarray:
-    """Contract 1's defaults; motor_inertia (which has none) is set to 1 as a placeholder."""
+    """Contract 1's defaults; motor_inertia, which has no default, is 1 until a fit sets it."""
     return np.array([1.0 if v is None else v for v in PARAM_DEFAULTS.values()], dtype=float)
 
 

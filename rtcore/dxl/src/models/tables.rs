@@ -52,7 +52,7 @@ const fn run(name: &'static str, first: u16, address: u16, size: u8, count: u16,
     it
 }
 
-/// Placeholder for building arrays in const context; never left in a table (`join` checks).
+/// The filler an array is built from in const context; never left in a table (`join` checks).
 const BLANK: Item = ro("", 0, 1, false, None, false, "");
 
 const fn total(parts: &[&[Item]]) -> usize {
