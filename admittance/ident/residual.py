@@ -115,21 +115,9 @@ def analyse(sim: Simulator, fit: FitResult, sensor: Sensor | None = None) -> dic
     states = simulate_states(sim, fit)
     noise = noise_of(sim, fit, sensor, states)
     bins = where_it_lives(sim, fit, states)
-    rmse = noise.rmse
-    out = {
-        "rmse": rmse,
-        "noise_estimate": noise.floor,
-        "rmse_over_noise": rmse / noise.floor if noise.floor > 0 else float("inf"),
-        "ljung_box_q": noise.ljung_box_q,
-        "ljung_box_p": noise.ljung_box_p,
-        "white": bool(noise.white),
-        "noise_correlation": noise.correlation,
-        "nothing_left": bool(noise.nothing_left),
-        "sensor": sensor.as_dict(),
-        "autocorrelation_time": autocorrelation_time(fit.residuals),
-        "bins": bins,
-        "largest": _worst_bin(bins, rmse),
-    }
+    out = _verdict_dict(noise.rmse, noise.floor, noise.ljung_box_q, noise.ljung_box_p, bool(noise.white),
+                        fit.residuals, bins)
+    out.update(noise_correlation=noise.correlation, nothing_left=bool(noise.nothing_left), sensor=sensor.as_dict())
     out["summary"] = summary(out)
     return out
 
@@ -140,22 +128,19 @@ def verdict(residuals: Sequence[np.ndarray], by: dict[str, np.ndarray]) -> dict:
     sample of the concatenated residual, the quantities to bin it by."""
     residual = np.concatenate(residuals)
     rmse = float(np.sqrt(np.mean(residual**2)))
-    noise = noise_estimate(residuals)
     q, p = ljung_box(residuals)
     bins = {name: binned_rms(values, residual) for name, values in by.items()}
-    out = {
-        "rmse": rmse,
-        "noise_estimate": noise,
-        "rmse_over_noise": rmse / noise if noise > 0 else float("inf"),
-        "ljung_box_q": q,
-        "ljung_box_p": p,
-        "white": bool(p > WHITE_P),
-        "autocorrelation_time": autocorrelation_time(residuals),
-        "bins": bins,
-        "largest": _worst_bin(bins, rmse),
-    }
+    out = _verdict_dict(rmse, noise_estimate(residuals), q, p, bool(p > WHITE_P), residuals, bins)
     out["summary"] = summary(out)
     return out
+
+
+def _verdict_dict(rmse: float, floor: float, q: float, p: float, white: bool, residuals: Sequence[np.ndarray],
+                  bins: dict) -> dict:
+    """The keys every residual verdict has (the summary is added once the rest is there)."""
+    return {"rmse": rmse, "noise_estimate": floor, "rmse_over_noise": rmse / floor if floor > 0 else float("inf"),
+            "ljung_box_q": q, "ljung_box_p": p, "white": white, "autocorrelation_time": autocorrelation_time(residuals),
+            "bins": bins, "largest": _worst_bin(bins, rmse)}
 
 
 def _worst_bin(bins: dict, rmse: float) -> dict:
