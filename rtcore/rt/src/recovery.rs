@@ -424,8 +424,9 @@ impl Recovery {
             return;
         };
         match (phase, action) {
+            // Not a fault yet: the diagnosis reads Torque Enable again, and only a second 0
+            // (torque_found_off) marks and counts it (a late reply once read as 0 did).
             (Phase::Ok, Action::ReadTorqueEnable) if value == 0 && self.acts => {
-                self.servos[k].cause = Some(FaultKind::TorqueOff);
                 self.servos[k].enter(Phase::Diagnose, now_ns);
             }
             (Phase::Diagnose, Action::ReadHardwareError) => {
