@@ -163,6 +163,26 @@ def test_segments_roll_over_and_a_short_tail_is_dropped(tmp_path):
     assert names == ["joint1_000.csv", "joint1_001.csv", "joint1_002.csv"]
     assert not (tmp_path / "joint1_003.csv").exists()
     assert rec.rows[1] == 2503
+    dropped = tomllib.loads((tmp_path / "manifest.toml").read_text())["dropped"]
+    assert dropped == [{"joint_id": 1, "t_start": 3.0, "t_end": pytest.approx(3.002), "rows": 3, "faults": []}]
+
+
+def test_a_short_hold_dropped_from_the_csv_is_listed_with_its_faults(tmp_path):
+    """A hold of a few rows (a torque found off and re-enabled) is a trial of its own, too short
+    to fit: its file goes, and the manifest lists it with the faults its rows carried."""
+    from admittance.daemon.telemetry import fault_names
+
+    torque_off = 1 << fault_names(0xFF).index("torque_off")
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0)
+    cols = batch(0.0, 300)
+    cols["mode"][100:107], cols["fault"][100:107] = 2.0, torque_off
+    rec.append(1, cols)
+    rec.close()
+    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    assert [t.n_samples for t in load_dataset(tmp_path).trials] == [100, 193]
+    assert manifest["dropped"] == [{"joint_id": 1, "t_start": pytest.approx(0.1), "t_end": pytest.approx(0.106),
+                                    "rows": 7, "faults": ["torque_off"]}]
+    assert not np.any(all_rows(tmp_path)[:, COLUMNS.index("fault")]), "no kept row carries the hold's fault"
 
 
 def test_an_unwritable_folder_is_a_config_error(tmp_path):

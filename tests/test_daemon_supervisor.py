@@ -528,6 +528,21 @@ def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp
     assert any("servo 1 shut down (electrical shock)" in line for line in caplog.messages), caplog.messages
 
 
+def test_a_shutdown_recovered_between_two_ticks_is_told_with_its_cause(tmp_path):
+    """The loop rebooted and re-enabled the servo faster than the supervisor's tick: its
+    hardware_error is 0 again, and the line names the cause from last_error."""
+    from admittance.daemon.faults import FaultWatch
+
+    h = Harness(tmp_path)
+    told: list[str] = []
+    watch = FaultWatch(h.cfg, told.append)
+    loop = FakeLoop([], [1])
+    watch.poll(loop.stats(), {}, loop)
+    loop.servos[0].update(errors=1, recoveries=1, hardware_error=0, last_error=0x20)
+    watch.poll(loop.stats(), {}, loop)
+    assert told[0].startswith("servo 1 shut down (overload); rebooting it"), told
+
+
 def test_a_bus_that_stays_lost_exits_75_and_a_torque_off_it_cannot_carry_does_not_change_that(tmp_path, caplog):
     from admittance.errors import FaultStop
 

@@ -93,8 +93,10 @@ def check_recording(tmp_path: Path, stats: dict, marked: list[str]) -> dict:
     assert ends_in_gap or stats["cycles"] - rec["cycle"][-1] < 200, "the rows reach the run's end"
     assert rec["cycle"][0] < 500, "the rows start with the run"
     faults = rec["fault"].astype(np.int64)
+    listed = gaps + manifest.get("dropped", [])  # a trial too short to fit is listed, not kept
     for kind in marked:
-        assert np.any(faults & bit(kind)) or any(kind in g["faults"] for g in gaps), f"no row or gap marked {kind}"
+        assert np.any(faults & bit(kind)) or any(kind in g["faults"] for g in listed), \
+            f"no row, gap or dropped trial marked {kind}"
     return manifest
 
 

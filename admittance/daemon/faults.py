@@ -109,8 +109,9 @@ class FaultWatch:
             old = before.get(servo["id"], {})
             for key, text in SERVO_EVENTS:
                 if servo.get(key, 0) > old.get(key, 0):
-                    self.events(f"servo{servo['id']}.{key}",
-                                f"servo {servo['id']} " + text.format(causes=causes(servo.get("hardware_error", 0))))
+                    # The last counted error's bits: a reboot faster than this tick has cleared hardware_error.
+                    bits = servo.get("last_error", servo.get("hardware_error", 0))
+                    self.events(f"servo{servo['id']}.{key}", f"servo {servo['id']} " + text.format(causes=causes(bits)))
 
     def _tell_bus(self, bus: dict[str, Any]) -> None:
         old = self._last.get("bus", {})

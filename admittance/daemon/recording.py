@@ -60,8 +60,10 @@ read (the bus unplugged, a servo rebooting or browned out) there are no rows. Su
 open-loop refit must not integrate across it), and the manifest lists it under ``[[gaps]]``
 (joint, ``t_start``, ``t_end``, the ``faults`` seen), also when the run ends inside it. The
 first row after a gap carries the gap's fault bits and ``held`` (gathered since the previous
-row), and ``session.mcap`` holds every cycle of the gap, marked. A piece shorter than
-``MIN_ROWS`` between two gaps is too short to fit and is dropped from the CSV (not from the MCAP).
+row), and ``session.mcap`` holds every cycle of the gap, marked. A trial shorter than
+``MIN_ROWS`` (between two gaps, or a short hold) is too short to fit and is dropped from the CSV
+(not from the MCAP); the manifest lists it under ``[[dropped]]`` (joint, ``t_start``, ``t_end``,
+``rows``, the ``faults`` its rows carried), so no fault is lost with its rows.
 """
 
 from __future__ import annotations
@@ -108,6 +110,7 @@ class Recorder:
         self._last_row_t: dict[int, float] = {}
         self._last_cycle_t: dict[int, float] = {}
         self.gaps: list[dict[str, Any]] = []
+        self.dropped: list[dict[str, Any]] = []  # trials too short to fit, removed from the CSV
         self.models = dict(joints)
         # Per joint: the parameter file, plant and loop settings (the manifest's [[joints]]).
         self.joint_info = joint_info or {}
@@ -121,6 +124,8 @@ class Recorder:
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
         self._segment_start: dict[int, float] = {}
+        self._segment_span: dict[int, tuple[float, float]] = {}  # first and last row's t
+        self._segment_faults: dict[int, int] = {}
         self._files: dict[int, TextIO] = {}
         self._writers: dict[int, Any] = {}
         try:
@@ -143,6 +148,7 @@ class Recorder:
         self._entries[joint_id].append(dict(self._targets[joint_id]))
         self._segment_rows[joint_id] = 0
         self._segment_start[joint_id] = t
+        self._segment_faults[joint_id] = 0
         self._write_manifest()
 
     def _write_manifest(self) -> None:
@@ -160,6 +166,8 @@ class Recorder:
             doc["joints"] = [{"id": jid, **info} for jid, info in self.joint_info.items()]
         if self.gaps:
             doc["gaps"] = self.gaps
+        if self.dropped:
+            doc["dropped"] = self.dropped
         tmp = self.folder / "manifest.toml.tmp"
         tmp.write_text(tomli_w.dumps(doc))
         tmp.replace(self.folder / "manifest.toml")  # readers never see half a manifest
@@ -236,6 +244,10 @@ class Recorder:
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
+        if self._segment_rows[joint_id] == 0:
+            self._segment_span[joint_id] = (float(rows["t"][0]), float(rows["t"][0]))
+        self._segment_span[joint_id] = (self._segment_span[joint_id][0], float(rows["t"][-1]))
+        self._segment_faults[joint_id] |= int(np.bitwise_or.reduce(rows["fault"].astype(np.int64)))
         self._segment_rows[joint_id] += len(table)
         self._last_row_t[joint_id] = float(rows["t"][-1])
         return len(table)
@@ -249,9 +261,18 @@ class Recorder:
         """Close the segment (dropping it when too short to fit: the MCAP keeps its cycles), open the next."""
         self._files[joint_id].close()
         if self._segment_rows[joint_id] < MIN_ROWS:
-            (self.folder / self._segments[joint_id].pop()).unlink()
-            self._entries[joint_id].pop()
+            self._drop_segment(joint_id)
         self._open_segment(joint_id, t)
+
+    def _drop_segment(self, joint_id: int) -> None:
+        """Remove the joint's last segment (file and manifest entry); list it when it had rows."""
+        (self.folder / self._segments[joint_id].pop()).unlink()
+        self._entries[joint_id].pop()
+        if self._segment_rows[joint_id]:
+            t_start, t_end = self._segment_span[joint_id]
+            self.dropped.append({"joint_id": joint_id, "t_start": t_start, "t_end": t_end,
+                                 "rows": self._segment_rows[joint_id],
+                                 "faults": fault_names(self._segment_faults[joint_id])})
 
     def close(self) -> None:
         """Write the held-back cycles (with their own torque: nothing follows them), close the
@@ -268,10 +289,8 @@ class Recorder:
                                   "faults": fault_names(fault)})
         for joint_id, fh in self._files.items():
             fh.close()
-            names = self._segments[joint_id]
-            if self._segment_rows[joint_id] < MIN_ROWS and len(names) > 1:
-                (self.folder / names.pop()).unlink()
-                self._entries[joint_id].pop()
+            if self._segment_rows[joint_id] < MIN_ROWS and len(self._segments[joint_id]) > 1:
+                self._drop_segment(joint_id)
         self._write_manifest()
 
 

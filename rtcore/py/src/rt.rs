@@ -513,15 +513,17 @@ impl PyAdmittanceLoop {
 }
 
 impl PyAdmittanceLoop {
-    /// Per joint: its servo's recovery (`phase`), last hardware error, silence and counts.
+    /// Per joint: its servo's recovery (`phase`), hardware error (now, and of the last one
+    /// counted), silence and counts.
     fn servos_list<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let list = PyList::empty(py);
-        for (id, (phase, bits, silent, c)) in self.inner.ids().iter().zip(self.inner.servos()) {
-            let d = PyDict::new(py);
+        for (id, s) in self.inner.ids().iter().zip(self.inner.servos()) {
+            let (c, d) = (s.counts, PyDict::new(py));
             d.set_item("id", id)?;
-            d.set_item("phase", phase)?;
-            d.set_item("hardware_error", bits)?;
-            d.set_item("silent", silent)?;
+            d.set_item("phase", s.phase)?;
+            d.set_item("hardware_error", s.hardware_error)?;
+            d.set_item("last_error", s.last_error)?;
+            d.set_item("silent", s.silent)?;
             for (name, n) in [
                 ("errors", c.errors),
                 ("tolerated", c.tolerated),

@@ -479,7 +479,9 @@ fn accept(item: Result<Packet<'_>, DecodeError>, ids: &[u8], size: usize) -> Res
     if error.is_failure() {
         return Err(BusError::Servo { id: packet.id, raw: error.raw() });
     }
-    if packet.params.len() < size {
+    // Exactly the size asked for: a status carries no address, so a late reply to an earlier
+    // request (a SyncRead's four bytes arriving during a one-byte read) is told apart by its length.
+    if packet.params.len() != size {
         return Ok(None);
     }
     Ok(Some((k, get_le(&packet.params[..size]))))
@@ -525,6 +527,8 @@ pub(crate) mod memory {
         pub reboot_silence: u32,
         pub rebooting: Vec<(u8, u32)>,
         pub reboots: Vec<u8>,
+        /// Bytes of a late reply still in flight: they arrive just before the next reply.
+        pub late: Vec<u8>,
     }
 
     impl Wire {
@@ -687,6 +691,8 @@ pub(crate) mod memory {
                 return Err(io::ErrorKind::TimedOut.into());
             }
             wire.written.push(bytes.to_vec());
+            let late = std::mem::take(&mut wire.late);
+            wire.replies.extend(late);
             reply(&mut wire, bytes);
             Ok(())
         }
@@ -831,6 +837,23 @@ mod tests {
         let mut bus1 = JointBus::new(Protocol::V1, regs1(), &[4]);
         assert_eq!(bus1.read_hardware_error(&mut t1, 0, 0).unwrap(), 0x24);
         assert!(!bus1.read_torque_enable(&mut t1, 0, 0).unwrap());
+    }
+
+    #[test]
+    fn a_late_reply_of_another_length_does_not_pass_for_the_one_awaited() {
+        let mut t = MemoryTransport::new(true, &[(1, 0x0802)]);
+        t.wire().set_hardware(1, 0x20);
+        let mut bus = JointBus::new(Protocol::V2, regs2(), &[1]);
+        let mut late = [0u8; 32];
+        let n = protocol2::encode_status(&mut late, 1, 0, &0x0802i32.to_le_bytes()).unwrap();
+        t.wire().late = late[..n].to_vec(); // a SyncRead's reply, in flight past its deadline
+        assert_eq!(bus.read_hardware_error(&mut t, 0, 0).unwrap(), 0x20, "not the tick's low byte 0x02");
+        let n = protocol2::encode_status(&mut late, 1, 0, &0x0800i32.to_le_bytes()).unwrap();
+        t.wire().late = late[..n].to_vec();
+        assert!(bus.read_torque_enable(&mut t, 0, 0).unwrap(), "not the tick's low byte 0x00");
+        t.wire().late = late[..n].to_vec();
+        bus.write_torque(&mut t, 0, true, 0).unwrap();
+        assert!(t.wire().replies.is_empty(), "the write waited for its own (empty) status");
     }
 
     #[test]

@@ -16,11 +16,11 @@ use crate::cycle::{Controller, ControllerParts};
 use crate::doorbell::{ArrivalEstimator, Doorbell};
 use crate::fault::Faults;
 use crate::params::{LoopParams, ParamValue, Reach};
-use crate::recovery::{ServoCounts, StopRequest};
+use crate::recovery::StopRequest;
 use crate::port::SerialTransport;
 use crate::sched;
 use crate::sensor::ForceSample;
-use crate::shared::Shared;
+use crate::shared::{ServoSnapshot, Shared};
 use crate::telemetry::{Record, StatsSnapshot};
 use crate::trigger::{TriggerMode, TriggerSnapshot};
 use std::fmt;
@@ -324,8 +324,8 @@ impl LoopHandle {
         self.shared.stop_request()
     }
 
-    /// Per joint: (phase of its recovery, hardware error bits, silent, counts).
-    pub fn servos(&self) -> Vec<(&'static str, u8, bool, ServoCounts)> {
+    /// Per joint: its servo's recovery.
+    pub fn servos(&self) -> Vec<ServoSnapshot> {
         self.shared.servos.iter().map(|s| s.snapshot()).collect()
     }
 

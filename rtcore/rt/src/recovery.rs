@@ -280,6 +280,8 @@ struct Servo {
     hardware_error: u8,
     /// An error the firmware runs on with (torque still on): its alerts start no diagnosis.
     tolerated: u8,
+    /// The bits of the last error counted (a shutdown or a tolerated one), kept after recovery.
+    last_error: u8,
     /// The first unanswered attempt since the last answer.
     unanswered_since: Option<u64>,
     silent: bool,
@@ -300,6 +302,7 @@ impl Servo {
             alert: false,
             hardware_error: 0,
             tolerated: 0,
+            last_error: 0,
             unanswered_since: None,
             silent: false,
             check_due: false,
@@ -323,6 +326,9 @@ pub struct ServoView {
     pub phase: Phase,
     /// The last Hardware Error Status read (0 once recovered), or the one tolerated.
     pub hardware_error: u8,
+    /// The bits of the last error counted in `counts` (shut down or tolerated), kept after the
+    /// recovery: a reader that looks once a second still names the cause of a fast reboot.
+    pub last_error: u8,
     pub silent: bool,
     pub counts: ServoCounts,
 }
@@ -474,6 +480,7 @@ impl Recovery {
         let s = &mut self.servos[k];
         if s.hardware_error != 0 && s.hardware_error != s.tolerated {
             s.tolerated = s.hardware_error;
+            s.last_error = s.hardware_error;
             s.counts.tolerated += 1;
         }
         self.recovered(k);
@@ -502,6 +509,7 @@ impl Recovery {
         }
         let s = &mut self.servos[k];
         s.counts.errors += 1;
+        s.last_error = bits;
         let next = if self.can_reboot { Phase::Reboot } else { Phase::AwaitClear { since_ns: now_ns } };
         s.enter(next, now_ns);
     }
@@ -623,6 +631,7 @@ impl Recovery {
         self.servos.get(k).map(|s| ServoView {
             phase: s.phase,
             hardware_error: if s.hardware_error != 0 { s.hardware_error } else { s.tolerated },
+            last_error: s.last_error,
             silent: s.silent,
             counts: s.counts,
         })

@@ -123,6 +123,7 @@ fn an_overload_shutdown_is_diagnosed_rebooted_reanchored_and_re_enabled_in_that_
     );
     let v = b.r.view(0).unwrap();
     assert_eq!((v.phase, v.hardware_error, v.counts.reboots, v.counts.reenables, v.counts.recoveries), (Phase::Ok, 0, 1, 1, 1));
+    assert_eq!(v.last_error, HW_OVERLOAD, "the cause outlives the recovery, for a reader that looks later");
     assert!(!b.r.holds(0) && b.r.faults(0).is_empty() && b.r.stop_request().is_none());
     assert_eq!(b.r.view(1).unwrap().counts, ServoCounts::default(), "the healthy joint only had its checks");
 }
@@ -252,11 +253,11 @@ fn the_torque_off_stop_policy_stops() {
 fn an_error_the_firmware_runs_on_with_is_counted_and_tolerated() {
     let mut b = Bench::new(1, policy());
     // Input voltage is outside the default Shutdown mask: alert set, torque still on.
-    let mut servo = |_: usize, action: Action| Some(if action == Action::ReadHardwareError { 1 } else { 1 });
+    let mut servo = |_: usize, action: Action| Some(if action == Action::ReadHardwareError { i64::from(HW_INPUT_VOLTAGE) } else { 1 });
     b.r.observe(0, true, true, b.t);
     b.run(5, &mut servo);
     let v = b.r.view(0).unwrap();
-    assert_eq!((v.phase, v.hardware_error, v.counts.tolerated), (Phase::Ok, HW_INPUT_VOLTAGE, 1));
+    assert_eq!((v.phase, v.hardware_error, v.last_error, v.counts.tolerated), (Phase::Ok, HW_INPUT_VOLTAGE, HW_INPUT_VOLTAGE, 1));
     assert!(!b.r.holds(0) && !b.actions_of(0).contains(&Action::Reboot));
     let before = b.log.len();
     b.r.observe(0, true, true, b.t); // the alert goes on: no new diagnosis

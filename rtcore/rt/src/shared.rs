@@ -65,14 +65,26 @@ impl LinkStats {
 pub struct ServoShared {
     phase: AtomicU8,
     hardware_error: AtomicU8,
+    last_error: AtomicU8,
     silent: AtomicBool,
     counts: [AtomicU64; 7],
+}
+
+/// One servo's recovery as the supervisor reads it (`ServoView` with the phase's name).
+#[derive(Debug, Clone, Copy)]
+pub struct ServoSnapshot {
+    pub phase: &'static str,
+    pub hardware_error: u8,
+    pub last_error: u8,
+    pub silent: bool,
+    pub counts: ServoCounts,
 }
 
 impl ServoShared {
     pub fn publish(&self, v: &ServoView) {
         self.phase.store(v.phase.code(), Ordering::Relaxed);
         self.hardware_error.store(v.hardware_error, Ordering::Relaxed);
+        self.last_error.store(v.last_error, Ordering::Relaxed);
         self.silent.store(v.silent, Ordering::Relaxed);
         let c = &v.counts;
         for (slot, n) in self.counts.iter().zip([c.errors, c.tolerated, c.torque_offs, c.reboots, c.reenables, c.recoveries, c.silences]) {
@@ -80,12 +92,17 @@ impl ServoShared {
         }
     }
 
-    /// (phase name, hardware error bits, silent, counts).
-    pub fn snapshot(&self) -> (&'static str, u8, bool, ServoCounts) {
+    pub fn snapshot(&self) -> ServoSnapshot {
         let n = |k: usize| self.counts[k].load(Ordering::Relaxed);
         let phase = Phase::NAMES.get(usize::from(self.phase.load(Ordering::Relaxed))).copied().unwrap_or("ok");
         let counts = ServoCounts { errors: n(0), tolerated: n(1), torque_offs: n(2), reboots: n(3), reenables: n(4), recoveries: n(5), silences: n(6) };
-        (phase, self.hardware_error.load(Ordering::Relaxed), self.silent.load(Ordering::Relaxed), counts)
+        ServoSnapshot {
+            phase,
+            hardware_error: self.hardware_error.load(Ordering::Relaxed),
+            last_error: self.last_error.load(Ordering::Relaxed),
+            silent: self.silent.load(Ordering::Relaxed),
+            counts,
+        }
     }
 }
 
