@@ -496,6 +496,9 @@ def test_the_stop_line_says_the_bench_is_simulated_and_where_its_errors_came_fro
     assert "was never more than 0.25 ms late: these errors are not the simulation's lateness" in punctual
     real = summary_line(_stats(3, simulated=False), "torque_off")
     assert "simulated" not in real and real.startswith("stopped (torque_off) after 10000 cycles: ")
+    direct = summary_line({**_stats(3, simulated=True, stalls=2), "bus": {"link": "in-process"}}, "hold")
+    assert "in-process, on the wire's own time" in direct and "pseudo-terminals" not in direct, \
+        "the embedded bench's loop does not read through the pty: its thread's lateness is not the cause"
 
 
 # -- faults (docs/faults.md): told, marked, stopped on with their exit status ----------------------

@@ -280,6 +280,7 @@ def test_no_config_runs_the_embedded_bench(tmp_path):
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["cycles"] > 500 and stats["sensor_samples"] > 200  # of ~3500 each: room for a loaded machine
+    assert stats["bus"]["link"] == "in-process", "the loop reaches the embedded bench's servos in-process"
 
 
 @pytest.mark.slow
@@ -297,6 +298,7 @@ def test_protocol_1_servos_and_the_can_sensor_run_end_to_end(tmp_path, bus, sens
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "s.json").read_text())
     assert stats["sync_reads"] > 100 and stats["sensor_samples"] > 200  # of ~1500 each: room for a loaded machine
+    assert stats["bus"]["link"] == "in-process"
 
 
 @pytest.mark.parametrize("when", ["at once", "after the stop began", "after the stats were written"])

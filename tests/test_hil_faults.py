@@ -128,6 +128,7 @@ def test_servo_faults_are_recovered_told_once_and_marked(tmp_path, bench):
     assert told(daemon.stderr, "servo 1 found with its torque off") == 1, daemon.stderr
     assert told(daemon.stderr, "servo 1 does not answer") == 1, daemon.stderr
     final = json.loads((tmp_path / "stats.json").read_text())
+    assert final["bus"]["link"] == "serial", "mock-bench's servos, through its pty like any adapter's"
     assert final["faults"]["servo_error"] >= 1 and final["faults"]["torque_off"] >= 1
     assert final["faults"]["servo_silent"] >= 1 and servo(final)["reboots"] == 1
     assert servo(stats)["errors"] == 1, "the overload, and only it, was a shutdown"

@@ -58,7 +58,7 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
         links = bench.links
         pty_sensor = links["sensor"] or bench.sensor_port
         sensor_port = pty_sensor or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
-        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go, bench.stats)
+        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go, bench.stats, bench.bus)
     finally:
         bench.stop()
 
@@ -68,6 +68,9 @@ class BenchPorts(NamedTuple):
     sensor: str
     start_hand: Callable[[], None]  # called once the loop runs (a no-op on real hardware)
     stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's counters (None on hardware)
+    # The embedded bench's servos: the loop reaches them in-process, not through the pty
+    # (which the start-up checks use), so the simulation answers on the wire model's time.
+    simulated_bus: Any = None
 
 
 class DelayedHand:

@@ -17,6 +17,7 @@
 //! Python thread would share the GIL with the very code under test.
 pub mod bus;
 pub mod catalog;
+pub mod direct;
 pub mod firmware;
 pub mod hand;
 pub mod motor;
@@ -28,8 +29,10 @@ pub mod servo;
 pub mod setup;
 pub mod table;
 pub mod units;
+pub mod wire;
 
 pub use bus::Bus;
+pub use direct::DirectLink;
 pub use server::{BusConfig, MockBus, Stats, TimingReport};
 pub use servo::{Servo, ServoSpec, Snapshot};
 pub use setup::{build_bus, ServoConfig};

@@ -5,12 +5,8 @@
 //! a hand torque or read a horn's state at any time. The thread holds the lock only to step the
 //! physics and answer a packet, never while it waits for bytes.
 //!
-//! Timing (with `wire_delay`): a pty delivers bytes instantly, so the mock adds what a real
-//! bus takes. A reply's first byte may start when the instruction's last byte would have
-//! arrived (instruction length × 10 bits / baud after it was read) plus the servo's Return
-//! Delay Time; the reply is written when its own last byte would have arrived. Chained replies
-//! (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its servo's
-//! Return Delay Time. Without `wire_delay` replies go out at once.
+//! Timing: `wire` times each reply as a real wire would (instruction and reply bytes at the
+//! baud rate, the servo's Return Delay Time); this thread writes it to the pty when it is due.
 //!
 //! Scheduling and honesty about it: a real servo's firmware answers on time whatever the host
 //! does, but this thread is one more thread of a loaded machine. It therefore asks for the
@@ -22,9 +18,11 @@
 //! was late, which a real bus never is.
 //!
 //! Physics runs at a fixed substep (default 2 kHz) up to the wall clock, both on every wait
-//! timeout (≤ 1 ms) and before a packet is answered, so reads see current positions. If the
-//! thread was starved for more than `MAX_CATCH_UP`, the lost time is skipped (and counted)
-//! rather than simulated in one burst that would starve it again.
+//! timeout (≤ 1 ms) and before a packet is answered, so reads see current positions
+//! (`Shared::advance_physics`, which the in-process link calls too).
+//!
+//! The daemon's embedded bench gives its loop a `direct::DirectLink` into the same servos
+//! instead of this pty: see that module for why.
 //!
 //! Unplug and replug (the USB adapter pulled out and put back): `unplug` closes the pty, so a
 //! client's descriptor hangs up as on a real unplug (reads return end-of-file, writes EIO) and
@@ -40,21 +38,17 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use dxl::{protocol1, protocol2, DecodeError, Kind, Packet, Protocol};
+use rtloop::clock::monotonic_ns;
 use rtloop::histogram::{Histogram, Percentiles};
 use rtloop::sched::{self, Policy, RtReport, RtRequest};
 
-use crate::bus::{Bus, Counters, Reply};
+use crate::bus::{Bus, Counters};
+use crate::direct::DirectLink;
 use crate::pty::Pty;
+use crate::wire::{Answerer, PhysicsClock};
 
 /// The longest the thread sleeps between physics catch-ups.
 const MAX_WAIT: Duration = Duration::from_millis(1);
-/// The most simulated time one catch-up may run; beyond it time is skipped.
-const MAX_CATCH_UP: Duration = Duration::from_millis(250);
-/// A partial packet older than this is dropped: the e-manual's 1.5 ms inter-byte timeout,
-/// after which a servo waits for a new header. Clients write a packet in one call, so on a
-/// pty a packet's bytes arrive together and only a truncated packet ever waits this long.
-const INTER_BYTE_TIMEOUT: Duration = Duration::from_micros(1500);
 /// A reply or a wake-up later than this is a stall of the thread: a quarter of a 1 kHz loop's
 /// period, beyond which a 1 kHz client's read window (most of a period, less the wire time) is
 /// at risk. Only a count; the histograms keep every lateness.
@@ -127,6 +121,7 @@ pub struct IoCounters {
 pub struct Shared {
     pub bus: Bus,
     pub io: IoCounters,
+    pub physics: PhysicsClock,
 }
 
 /// What `stats()` reports.
@@ -150,13 +145,13 @@ pub struct MockBus {
 }
 
 /// The bus's end of the wire: the pty while plugged in, and the stable link to it.
-struct Port {
-    pty: Option<Arc<Pty>>,
+pub(crate) struct Port {
+    pub(crate) pty: Option<Arc<Pty>>,
     /// The device path of the current pty (the last one while unplugged).
     path: String,
     link: Option<PathBuf>,
-    /// Bumped at every unplug and replug, so the thread drops what was in flight.
-    generation: u64,
+    /// Bumped at every unplug and replug, so the thread and the in-process links drop what was in flight.
+    pub(crate) generation: u64,
 }
 
 impl MockBus {
@@ -175,7 +170,7 @@ impl MockBus {
         let port = Port { path: pty.path().to_string(), pty: Some(Arc::new(pty)), link: None, generation: 0 };
         Ok(MockBus {
             port: Arc::new(Mutex::new(port)),
-            shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default() })),
+            shared: Arc::new(Mutex::new(Shared { bus, io: IoCounters::default(), physics: PhysicsClock::new(config.physics_rate_hz) })),
             config,
             stop: Arc::new(AtomicBool::new(false)),
             thread: Mutex::new(None),
@@ -276,16 +271,23 @@ impl MockBus {
             return Ok(());
         }
         self.stop.store(false, Ordering::SeqCst);
+        self.lock().physics.start(monotonic_ns());
         let mut worker =
             Worker::new(self.port.clone(), self.shared.clone(), self.config, self.stop.clone(), self.timing.clone());
         *handle = Some(std::thread::Builder::new().name("dxlsim-bus".into()).spawn(move || worker.run())?);
         Ok(())
     }
 
+    /// An in-process link to these servos for one client (the embedded bench's loop): see `direct`.
+    pub fn direct_link(&self) -> DirectLink {
+        DirectLink::new(self.port.clone(), self.shared.clone(), self.config)
+    }
+
     /// Stops the thread and waits for it; returns the I/O error that ended it early, if any.
     pub fn stop(&self) -> io::Result<()> {
         self.stop.store(true, Ordering::SeqCst);
         let handle = self.handle().take();
+        self.lock().physics.pause();
         match handle {
             Some(handle) => handle.join().map_err(|_| io::Error::other("the bus thread panicked"))?,
             None => Ok(()),
@@ -337,56 +339,6 @@ fn point_link(link: &Path, target: &str) -> io::Result<()> {
     std::fs::rename(&temporary, link)
 }
 
-/// A packet decoder for the bus's protocol (the two decoders are different types).
-enum Decoder {
-    V1(protocol1::Decoder),
-    V2(protocol2::Decoder),
-}
-
-impl Decoder {
-    fn new(protocol: Protocol) -> Decoder {
-        match protocol {
-            Protocol::V1 => Decoder::V1(protocol1::Decoder::new(protocol1::Expect::Instruction)),
-            Protocol::V2 => Decoder::V2(protocol2::Decoder::new()),
-        }
-    }
-
-    fn push(&mut self, bytes: &[u8]) -> usize {
-        match self {
-            Decoder::V1(d) => d.push(bytes),
-            Decoder::V2(d) => d.push(bytes),
-        }
-    }
-
-    fn next(&mut self) -> Option<Result<Packet<'_>, DecodeError>> {
-        match self {
-            Decoder::V1(d) => d.next(),
-            Decoder::V2(d) => d.next(),
-        }
-    }
-
-    fn skipped_bytes(&self) -> u64 {
-        match self {
-            Decoder::V1(d) => d.skipped_bytes(),
-            Decoder::V2(d) => d.skipped_bytes(),
-        }
-    }
-
-    fn buffered(&self) -> usize {
-        match self {
-            Decoder::V1(d) => d.buffered(),
-            Decoder::V2(d) => d.buffered(),
-        }
-    }
-
-    fn clear(&mut self) {
-        match self {
-            Decoder::V1(d) => d.clear(),
-            Decoder::V2(d) => d.clear(),
-        }
-    }
-}
-
 /// The thread's own state.
 struct Worker {
     port: Arc<Mutex<Port>>,
@@ -394,19 +346,11 @@ struct Worker {
     generation: u64,
     shared: Arc<Mutex<Shared>>,
     stop: Arc<AtomicBool>,
-    decoder: Decoder,
-    config: BusConfig,
-    step: Duration,
-    epoch: Instant,
-    steps_done: u64,
-    /// Replies waiting for their due time, in wire order.
-    schedule: VecDeque<(Instant, Vec<u8>)>,
+    /// The SCHED_FIFO priority asked for (0: SCHED_OTHER).
+    rt_priority: i32,
+    answerer: Answerer,
     /// Bytes the pty did not take yet.
     output: VecDeque<u8>,
-    /// When the bus is free again (the last scheduled reply's end).
-    bus_free: Instant,
-    /// When the last bytes arrived (for the inter-byte timeout).
-    last_rx: Instant,
     timing: Arc<Timing>,
 }
 
@@ -420,30 +364,15 @@ impl Worker {
     ) -> Worker {
         let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
         let generation = port.lock().unwrap_or_else(|p| p.into_inner()).generation;
-        let now = Instant::now();
-        Worker {
-            port,
-            generation,
-            shared,
-            stop,
-            decoder: Decoder::new(protocol),
-            config,
-            step: Duration::from_secs_f64(1.0 / config.physics_rate_hz),
-            epoch: now,
-            steps_done: 0,
-            schedule: VecDeque::new(),
-            output: VecDeque::new(),
-            bus_free: now,
-            last_rx: now,
-            timing,
-        }
+        let answerer = Answerer::new(protocol, config, monotonic_ns());
+        Worker { port, generation, shared, stop, rt_priority: config.rt_priority, answerer, output: VecDeque::new(), timing }
     }
 
     /// The loop's scheduling for this thread (SCHED_FIFO at `rt_priority`, or SCHED_OTHER),
     /// with the loop's fallback and warning, and its minimal timer slack: the emulated delays
     /// are sleeps, which the default 50 µs slack would make late by that much.
     fn schedule_thread(&self) {
-        let priority = self.config.rt_priority;
+        let priority = self.rt_priority;
         let policy = if priority > 0 { Policy::Fifo } else { Policy::Other };
         let request = RtRequest { policy, priority, lock_memory: false, cpu: None };
         let (report, warnings) = sched::apply_to_current_thread(&request);
@@ -457,7 +386,7 @@ impl Worker {
         self.schedule_thread();
         let mut buf = [0u8; 4096];
         while !self.stop.load(Ordering::SeqCst) {
-            self.advance_physics();
+            self.lock().advance_physics(monotonic_ns());
             // This iteration's reference to the pty; `unplug` waits until it is dropped.
             let Some(pty) = self.current_pty() else {
                 std::thread::sleep(MAX_WAIT);
@@ -466,9 +395,11 @@ impl Worker {
             self.flush_due(&pty)?;
             if self.wait(&pty)? {
                 let n = pty.read(&mut buf)?;
-                self.receive(&buf[..n]);
+                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+                self.answerer.receive(monotonic_ns(), &buf[..n], shared);
             } else {
-                self.drop_stale_partial();
+                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+                self.answerer.drop_stale_partial(monotonic_ns(), shared);
             }
         }
         Ok(())
@@ -480,36 +411,14 @@ impl Worker {
         let port = self.port.lock().unwrap_or_else(|p| p.into_inner());
         if port.generation != self.generation {
             self.generation = port.generation;
-            self.decoder.clear();
-            self.schedule.clear();
+            self.answerer.clear(monotonic_ns());
             self.output.clear();
-            self.bus_free = Instant::now();
         }
         port.pty.clone()
     }
 
     fn lock(&self) -> MutexGuard<'_, Shared> {
         self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-
-    /// Steps every servo up to the wall clock.
-    fn advance_physics(&mut self) {
-        let due = (self.epoch.elapsed().as_nanos() / self.step.as_nanos()) as u64;
-        let max_burst = (MAX_CATCH_UP.as_nanos() / self.step.as_nanos()) as u64;
-        let mut n = due.saturating_sub(self.steps_done);
-        let h = self.step.as_secs_f64();
-        let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
-        if n > max_burst {
-            shared.io.skipped_steps += n - max_burst;
-            self.steps_done += n - max_burst;
-            n = max_burst;
-        }
-        for _ in 0..n {
-            shared.bus.step(h);
-        }
-        self.steps_done += n;
-        shared.io.physics_steps += n;
-        shared.bus.publish();
     }
 
     /// Waits for bytes (see `wait_time`); true when some arrived. A wait that ends at or after
@@ -527,93 +436,17 @@ impl Worker {
 
     /// How long to wait for bytes: until the next reply is due, at most `MAX_WAIT`.
     fn wait_time(&self) -> Duration {
-        let now = Instant::now();
-        let next_reply = self.schedule.front().map(|(due, _)| due.saturating_duration_since(now));
+        let now = monotonic_ns();
+        let next_reply = self.answerer.next_due_ns().map(|due| Duration::from_nanos(due.saturating_sub(now)));
         let wait = next_reply.map_or(MAX_WAIT, |d| d.min(MAX_WAIT));
         if self.output.is_empty() { wait } else { wait.min(Duration::from_micros(100)) }
     }
 
-    /// Time `n` bytes take on the wire: 10 bits per byte (start, 8 data, stop).
-    fn wire_time(&self, n: usize) -> Duration {
-        if self.config.wire_delay && self.config.baudrate > 0 {
-            Duration::from_secs_f64(n as f64 * 10.0 / self.config.baudrate as f64)
-        } else {
-            Duration::ZERO
-        }
-    }
-
-    /// Forgets a partial packet once the inter-byte timeout has passed.
-    fn drop_stale_partial(&mut self) {
-        if self.decoder.buffered() > 0 && self.last_rx.elapsed() > INTER_BYTE_TIMEOUT {
-            self.decoder.clear();
-            self.lock().io.truncated_packets += 1;
-        }
-    }
-
-    fn receive(&mut self, mut bytes: &[u8]) {
-        let arrival = Instant::now();
-        self.drop_stale_partial();
-        self.last_rx = arrival;
-        self.lock().io.bytes_in += bytes.len() as u64;
-        while !bytes.is_empty() {
-            let taken = self.decoder.push(bytes);
-            bytes = &bytes[taken..];
-            self.drain_packets(arrival);
-        }
-        let skipped = self.decoder.skipped_bytes();
-        self.lock().io.garbage_bytes = skipped;
-    }
-
-    /// Answers every whole packet the decoder holds.
-    fn drain_packets(&mut self, arrival: Instant) {
-        self.advance_physics();
-        loop {
-            let answered = {
-                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
-                let protocol = shared.bus.protocol();
-                match self.decoder.next() {
-                    None => return,
-                    Some(Ok(Packet { id, kind: Kind::Instruction(code), params })) => {
-                        Some((shared.bus.handle(id, code, params), packet_len(protocol, params.len())))
-                    }
-                    Some(Ok(Packet { kind: Kind::Status(_), .. })) => {
-                        shared.io.foreign_status_packets += 1;
-                        None
-                    }
-                    Some(Err(DecodeError::Crc { id, .. } | DecodeError::Checksum { id, .. })) => {
-                        Some((shared.bus.handle_corrupt(id), packet_len(protocol, 0)))
-                    }
-                    Some(Err(DecodeError::Length { .. })) => {
-                        shared.io.framing_errors += 1;
-                        None
-                    }
-                }
-            };
-            if let Some((replies, length)) = answered {
-                self.schedule_replies(arrival + self.wire_time(length), replies);
-            }
-        }
-    }
-
-    /// Queues replies back to back after `start`, each after its servo's Return Delay Time.
-    fn schedule_replies(&mut self, start: Instant, replies: Vec<Reply>) {
-        let mut t = start.max(self.bus_free);
-        for reply in replies.into_iter().filter(|r| !r.bytes.is_empty()) {
-            if self.config.wire_delay {
-                t += Duration::from_micros(reply.delay_us);
-            }
-            t += self.wire_time(reply.bytes.len());
-            self.schedule.push_back((t, reply.bytes));
-        }
-        self.bus_free = t;
-    }
-
     /// Writes every reply whose time has come, then whatever the pty accepts.
     fn flush_due(&mut self, pty: &Pty) -> io::Result<()> {
-        let now = Instant::now();
-        while self.schedule.front().is_some_and(|(due, _)| *due <= now) {
-            let Some((due, bytes)) = self.schedule.pop_front() else { break };
-            self.timing.record(&self.timing.reply_late, now - due);
+        let now = monotonic_ns();
+        while let Some((due, bytes)) = self.answerer.pop_due(now) {
+            self.timing.record(&self.timing.reply_late, Duration::from_nanos(now - due));
             if self.output.len() + bytes.len() > MAX_PENDING_OUTPUT {
                 self.lock().io.dropped_reply_bytes += bytes.len() as u64;
             } else {
@@ -630,14 +463,5 @@ impl Worker {
             self.lock().io.bytes_out += n as u64;
         }
         Ok(())
-    }
-}
-
-/// The size of an instruction packet with `n_params` parameter bytes (unstuffed; the
-/// difference stuffing makes is a few bytes of wire time at most).
-fn packet_len(protocol: Protocol, n_params: usize) -> usize {
-    match protocol {
-        Protocol::V1 => protocol1::PREFIX_LEN + 2 + n_params,
-        Protocol::V2 => protocol2::PREFIX_LEN + 3 + n_params,
     }
 }

@@ -140,6 +140,11 @@ pub struct PyMockBus {
 }
 
 impl PyMockBus {
+    /// An in-process link to these servos (the embedded bench's loop).
+    pub(crate) fn direct_link(&self) -> dxlsim::DirectLink {
+        self.inner.direct_link()
+    }
+
     fn with_servo<T>(&self, py: Python<'_>, id: u8, f: impl FnOnce(&mut dxlsim::Servo) -> T) -> PyResult<T> {
         let mut shared = self.inner.lock();
         match shared.bus.servo_mut(id) {

@@ -19,6 +19,7 @@ use rtloop::sensor::ForceSample;
 use rtloop::telemetry::{Record, RECORD_FIELDS};
 use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
 use crate::dict_fields::{first_unknown_key, opt};
+use crate::dxlsim::PyMockBus;
 use crate::errors::{config_error, device_error};
 
 const LOOP_KEYS: [&str; 22] = [
@@ -355,9 +356,16 @@ impl PyAdmittanceLoop {
     }
 
     /// Opens the bus, reads every joint's present position (bumpless start), spawns the RT
-    /// thread and returns once it runs.
-    fn start(&self, py: Python<'_>) -> PyResult<()> {
-        py.detach(|| self.inner.start()).map_err(|e| start_error(py, e))
+    /// thread and returns once it runs. With `simulated_bus` (a `MockBus` in this process: the
+    /// daemon's embedded bench) the loop talks to its servos through an in-process link, not
+    /// through the configured port (dxlsim's `direct` module says why).
+    #[pyo3(signature = (simulated_bus=None))]
+    fn start(&self, py: Python<'_>, simulated_bus: Option<PyRef<'_, PyMockBus>>) -> PyResult<()> {
+        match simulated_bus.map(|bus| bus.direct_link()) {
+            Some(link) => py.detach(|| self.inner.start_with(Box::new(link))),
+            None => py.detach(|| self.inner.start()),
+        }
+        .map_err(|e| start_error(py, e))
     }
 
     /// Stops the loop: "hold" keeps the last goal, "torque_off" disables torque on every joint.
@@ -540,11 +548,12 @@ impl PyAdmittanceLoop {
         Ok(list)
     }
 
-    /// The bus's port: lost (for how long), losses, reconnects, reopen attempts and failures.
+    /// The bus's port: its kind of link, lost (for how long), losses, reconnects, reopen attempts and failures.
     fn link_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let l = self.inner.link();
         let d = PyDict::new(py);
         d.set_item("state", if l.lost_for_ns.is_some() { "lost" } else { "up" })?;
+        d.set_item("link", l.kind)?;
         d.set_item("lost_for_s", l.lost_for_ns.map(|ns| ns as f64 * 1e-9))?;
         d.set_item("losses", l.losses)?;
         d.set_item("loss_errno", l.loss_errno)?;

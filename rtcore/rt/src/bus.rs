@@ -37,6 +37,11 @@ pub trait Transport: Send {
     fn reconnect(&mut self) -> bool {
         false
     }
+    /// What the link is, for the stats: "serial" (a device node: an adapter, or a pty), or
+    /// another transport's own name.
+    fn kind(&self) -> &'static str {
+        "serial"
+    }
 }
 
 /// An I/O error that says the device itself is gone (an unplugged adapter: EIO, ENXIO, ENODEV,

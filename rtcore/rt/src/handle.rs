@@ -200,6 +200,9 @@ impl LoopHandle {
     pub fn start_with(&self, mut transport: Box<dyn Transport>) -> Result<(), StartError> {
         let mut idle = self.idle.lock().map_err(|_| StartError::Thread("loop state poisoned".into()))?;
         let mut controller = idle.take().ok_or(StartError::AlreadyStarted)?;
+        if let Ok(mut kind) = self.shared.link.kind.lock() {
+            *kind = transport.kind();
+        }
         let deadline = monotonic_ns() + (self.config.start_timeout_ms * 1e6) as u64;
         if let Err(e) = controller.start_at_present(transport.as_mut(), deadline, self.config.torque_on_start) {
             *idle = Some(controller);
@@ -342,6 +345,7 @@ impl LoopHandle {
             reopen_attempts: l.reopen_attempts.load(Ordering::Relaxed),
             reopen_failures: l.reopen_failures.load(Ordering::Relaxed),
             last_error: l.last_error(),
+            kind: l.kind.lock().map(|k| *k).unwrap_or_default(),
         }
     }
 
@@ -362,6 +366,8 @@ pub struct LinkSnapshot {
     pub reopen_attempts: u64,
     pub reopen_failures: u64,
     pub last_error: String,
+    /// The transport (`Transport::kind`; empty before the first start).
+    pub kind: &'static str,
 }
 
 impl Drop for LoopHandle {

@@ -46,6 +46,8 @@ pub struct LinkStats {
     pub reopen_failures: AtomicU64,
     /// Why the port was lost, then why the last reopen failed (never written by the loop thread).
     pub last_error: Mutex<String>,
+    /// The transport the loop started on (`Transport::kind`).
+    pub kind: Mutex<&'static str>,
 }
 
 impl LinkStats {
