@@ -70,6 +70,34 @@ def test_the_mcap_holds_every_cycle_with_both_clocks_for_any_reader(tmp_path):
     assert len(read) == 200 and all(abs(c["rendering_error"] - 0.01) < 1e-9 for c in read)
 
 
+def test_a_long_recording_keeps_its_chunk_index_packed_and_complete(tmp_path, monkeypatch):
+    """The writer keeps one index entry per chunk until the close: packed, an entry costs about
+    100 bytes of memory instead of about 680 (a recording's memory then stays flat), and the
+    summary still indexes every chunk, so a seeking reader finds every message."""
+    import tracemalloc
+
+    from admittance.daemon import mcap_recording
+
+    monkeypatch.setattr(mcap_recording, "CHUNK_BYTES", 4096)  # many chunks from few messages
+    rec = McapRecorder(tmp_path / "session.mcap", SESSION)
+    cols = batch(100.0, 50, read_every=5)
+    rec.append(1, cols, 0)  # the first chunks and the channel, before the measurement
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for k in range(1, 100):
+        rec.append(1, batch(100.0 + k * 0.05, 50, read_every=5), 0)
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    rec.close()
+    with (tmp_path / "session.mcap").open("rb") as fh:
+        reader = mcap_reader.make_reader(fh)
+        chunks = len(reader.get_summary().chunk_indexes)
+        cycles = [json.loads(m.data)["cycle"] for _, _, m in reader.iter_messages(topics=["/joint1/cycle"])]
+    assert chunks > 300
+    assert grown / chunks < 200, f"{grown / chunks:.0f} bytes held per chunk written"
+    assert cycles == sorted(cycles) and len(cycles) == 5000, "the indexed read finds every cycle"
+
+
 def test_load_recording_gives_the_dataset_of_the_csv_folder(tmp_path):
     record_both(tmp_path)
     from_csv, from_mcap = load_dataset(tmp_path), load_recording(tmp_path / "session.mcap")

@@ -24,17 +24,19 @@ the wall time is that plus the offset between the two clocks when the cycles wer
 Chunks are :data:`CHUNK_BYTES` long (about 1.5 s of one joint at 1 kHz) and the file is
 flushed after every tick, so a session cut short (SIGKILL, power loss) leaves a file that reads
 back, in a streaming reader, up to its last complete chunk (admittance.ident.loaders); the CSV
-dataset, flushed every batch, loses less. The size is a trade: the writer keeps one index entry
-per chunk in memory until the summary is written at the close, so a recording's memory grows
-with the chunks written. Measured (mcap 1.x writer alone, 1.5 M cycle messages): 4.2 MB per
-million messages with 32 KiB chunks (about 15 MB an hour per joint at 1 kHz, what the 30-min
-soak showed), 0.4 MB with 256 KiB.
+dataset, flushed every batch, loses less. The writer keeps one index entry per chunk in memory
+until the summary is written at the close; as mcap's objects they cost about 680 bytes each, so
+a recording's memory grew with its length (2.5 MB an hour of one joint at 1 kHz with 256 KiB
+chunks, the writer alone). :class:`PackedChunkIndices` keeps them as the ~100 bytes the summary
+will hold: the same writer then stayed flat over half an hour's messages (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
+import array
 import json
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +65,57 @@ PARAMS_SCHEMA = {"title": "admittance.Params", "type": "object",
 EVENT_SCHEMA = {"title": "admittance.Event", "type": "object", "properties": {"text": {"type": "string"}}}
 
 
+class PackedChunkIndices:
+    """The writer's chunk indexes, kept as the bytes the summary will hold.
+
+    The ``mcap`` writer keeps one index entry per chunk until it writes the summary at the
+    close; as ``ChunkIndex`` objects they cost about 680 bytes each, so a recording's memory
+    grew with its length. Packed, about 100. The writer only appends to the list and iterates
+    it once at the close, calling ``write`` on each item, which is all this offers.
+    """
+
+    class _Record:
+        __slots__ = ("raw",)
+
+        def __init__(self, raw: bytes) -> None:
+            self.raw = raw
+
+        def write(self, stream: Any) -> None:
+            stream.write(self.raw)
+
+    def __init__(self) -> None:
+        from mcap.data_stream import RecordBuilder
+
+        self._builder = RecordBuilder()
+        self._data = bytearray()
+        self._ends = array.array("Q")
+
+    def append(self, index: Any) -> None:
+        index.write(self._builder)
+        self._data += self._builder.end()
+        self._ends.append(len(self._data))
+
+    def __len__(self) -> int:
+        return len(self._ends)
+
+    def __iter__(self) -> Iterator[_Record]:
+        start = 0
+        for end in self._ends:
+            yield self._Record(bytes(self._data[start:end]))
+            start = end
+
+
+def pack_chunk_indices(writer: Any) -> bool:
+    """Give ``writer`` a :class:`PackedChunkIndices` in place of its list; False (and the
+    writer left as it is) when this ``mcap`` version keeps its indexes elsewhere: a test
+    (tests/test_mcap_recording.py) then fails, rather than a recording losing its index."""
+    name = "_Writer__chunk_indices"  # mcap 1.x: a private list, appended to per chunk
+    if not isinstance(getattr(writer, name, None), list) or getattr(writer, name):
+        return False
+    setattr(writer, name, PackedChunkIndices())
+    return True
+
+
 def _nan_to_none(values: np.ndarray) -> list[float | None]:
     return [None if v != v else v for v in values.tolist()]
 
@@ -79,6 +132,7 @@ class McapRecorder:
             raise ConfigError(f"record: cannot write {path} ({exc.strerror})") from None
         self.path = path
         self._writer = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        pack_chunk_indices(self._writer)
         self._writer.start(profile="", library="admittance")
         self._encode = msgspec.json.Encoder().encode
         self._channels: dict[str, int] = {}
