@@ -25,7 +25,10 @@ All data are synthetic: the simulated bench, on a shared 2-core machine (the loa
 under load the mock bus's thread starves, reads fail and the fidelity tool cuts the recording
 at the gaps, see docs/fidelity.md). Usage::
 
-    .venv/bin/python bench/fidelity.py [--seconds 12] [--quick] [--plots docs/fidelity]
+    .venv/bin/python bench/fidelity.py [--seconds 12] [--quick] [--plots DIR]
+
+Plots are written only with ``--plots``: docs/fidelity/ holds the full run's, which a quick run
+must not replace unasked.
 
 takes about 15 minutes (``--quick``: 3 frequencies, a coarser search, about 8).
 """
@@ -49,7 +52,6 @@ import tomli_w
 from admittance import data
 from admittance.extras import require
 
-REPO = Path(__file__).resolve().parents[1]  # only for the default of --plots (docs/fidelity/)
 BENCH = data.bench_config()
 MX64 = data.params_file("MX-64")
 ADMITTANCE = Path(sys.executable).with_name("admittance")
@@ -334,12 +336,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=12.0, help="length of each sweep session")
     parser.add_argument("--quick", action="store_true", help="3 frequencies, a coarser inertia search")
-    parser.add_argument("--plots", type=Path, default=REPO / "docs" / "fidelity", help="where the Bode plots go")
+    parser.add_argument("--plots", type=Path, help="write the Bode plots into this folder (default: none)")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     parser.add_argument("--skip-inertia", action="store_true", help="only the identification and the sweep")
     parser.add_argument("--inertia-only", action="store_true", help="only the smallest stable inertia")
     args = parser.parse_args()
-    require("matplotlib", "bench/fidelity.py (its Bode plots)")  # now, not after the sessions
+    if args.plots:
+        require("matplotlib", "bench/fidelity.py --plots")  # now, not after the sessions
     frequencies = (0.3, 1.0, 3.0) if args.quick else FREQUENCIES
     print(f"load before: {os.getloadavg()}", flush=True)
     results = {"sweep": [], "servo_models": {}, "smallest_stable": {}}
@@ -368,7 +371,8 @@ def main() -> int:
               + (f" ({off / on:.2f}× lower with compensation)" if off and on else "")
               + f"; smallest rendered inertia when stable: off {pair['off'].get('smallest_rendered')}, "
               f"on {pair['on'].get('smallest_rendered')}")
-    plot(results["sweep"], args.plots)
+    if args.plots:
+        plot(results["sweep"], args.plots)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str) + "\n")
     return 0
