@@ -124,7 +124,6 @@ class Recorder:
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
         self._segment_rows: dict[int, int] = {}
         self._segment_start: dict[int, float] = {}
-        self._segment_span: dict[int, tuple[float, float]] = {}  # first and last row's t
         self._segment_faults: dict[int, int] = {}
         self._files: dict[int, TextIO] = {}
         self._writers: dict[int, Any] = {}
@@ -244,9 +243,6 @@ class Recorder:
         self._writers[joint_id].writerows(table.tolist())
         self._files[joint_id].flush()
         self.rows[joint_id] += len(table)
-        if self._segment_rows[joint_id] == 0:
-            self._segment_span[joint_id] = (float(rows["t"][0]), float(rows["t"][0]))
-        self._segment_span[joint_id] = (self._segment_span[joint_id][0], float(rows["t"][-1]))
         self._segment_faults[joint_id] |= int(np.bitwise_or.reduce(rows["fault"].astype(np.int64)))
         self._segment_rows[joint_id] += len(table)
         self._last_row_t[joint_id] = float(rows["t"][-1])
@@ -268,8 +264,8 @@ class Recorder:
         """Remove the joint's last segment (file and manifest entry); list it when it had rows."""
         (self.folder / self._segments[joint_id].pop()).unlink()
         self._entries[joint_id].pop()
-        if self._segment_rows[joint_id]:
-            t_start, t_end = self._segment_span[joint_id]
+        if self._segment_rows[joint_id]:  # from its opening to its last row, the joint's last
+            t_start, t_end = self._segment_start[joint_id], self._last_row_t[joint_id]
             self.dropped.append({"joint_id": joint_id, "t_start": t_start, "t_end": t_end,
                                  "rows": self._segment_rows[joint_id],
                                  "faults": fault_names(self._segment_faults[joint_id])})
