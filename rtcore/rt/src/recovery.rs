@@ -565,15 +565,19 @@ impl Recovery {
         self.stop.get_or_insert(StopRequest { cause, joint: Some(k), hardware_error: s.hardware_error });
     }
 
-    /// Judges the timeouts: the bus lost since `link_lost_since` (None: up), or a servo silent,
-    /// for `lost_timeout_ns`, latches the stop request.
+    /// Judges the timeouts: the bus lost since `link_lost_since` (None: up), or else a servo
+    /// silent, for `lost_timeout_ns`, latches the stop request.
     pub fn judge(&mut self, now_ns: u64, link_lost_since: Option<u64>) {
         if self.stop.is_some() {
             return;
         }
         let timeout = self.policy.lost_timeout_ns;
-        if link_lost_since.is_some_and(|t| now_ns.saturating_sub(t) >= timeout) {
-            self.stop = Some(StopRequest { cause: StopCause::BusLost, joint: None, hardware_error: 0 });
+        // While the bus is lost its own timer governs: no servo can answer on a gone port, so
+        // a silence that began a few reads before the port's error is the bus's, not the servo's.
+        if let Some(since) = link_lost_since {
+            if now_ns.saturating_sub(since) >= timeout {
+                self.stop = Some(StopRequest { cause: StopCause::BusLost, joint: None, hardware_error: 0 });
+            }
             return;
         }
         let lost = self.servos.iter().position(|s| {

@@ -312,6 +312,18 @@ fn a_bus_lost_for_the_timeout_stops_the_loop_and_the_first_cause_stays() {
 }
 
 #[test]
+fn a_servo_silent_just_before_the_bus_is_lost_is_the_bus_s_loss() {
+    // A pty or USB adapter going away times out a few reads before its port reports the error.
+    let mut b = Bench::new(1, policy());
+    b.r.observe(0, false, false, b.t);
+    let lost = Some(b.t + 16 * MS);
+    b.r.judge(b.t + policy().lost_timeout_ns, lost);
+    assert!(b.r.stop_request().is_none(), "the servo's timer ran out first, but the bus is why");
+    b.r.judge(b.t + 16 * MS + policy().lost_timeout_ns, lost);
+    assert_eq!(b.r.stop_request().unwrap().cause, StopCause::BusLost);
+}
+
+#[test]
 fn a_reboot_that_never_comes_back_is_a_lost_servo_and_is_left_out_of_the_sync_read() {
     let mut b = Bench::new(1, policy());
     let mut servo = shut_down_servo(HW_OVERLOAD, u32::MAX);
