@@ -44,6 +44,7 @@ import contextlib
 import ctypes
 import gc
 import json
+import logging
 import math
 import os
 import shutil
@@ -60,6 +61,8 @@ import numpy as np
 import serial
 
 from admittance import _rtcore
+from admittance.drivers.sensor import ForceSensor
+from admittance.logs import ROOT
 
 RATES_HZ = (250, 500, 1000, 2000)
 JOINT_COUNTS = (1, 6, 12)
@@ -247,6 +250,12 @@ class PythonLoop:
     def tare(self, samples: int) -> None:
         pass
 
+    def set_sensor_faults(self, names: list[str]) -> None:
+        pass  # the Python loop has no fault marks; the bench's sensor raises none
+
+    def stop_request(self) -> dict | None:
+        return None  # nor a fault policy: it never asks to be stopped
+
 
 # -- the loops under test ---------------------------------------------------------------------
 
@@ -286,29 +295,21 @@ def summary(stats: dict) -> dict:
 
 # -- the loads --------------------------------------------------------------------------------
 
-class DriftingSensor:
-    """A thread pushing one sample about every millisecond (a relative sleep: it drifts)."""
+class DriftingSensor(ForceSensor):
+    """The daemon's sensor reader (its thread, bias, staleness watch) on a source that yields
+    one sample about every millisecond (a relative sleep: it drifts against the loop)."""
 
-    def __init__(self, sink) -> None:
-        self.sink, self.error, self.pushed = sink, None, 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
+    kind = "drifting"
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.sink.push(time.monotonic_ns(), [FORCE_N, 0.0, 0.0, 0.0, 0.0, 0.0])
-            self.pushed += 1
-            time.sleep(0.001)
+    def _open(self) -> None:
+        pass
 
-    def start(self) -> None:
-        self._thread.start()
+    def _poll(self) -> None:
+        time.sleep(0.001)
+        self._emit_all([[FORCE_N, 0.0, 0.0, 0.0, 0.0, 0.0]])
 
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join()
-
-    def stats(self) -> dict:
-        return {"pushed": self.pushed}
+    def _close(self) -> None:
+        pass
 
 
 class BenchLoad:
@@ -386,6 +387,9 @@ class DaemonLoad:
         self._gc = threading.Thread(target=gc_pressure, args=(self._gc_stop,), daemon=True)
         self._gc.start()
         self.runs = 0
+        # The supervisor's own lines (a stale sensor under the burners, say) would break up the
+        # tables; its errors still show.
+        logging.getLogger(ROOT).setLevel(logging.ERROR)
 
     def config(self, rate_hz: int, n_joints: int):
         from admittance.daemon.config import load_config
@@ -411,7 +415,7 @@ class DaemonLoad:
                             check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
                             make_sensor=lambda cfg, port, sink: DriftingSensor(sink),
                             make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
-        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, log=lambda line: None),
+        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s),
                                 notifier=Notifier(environ={}))
         supervisor.run()
         shutil.rmtree(cfg.record.path, ignore_errors=True)
