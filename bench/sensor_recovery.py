@@ -7,11 +7,13 @@ sample pushed to the sink, against the wait the backoff schedule predicts (the t
 first reopen attempt after the replug), side by side. Outages are wall time here on purpose:
 what is measured is the reader's reaction to a replug at a moment it does not know.
 
-Run: .venv/bin/python bench/sensor_recovery.py
+Run: .venv/bin/python bench/sensor_recovery.py [--outages 0.1 0.5 1 3] [--repeats 3]
 """
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
 import statistics
 import tempfile
@@ -50,13 +52,21 @@ def recovery_s(sim: SimulatedOptoForce, reader: OptoForceSerialReader, buffer: S
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--outages", type=float, nargs="+", default=list(OUTAGES_S), metavar="S",
+                        help=f"outages to measure, s (default {' '.join(map(str, OUTAGES_S))})")
+    parser.add_argument("--repeats", type=int, default=REPEATS, help=f"replugs per outage (default {REPEATS})")
+    args = parser.parse_args()
+    if args.repeats < 1 or not all(math.isfinite(o) and o >= 0 for o in args.outages):
+        parser.error("--repeats must be >= 1 and every outage a finite number >= 0")
     with tempfile.TemporaryDirectory() as folder:
         sim = SimulatedOptoForce(make_profile("still:torque=0.1"), ForceModel(), rate_hz=1000, link=os.path.join(folder, "ttyACM"))
         buffer = SampleBuffer()
         with sim, OptoForceSerialReader(sim.link_path, 451.89, buffer) as reader:
-            print(f"{'outage s':>9} | {'replug → sample, s (median of %d)' % REPEATS:>34} | {'backoff predicts, s':>19}")
-            for outage in OUTAGES_S:
-                times = [recovery_s(sim, reader, buffer, outage) for _ in range(REPEATS)]
+            median = f"replug → sample, s (median of {args.repeats})"
+            print(f"{'outage s':>9} | {median:>34} | {'backoff predicts, s':>19}")
+            for outage in args.outages:
+                times = [recovery_s(sim, reader, buffer, outage) for _ in range(args.repeats)]
                 print(f"{outage:9.2f} | {statistics.median(times):34.3f} | {predicted_wait(outage):19.3f}")
             print(f"reconnects {reader.stats()['reconnects']}, reopen failures {reader.stats()['reopen_failures']}")
     print(f"load: {os.getloadavg()[0]:.2f} (1-min average)")

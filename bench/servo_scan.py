@@ -6,11 +6,13 @@ ServoBus uses the port's real timer (none on a pty) plus its 20 ms slack. The fi
 the simulated bus (one MX-64 at ID 1), with a ping on IDs 1..N (N − 1 of them absent), and a
 Protocol 2.0 broadcast ping.
 
-Run: .venv/bin/python bench/servo_scan.py
+Run: .venv/bin/python bench/servo_scan.py [--baud BIT/S ...] (the setup scan's rates, as
+``admittance setup --baud``; default: all seven of DEFAULT_BAUDRATES)
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 
 from dynamixel_sdk import PacketHandler, PortHandler
@@ -46,20 +48,26 @@ def _broadcast(port: str) -> tuple[float, int]:
         return time.perf_counter() - t0, found
 
 
-def _wizard_scan(port: str) -> tuple[float, int]:
+def _wizard_scan(port: str, baudrates: list[int]) -> tuple[float, int]:
     t0 = time.perf_counter()
-    found = scan_bus(port, baudrates=DEFAULT_BAUDRATES, protocols=DEFAULT_PROTOCOLS)
+    found = scan_bus(port, baudrates=baudrates, protocols=DEFAULT_PROTOCOLS)
     return time.perf_counter() - t0, len(found)
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baud", type=int, action="append", metavar="BIT/S",
+                        help="a rate for the setup scan (repeatable; default: "
+                        f"{', '.join(map(str, DEFAULT_BAUDRATES))})")
+    args = parser.parse_args()
+    baudrates = args.baud or list(DEFAULT_BAUDRATES)
     bus = _rtcore.MockBus(servos=[{"id": 1, "model": "MX-64", "protocol": 2, "params": {"motor_inertia": 0.0147}}], baudrate=1_000_000, wire_delay=True)
     bus.start()
     try:
         sdk, found_sdk = _sdk_scan(bus.port_path)
         ours, found_ours = _servobus_scan(bus.port_path)
         broadcast, found_bc = _broadcast(bus.port_path)
-        wizard, found_wizard = _wizard_scan(bus.port_path)
+        wizard, found_wizard = _wizard_scan(bus.port_path, baudrates)
     finally:
         bus.stop()
     n = len(IDS)
@@ -67,7 +75,8 @@ def main() -> None:
     print(f"  dynamixel-sdk ping per ID          {sdk * 1e3:8.0f} ms  ({sdk / n * 1e3:5.1f} ms/ID, found {found_sdk})")
     print(f"  ServoBus.scan(ids) ping per ID     {ours * 1e3:8.0f} ms  ({ours / n * 1e3:5.1f} ms/ID, found {found_ours})")
     print(f"  ServoBus.scan() broadcast ping     {broadcast * 1e3:8.0f} ms  (whole bus, found {found_bc})")
-    print(f"  setup's scan: P2 and P1 (IDs 0-31) at {len(DEFAULT_BAUDRATES)} rates  {wizard * 1e3:8.0f} ms  "
+    rates = f"{len(baudrates)} rate{'s' if len(baudrates) > 1 else ''}"
+    print(f"  setup's scan: P2 and P1 (IDs 0-31) at {rates}  {wizard * 1e3:8.0f} ms  "
           f"(found {found_wizard}: a pty answers at every rate, a real bus at one)")
     print(f"  SDK / ServoBus per-ID scan: {sdk / ours:.1f}×")
 

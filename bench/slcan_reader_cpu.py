@@ -7,11 +7,12 @@ waiting in one read; python-can's slcan interface reads its serial port one byte
 the process's CPU share over the window, and the slcan / serial ratio, which means the same
 on any machine.
 
-Run: .venv/bin/python bench/slcan_reader_cpu.py
+Run: .venv/bin/python bench/slcan_reader_cpu.py [--window 3]
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -26,7 +27,7 @@ WINDOW_S = 3.0
 WARM_UP_SAMPLES = 200
 
 
-def measure(kind: str) -> tuple[float, float]:
+def measure(kind: str, window_s: float) -> tuple[float, float]:
     """(samples/s, CPU seconds per second) of a reader of the mock bench's ``kind`` sensor."""
     bench = subprocess.Popen([sys.executable, "-m", "admittance", "mock-bench", "--print-ports", "--sensor", kind], stdout=subprocess.PIPE, text=True)
     try:
@@ -39,7 +40,7 @@ def measure(kind: str) -> tuple[float, float]:
         with reader:
             sink.wait_for(WARM_UP_SAMPLES, timeout=30)
             n0, cpu0, t0 = sink.total, time.process_time(), time.monotonic()
-            time.sleep(WINDOW_S)
+            time.sleep(window_s)
             n1, cpu1, t1 = sink.total, time.process_time(), time.monotonic()
     finally:
         bench.terminate()
@@ -48,7 +49,13 @@ def measure(kind: str) -> tuple[float, float]:
 
 
 def main() -> None:
-    results = {kind: measure(kind) for kind in ("optoforce", "slcan")}
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--window", type=float, default=WINDOW_S, metavar="S",
+                        help=f"seconds each reader is measured over (default {WINDOW_S:g})")
+    args = parser.parse_args()
+    if not 0 < args.window < 3600:
+        parser.error("--window must be between 0 and 3600 s")
+    results = {kind: measure(kind, args.window) for kind in ("optoforce", "slcan")}
     for kind, (rate, cpu) in results.items():
         print(f"{kind:10s} {rate:7.0f} samples/s   reader process CPU {100 * cpu:5.1f} %")
     print(f"slcan / serial CPU: {results['slcan'][1] / results['optoforce'][1]:.1f}x")

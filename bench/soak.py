@@ -98,7 +98,10 @@ def wait_for_first_stats(client, proc: subprocess.Popen, timeout: float = 120.0)
             time.sleep(0.05)
     finally:
         sub.close()
-    raise SystemExit(f"soak: the daemon never published its stats (exit {proc.poll()})")
+    if proc.poll() is not None:  # its own reason (a record folder in use, say), not only its status
+        raise SystemExit(f"soak: the daemon exited {proc.returncode} before its first stats: "
+                         f"{proc.stderr.read().strip()[-500:]}")
+    raise SystemExit(f"soak: the daemon published no stats in {timeout:g} s")
 
 
 def soak(args: argparse.Namespace, out: Path) -> tuple[list[dict], int, str]:
@@ -129,11 +132,11 @@ def watch(args: argparse.Namespace, bench: MockBench, client, proc: subprocess.P
         while (now := time.monotonic()) < start + args.seconds and proc.poll() is None:
             stats = latest_stats(sub, stats)
             if replug is not None and now >= replug_at:
-                bench.command(replug)
+                inject(bench, replug)
                 replug = None
             if args.faults and replug is None and now >= next_fault and now + args.fault_every <= start + args.seconds:
                 commands = ROUND[step % len(ROUND)]
-                bench.command(commands[0])
+                inject(bench, commands[0])
                 replug, replug_at = (commands[1], now + REPLUG_S) if len(commands) > 1 else (None, None)
                 step, next_fault = step + 1, now + args.fault_every
             if now >= next_sample and stats is not None:
@@ -141,10 +144,17 @@ def watch(args: argparse.Namespace, bench: MockBench, client, proc: subprocess.P
                 next_sample += args.every
             time.sleep(0.05)
         if replug is not None:
-            bench.command(replug)
+            inject(bench, replug)
     finally:
         sub.close()
     return samples
+
+
+def inject(bench: MockBench, line: str) -> None:
+    """One fault command; a refused one ends the soak (else it would run on without its faults)."""
+    reply = bench.command(line)
+    if not reply.get("ok"):
+        raise SystemExit(f"soak: the mock bench refused {line!r}: {reply.get('error')}")
 
 
 def sample(t: float, pid: int, stats: dict) -> dict:

@@ -1,0 +1,76 @@
+"""Every script in bench/ run end to end with its smallest arguments, so that none rots unseen.
+
+A bench is not a test: nothing here checks a figure or a time (the machine is shared, and the
+benches print ratios for a reader). What is checked is that the script still runs against the
+current API (bench/loop_timing.py's daemon load once broke silently when the supervisor's
+RunOptions and backends changed): exit 0, no traceback, and one line of its real output, which
+a script that stopped early or measured nothing would not print.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# A guard against a hung bench, not a timing assertion: each case takes a few seconds.
+HANG_S = 180
+
+# (script, arguments, a regular expression one line of the output must match)
+CASES = [
+    ("daemon_tick.py", ["--joints", "1", "--rows", "2", "--repeat", "50"], r"^json/msgpack size ratio = \d+\.\d+$"),
+    ("ecosystem_tick.py", ["--ticks", "20"], r"^\s+ROS 2 bridge\s+\d+\.\d+ µs"),
+    ("identify_families.py", ["--only", "clean", "--match", "mocap"], r"^passed [01] of 1 synthetic rows"),
+    ("identify_jacobian.py", ["--trials", "2", "--duration", "2"], r"^scipy 2-point\s+\d+\.\d+\s+\d+"),
+    ("identify_vs_thesis.py", ["--trials", "2", "--duration", "2"],
+     r"^ratio baseline / identify:\s+\d+\.\d+×"),
+    ("optoforce_parse.py", [], r"^\s+CAN reader, virtual bus \(CAN frames/s\)\s+[\d,]+"),
+    ("sensor_recovery.py", ["--outages", "0.1", "--repeats", "1"], r"^\s+0\.10 \|\s+\d+\.\d+ \|\s+0\.050$"),
+    ("servo_scan.py", ["--baud", "1000000"], r"^\s+ServoBus\.scan\(ids\) ping per ID .*found 1\)$"),
+    ("sim_step.py", [], r"^\s+rayon \(\d+ cpus\)\s+\d+\.\d+ M substeps/s"),
+    # One daemon run, then one mock-bus test under pytest (the bench's two tables).
+    ("simulated_bench.py", ["--burners", "0", "--runs", "1", "--duration", "1", "--test-burners", "0", "--tests",
+                            "tests/test_mockbus_sdk.py::test_ping_answers_model_311_and_absent_ids_stay_silent"],
+     r"^\| this \| 1 \| [1-9]\d* \| \d+ \| \d+ \|"),
+    ("slcan_reader_cpu.py", ["--window", "1"], r"^slcan / serial CPU: \d+\.\d+x$"),
+    # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.
+    ("soak.py", ["--seconds", "6", "--fault-every", "1"], r"^fault_events\s+[1-9]"),
+    ("syncwrite_cycle.py", [], r"^\s+12\s+4M \|"),
+    # Passes once main's fix of its daemon load (RunOptions without `log`; the sensor and loop
+    # backends the supervisor now calls) is committed.
+    ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3",
+                        "--no-phase-lock-section"], r"^median Python/Rust at SCHED_OTHER: p99 period error"),
+]
+SKIPPED = {
+    "fidelity.py": "its smallest run (--quick --skip-inertia --seconds 2) is 18 `admittance run` sessions "
+                   "(two servos: an identification, then 3 sines and a multi-sine, each without and with "
+                   "compensation), about 50 s on a 2-core VM; no option runs fewer sessions",
+}
+
+
+def test_every_bench_has_a_case():
+    listed = {script for script, _, _ in CASES} | set(SKIPPED)
+    assert listed == {p.name for p in (ROOT / "bench").glob("*.py")}
+
+
+@pytest.mark.parametrize("script", sorted(SKIPPED))
+def test_skipped_bench(script):
+    pytest.skip(f"bench/{script}: {SKIPPED[script]}")
+
+
+@pytest.mark.slow  # subprocesses of a few seconds each: not for `make test-thorough`'s bug hunt
+@pytest.mark.parametrize(("script", "args", "expected"), CASES, ids=[c[0] for c in CASES])
+def test_bench_runs_end_to_end(script, args, expected, tmp_path):
+    if script == "soak.py":
+        args = [*args, "--out", str(tmp_path / "soak")]  # its default is a new folder it leaves behind
+    done = subprocess.run([sys.executable, str(ROOT / "bench" / script), *args], cwd=ROOT,
+                          env={**os.environ, "MPLBACKEND": "Agg"}, capture_output=True, text=True, timeout=HANG_S)
+    output = done.stdout + done.stderr
+    assert done.returncode == 0, f"bench/{script} exited {done.returncode}:\n{output[-3000:]}"
+    assert "Traceback" not in output, output[-3000:]
+    assert re.search(expected, done.stdout, re.M), f"no line matching {expected!r} in:\n{done.stdout[-3000:]}"
