@@ -38,7 +38,9 @@ def measure(kind: str, window_s: float) -> tuple[float, float]:
         else:
             reader = CanForceReader(port, COUNTS_PER_NEWTON, sink, interface="slcan")
         with reader:
-            sink.wait_for(WARM_UP_SAMPLES, timeout=30)
+            if not sink.wait_for(WARM_UP_SAMPLES, timeout=30):
+                raise SystemExit(f"slcan_reader_cpu: the {kind} reader on {port} delivered {sink.total} samples "
+                                 f"in 30 s, not the {WARM_UP_SAMPLES} of the warm-up; nothing to measure")
             n0, cpu0, t0 = sink.total, time.process_time(), time.monotonic()
             time.sleep(window_s)
             n1, cpu1, t1 = sink.total, time.process_time(), time.monotonic()
