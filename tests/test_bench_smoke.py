@@ -38,6 +38,7 @@ CASES = [
                             "tests/test_mockbus_sdk.py::test_ping_answers_model_311_and_absent_ids_stay_silent"],
      r"^\| this \| 1 \| [1-9]\d* \| \d+ \| \d+ \|"),
     ("slcan_reader_cpu.py", ["--window", "1"], r"^slcan / serial CPU: \d+\.\d+x$"),
+    ("reader_stalls.py", ["--window", "0.5"], r"^switch\+freeze / default: p99 \d+\.\d+, p99\.9 \d+\.\d+"),
     # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.
     ("soak.py", ["--seconds", "6", "--fault-every", "1"], r"^fault_events\s+[1-9]"),
     ("syncwrite_cycle.py", [], r"^\s+12\s+4M \|"),

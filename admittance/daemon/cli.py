@@ -162,9 +162,11 @@ def _run(args: argparse.Namespace, stop: Any) -> int:
         outfolder.check(args.record, args.force, "--record")
         outfolder.clear(args.record, "--record")
     from admittance.daemon.backends import real_backends
+    from admittance.daemon.interpreter import settle_for_the_reader
     from admittance.daemon.supervisor import RunOptions, Supervisor
 
-    options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop)
+    options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop,
+                         started=settle_for_the_reader)
     return Supervisor(cfg, real_backends(), options).run()
 
 

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from admittance.daemon import endpoints, telemetry
+from admittance.daemon import endpoints, interpreter, telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
 from admittance.daemon.ecosystem import Ecosystem
 from admittance.daemon.faults import FaultWatch
@@ -84,6 +84,9 @@ class RunOptions:
     # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals). Anything
     # with set/is_set/wait; a StopRequest because signal handlers set it (a threading.Event can deadlock).
     stop: StopRequest = field(default_factory=StopRequest)
+    # Called once everything has started, before serving: `admittance run` settles its
+    # interpreter there (admittance.daemon.interpreter); process-wide, so never by default.
+    started: Callable[[], None] | None = None
 
 
 @dataclass
@@ -158,6 +161,8 @@ class Supervisor:
         try:
             with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
                 self._start(stack)
+                if self.options.started is not None:
+                    self.options.started()
                 self._serve()
                 self._stop()
             if self.fault_stop is not None:
@@ -478,6 +483,7 @@ class Supervisor:
             "faults_told": dict(self.faults.events.counts),
             "watchdog": {"pings": getattr(self.watchdog, "pings", 0), "missed": getattr(self.watchdog, "missed", 0),
                          "unhealthy": getattr(self.watchdog, "unhealthy", 0)},
+            "interpreter": interpreter.report(),
         }
         if self.fault_stop is not None:
             stats["fault_stop"] = {"cause": self.fault_stop.cause, "exit_status": self.fault_stop.exit_code}
