@@ -25,7 +25,8 @@ Two loads, the same for all three loops:
   (``admittance.daemon.supervisor.Supervisor``) runs the loop: it drains the telemetry at
   100 Hz, records every cycle to CSV (``Recorder``), publishes state and stats over a real Zenoh
   session to a subscriber in the same process; the same sensor thread pushes through the
-  supervisor's gate; a thread allocates 500 small dicts with reference cycles every
+  supervisor's gate, and the interpreter is settled as ``admittance run`` settles it
+  (admittance.daemon.interpreter); a thread allocates 500 small dicts with reference cycles every
   millisecond (allocation and cyclic-GC pressure); and two processes burn a CPU each.
 
 Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
@@ -406,6 +407,7 @@ class DaemonLoad:
         return load_config(folder / "daemon.toml")
 
     def run(self, loop, duration_s: float, rate_hz: int, n_joints: int) -> dict:
+        from admittance.daemon.interpreter import settle_for_the_reader
         from admittance.daemon.notify import Notifier
         from admittance.daemon.supervisor import Backends, RunOptions, Supervisor
         from admittance.daemon.zenoh_iface import DaemonInterface
@@ -415,7 +417,7 @@ class DaemonLoad:
                             check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
                             make_sensor=lambda cfg, port, sink: DriftingSensor(sink),
                             make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
-        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s),
+        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, started=settle_for_the_reader),
                                 notifier=Notifier(environ={}))
         supervisor.run()
         shutil.rmtree(cfg.record.path, ignore_errors=True)
