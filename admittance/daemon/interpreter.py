@@ -7,10 +7,10 @@ things in CPython make that wait long (bench/reader_stalls.py, docs/realtime.md)
 - full cyclic collections that walk the whole long-lived heap (zenoh, numpy, the daemon's
   modules), tens of milliseconds with the GIL held.
 Asking after 0.5 ms and freezing the heap that exists once the run has started (it lives as
-long as the process) measured the reader's p99.9 gap about 4x lower (24 -> 6 ms) and its
-stalls over 3 ms about 3x fewer. The sensor's stale timeout (50 ms by default) then keeps a
-wide margin. It does not bring the loop's force-to-write p99 at 250/500 Hz under a period:
-that needs a reader outside the GIL.
+long as the process) measured, in two runs, the reader's p99.9 gap 3-4x lower (22-24 -> 6-7 ms),
+its longest stall 28-32 -> 8 ms and about half the stalls over 3 ms: a wide margin inside the
+sensor's stale timeout (50 ms by default). It does not bring the loop's force-to-write p99 at
+250/500 Hz under a period: that needs a reader outside the GIL.
 
 Process-wide, so only `admittance run` calls it, never a library user's process.
 """
