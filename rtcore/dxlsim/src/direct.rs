@@ -8,8 +8,15 @@
 //! that are artefacts of the simulation (docs/mock-bench.md has the measurements). Here a
 //! request is answered when it is written (physics first brought up to that instant), and its
 //! reply becomes readable exactly when the wire model says (`wire`: instruction and reply bytes
-//! at the baud rate, the Return Delay Time); the loop waits for it on its own clock. No other
-//! thread takes part, so only the loop's own scheduling can make a reply late, as on hardware.
+//! at the baud rate, the Return Delay Time); the loop waits for it on its own clock. No thread
+//! has to be woken for a reply, so what can still make one late is the loop's own scheduling
+//! and, briefly, the simulation's lock (the pty thread and the hand's torque take it too).
+//!
+//! What this costs the loop, and only on the embedded bench: the simulated firmware (parsing,
+//! the control table, the physics brought up to date) runs on the RT thread, allocating its
+//! packets as the pty path does. Its timings include that work; a real bus has none of it. A
+//! panic in the simulation is caught here and becomes EIO (the loop's bus-lost path), so the
+//! RT thread never unwinds.
 //!
 //! The pty stays for every other client (the daemon's start-up checks, `mock-bench`, the
 //! ROBOTIS SDK). Unplug and replug act on this link as on the pty: while unplugged, writes and
@@ -17,6 +24,7 @@
 //! `reconnect` is true once the adapter is back.
 use std::collections::VecDeque;
 use std::io;
+use std::panic::AssertUnwindSafe;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use rtloop::bus::Transport;
@@ -32,6 +40,8 @@ pub struct DirectLink {
     answerer: Answerer,
     /// Due reply bytes the client has not read yet.
     output: VecDeque<u8>,
+    /// Bytes read since the last write: counted in the write's lock (one lock per transaction).
+    unreported_out: u64,
     /// The adapter this link was opened on (a replug makes a new one).
     generation: u64,
     clock: MonotonicClock,
@@ -42,7 +52,7 @@ impl DirectLink {
         let generation = lock(&port).generation;
         let protocol = lock(&shared).bus.protocol();
         let answerer = Answerer::new(protocol, config, monotonic_ns());
-        DirectLink { port, shared, answerer, output: VecDeque::new(), generation, clock: MonotonicClock }
+        DirectLink { port, shared, answerer, output: VecDeque::new(), unreported_out: 0, generation, clock: MonotonicClock }
     }
 
     /// (plugged in, the adapter's generation) now.
@@ -74,7 +84,7 @@ impl DirectLink {
         for (slot, byte) in buf.iter_mut().zip(self.output.drain(..n)) {
             *slot = byte;
         }
-        lock(&self.shared).io.bytes_out += n as u64;
+        self.unreported_out += n as u64;
         n
     }
 }
@@ -84,8 +94,10 @@ impl Transport for DirectLink {
         self.check_plugged()?;
         let now = monotonic_ns();
         let shared = &mut *lock(&self.shared);
-        self.answerer.receive(now, bytes, shared);
-        Ok(())
+        shared.io.bytes_out += std::mem::take(&mut self.unreported_out);
+        let answerer = &mut self.answerer;
+        std::panic::catch_unwind(AssertUnwindSafe(|| answerer.receive(now, bytes, shared)))
+            .map_err(|_| io::Error::from_raw_os_error(libc::EIO))
     }
 
     fn read_until(&mut self, buf: &mut [u8], deadline_ns: u64) -> io::Result<usize> {

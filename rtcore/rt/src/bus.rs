@@ -418,8 +418,8 @@ impl JointBus {
         self.await_status(t, k, usize::from(size), deadline_ns)
     }
 
-    /// Waits for joint `k`'s status packet with at least `size` bytes of data; the value of
-    /// those bytes (0 when `size` is 0).
+    /// Waits for joint `k`'s status packet with exactly `size` bytes of data (see `accept`);
+    /// the value of those bytes (0 when `size` is 0).
     fn await_status(&mut self, t: &mut dyn Transport, k: usize, size: usize, deadline_ns: u64) -> Result<i64, BusError> {
         let mut first_error = None;
         loop {
@@ -486,10 +486,12 @@ fn accept(item: Result<Packet<'_>, DecodeError>, ids: &[u8], size: usize) -> Res
     }
     // Exactly the size asked for: a status carries no address, so a late reply to an earlier
     // request (a SyncRead's four bytes arriving during a one-byte read) is told apart by its length.
+    // A late reply of the same length (a one-byte Torque Enable during a one-byte Hardware Error
+    // read) cannot be: nothing on the wire tells them apart.
     if packet.params.len() != size {
         return Ok(None);
     }
-    Ok(Some((k, get_le(&packet.params[..size]))))
+    Ok(Some((k, get_le(packet.params))))
 }
 
 #[cfg(test)]
