@@ -341,8 +341,14 @@ def main() -> int:
     parser.add_argument("--skip-inertia", action="store_true", help="only the identification and the sweep")
     parser.add_argument("--inertia-only", action="store_true", help="only the smallest stable inertia")
     args = parser.parse_args()
-    if args.plots:
-        require("matplotlib", "bench/fidelity.py --plots")  # now, not after the sessions
+    if args.plots:  # now, not after the sessions
+        require("matplotlib", "bench/fidelity.py --plots")
+        try:
+            args.plots.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            parser.error(f"--plots {args.plots}: {exc.strerror}")
+        if not os.access(args.plots, os.W_OK):
+            parser.error(f"--plots {args.plots}: not writable")
     frequencies = (0.3, 1.0, 3.0) if args.quick else FREQUENCIES
     print(f"load before: {os.getloadavg()}", flush=True)
     results = {"sweep": [], "servo_models": {}, "smallest_stable": {}}
@@ -371,10 +377,10 @@ def main() -> int:
               + (f" ({off / on:.2f}× lower with compensation)" if off and on else "")
               + f"; smallest rendered inertia when stable: off {pair['off'].get('smallest_rendered')}, "
               f"on {pair['on'].get('smallest_rendered')}")
+    if args.json:  # the figures first: a plot that fails loses no measurement
+        args.json.write_text(json.dumps(results, indent=1, default=str) + "\n")
     if args.plots:
         plot(results["sweep"], args.plots)
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=1, default=str) + "\n")
     return 0
 
 

@@ -171,11 +171,8 @@ class PythonLoop:
         self._thread.join()
 
     def _become_fifo(self) -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))  # 0 = this thread
+        if become_fifo(50):
             self.policy = "SCHED_FIFO"
-        except PermissionError:
-            pass
 
     def _run(self) -> None:
         set_minimal_timer_slack()
@@ -357,6 +354,21 @@ def gc_pressure(stop: threading.Event) -> None:
         time.sleep(0.001)
 
 
+def become_fifo(priority: int) -> bool:
+    """The calling thread at SCHED_FIFO ``priority``; False without the privilege."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # 0 = this thread
+        return True
+    except PermissionError:
+        return False
+
+
+def cpu_burners(n: int) -> list[subprocess.Popen]:
+    """``n`` processes busy-looping a CPU each, killed with the bench however it dies."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=die_with_parent)
+            for _ in range(n)]
+
+
 def die_with_parent() -> None:
     """In a burner, before exec: SIGKILL when the bench dies, however it dies (PR_SET_PDEATHSIG)."""
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
@@ -382,8 +394,7 @@ class DaemonLoad:
         self.endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
         self.monitor = open_session(make_config(listen=[self.endpoint]), "for the bench's subscriber")
         self.subscriber = self.monitor.declare_subscriber(f"{self.PREFIX}/**", zenoh.handlers.RingChannel(64))
-        self.burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=die_with_parent)
-                        for _ in range(2)]
+        self.burners = cpu_burners(2)
         self._gc_stop = threading.Event()
         self._gc = threading.Thread(target=gc_pressure, args=(self._gc_stop,), daemon=True)
         self._gc.start()
@@ -407,7 +418,7 @@ class DaemonLoad:
         return load_config(folder / "daemon.toml")
 
     def run(self, loop, duration_s: float, rate_hz: int, n_joints: int) -> dict:
-        from admittance.daemon.interpreter import settle_for_the_reader
+        from admittance.daemon.interpreter import settle_for_the_reader, unsettle
         from admittance.daemon.notify import Notifier
         from admittance.daemon.supervisor import Backends, RunOptions, Supervisor
         from admittance.daemon.zenoh_iface import DaemonInterface
@@ -417,9 +428,13 @@ class DaemonLoad:
                             check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
                             make_sensor=lambda cfg, port, sink: DriftingSensor(sink),
                             make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
-        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, started=settle_for_the_reader),
+        supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, before_loop=settle_for_the_reader),
                                 notifier=Notifier(environ={}))
-        supervisor.run()
+        switch_interval_s = sys.getswitchinterval()
+        try:
+            supervisor.run()
+        finally:  # settled for this run only: the next point, the phase-lock section start as they were
+            unsettle(switch_interval_s)
         shutil.rmtree(cfg.record.path, ignore_errors=True)
         return supervisor.final_stats
 

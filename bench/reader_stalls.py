@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import os
 import subprocess
 import sys
 import threading
@@ -37,13 +36,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from loop_timing import DriftingSensor, die_with_parent, gc_pressure  # noqa: E402
+from loop_timing import DriftingSensor, become_fifo, cpu_burners, gc_pressure  # noqa: E402
+
+from admittance.daemon.interpreter import SWITCH_INTERVAL_S  # noqa: E402
 
 MODES = ("default", "switch", "freeze", "switch+freeze", "switch+freeze+fifo")
-SWITCH_INTERVAL_S = 0.0005
 READER_FIFO_PRIORITY = 40
 STALL_MS = 3.0
 WINDOW_S = 5.0
+BURNERS = 2
 
 
 class GapSink:
@@ -64,15 +65,11 @@ class FifoDriftingSensor(DriftingSensor):
 
     def _poll(self) -> None:
         if self.policy == "SCHED_OTHER":
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(READER_FIFO_PRIORITY))  # 0: this thread
-                self.policy = "SCHED_FIFO"
-            except PermissionError:
-                self.policy = "SCHED_OTHER (no privilege)"
+            self.policy = "SCHED_FIFO" if become_fifo(READER_FIFO_PRIORITY) else "SCHED_OTHER (no privilege)"
         super()._poll()
 
 
-def measure(mode: str, window_s: float) -> dict:
+def measure(mode: str, window_s: float, n_burners: int) -> dict:
     """In this process: apply ``mode``, load it as the daemon would be, time the reader."""
     import zenoh  # noqa: F401 - the daemon's heap: what a full collection walks
     import admittance.daemon.supervisor  # noqa: F401
@@ -81,8 +78,7 @@ def measure(mode: str, window_s: float) -> dict:
     if "freeze" in mode:
         gc.collect()
         gc.freeze()
-    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=die_with_parent)
-               for _ in range(2)]
+    burners = cpu_burners(n_burners)
     stop = threading.Event()
     garbage = threading.Thread(target=gc_pressure, args=(stop,), daemon=True)
     garbage.start()
@@ -103,8 +99,9 @@ def measure(mode: str, window_s: float) -> dict:
             "stalls": int((gaps > STALL_MS).sum())}
 
 
-def run_mode(mode: str, window_s: float) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", mode, "--window", str(window_s)],
+def run_mode(mode: str, window_s: float, n_burners: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", mode, "--window", str(window_s),
+                          "--burners", str(n_burners)],
                          capture_output=True, text=True, check=False)
     if out.returncode != 0:
         raise SystemExit(f"reader_stalls: the {mode!r} run failed (exit {out.returncode}):\n{out.stderr.strip()}")
@@ -115,19 +112,24 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--window", type=float, default=WINDOW_S, metavar="S",
                         help=f"seconds each mode's reader is timed (default {WINDOW_S:g})")
+    parser.add_argument("--burners", type=int, default=BURNERS, metavar="N",
+                        help=f"CPU burners beside each mode's reader (default {BURNERS}, as the daemon load)")
     parser.add_argument("--child", choices=MODES, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if not 0 < args.window < 3600:
         parser.error("--window must be between 0 and 3600 s")
+    if not 0 <= args.burners <= 64:
+        parser.error("--burners must be between 0 and 64")
     if args.child:
-        print(json.dumps(measure(args.child, args.window)))
+        print(json.dumps(measure(args.child, args.window, args.burners)))
         return
     print(__doc__.split("\n\n")[0])
     print(f"command: {' '.join(sys.argv)}")
     print(f"uptime: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")
     print(f"\n{'mode':20s} {'reader policy':26s} | gap between samples ms: p50   p99  p99.9    max "
           f"| gaps > {STALL_MS:g} ms | samples")
-    rows = [run_mode(mode, args.window) for mode in MODES]
+    print(f"{args.burners} CPU burners beside each reader")
+    rows = [run_mode(mode, args.window, args.burners) for mode in MODES]
     for r in rows:
         print(f"{r['mode']:20s} {r['policy']:26s} | {r['p50']:27.2f} {r['p99']:5.2f} {r['p999']:6.2f} "
               f"{r['max']:6.1f} | {r['stalls']:12d} | {r['samples']}")

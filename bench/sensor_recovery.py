@@ -57,8 +57,8 @@ def main() -> None:
                         help=f"outages to measure, s (default {' '.join(map(str, OUTAGES_S))})")
     parser.add_argument("--repeats", type=int, default=REPEATS, help=f"replugs per outage (default {REPEATS})")
     args = parser.parse_args()
-    if args.repeats < 1 or not all(math.isfinite(o) and o >= 0 for o in args.outages):
-        parser.error("--repeats must be >= 1 and every outage a finite number >= 0")
+    if not 1 <= args.repeats <= 100 or not all(math.isfinite(o) and 0 <= o <= 600 for o in args.outages):
+        parser.error("--repeats must be 1-100 and every outage 0-600 s")
     with tempfile.TemporaryDirectory() as folder:
         sim = SimulatedOptoForce(make_profile("still:torque=0.1"), ForceModel(), rate_hz=1000, link=os.path.join(folder, "ttyACM"))
         buffer = SampleBuffer()

@@ -56,7 +56,7 @@ def _wizard_scan(port: str, baudrates: list[int]) -> tuple[float, int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--baud", type=int, action="append", metavar="BIT/S",
+    parser.add_argument("--baud", type=int, action="append", metavar="BIT/S", choices=DEFAULT_BAUDRATES,
                         help="a rate for the setup scan (repeatable; default: "
                         f"{', '.join(map(str, DEFAULT_BAUDRATES))})")
     args = parser.parse_args()

@@ -40,7 +40,8 @@ class FakeLoop:
         self.request = None  # the loop's stop request (a fault its policy gives up on)
         self.sensor_faults = []  # every set_sensor_faults call
         self.bus = {"state": "up", "lost_for_s": None, "losses": 0, "reconnects": 0}
-        self.servos = [{"id": jid, "phase": "ok", "hardware_error": 0, "errors": 0, "recoveries": 0} for jid in ids]
+        self.servos = [{"id": jid, "phase": "ok", "hardware_error": 0, "last_error": 0, "errors": 0, "recoveries": 0}
+                       for jid in ids]
 
     def force_sink(self):
         return SimpleNamespace(push=lambda t, f: self.samples.append((t, f)) or True)
@@ -514,7 +515,7 @@ def test_a_stop_request_of_the_loop_stops_cleanly_then_exits_with_its_status(tmp
 
     def failing(cfg, port):
         loop = make_loop(cfg, port)
-        loop.servos[0].update(errors=1, hardware_error=0x10)
+        loop.servos[0].update(errors=1, hardware_error=0x10, last_error=0x10)
         loop.request = {"cause": "unsafe_hardware_error", "joint": 1, "hardware_error": 0x10}
         return loop
 

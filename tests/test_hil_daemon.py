@@ -215,7 +215,7 @@ def test_a_clean_stop_exits_0_with_every_stats_key(tmp_path, sig):
         assert set(stats[key]) >= {"p50", "p99", "p999", "max"}
     assert set(stats["rt"]) >= {"policy", "priority", "memory_locked"}
     assert stats["cycles"] > 0 and stats["rate_hz"] > 0
-    # `admittance run` settled its interpreter for the sensor reader once started (docs/realtime.md)
+    # `admittance run` settled its interpreter for the sensor reader before its loop started (docs/realtime.md)
     settled = stats["daemon"]["interpreter"]
     assert settled["switch_interval_s"] == pytest.approx(0.0005) and settled["frozen_objects"] > 10_000
 

@@ -166,7 +166,7 @@ def _run(args: argparse.Namespace, stop: Any) -> int:
     from admittance.daemon.supervisor import RunOptions, Supervisor
 
     options = RunOptions(duration=args.duration, stats_json=args.stats_json, stop=stop,
-                         started=settle_for_the_reader)
+                         before_loop=settle_for_the_reader)
     return Supervisor(cfg, real_backends(), options).run()
 
 

@@ -110,7 +110,7 @@ class FaultWatch:
             for key, text in SERVO_EVENTS:
                 if servo.get(key, 0) > old.get(key, 0):
                     # The last counted error's bits: a reboot faster than this tick has cleared hardware_error.
-                    bits = servo.get("last_error", servo.get("hardware_error", 0))
+                    bits = servo["last_error"]
                     self.events(f"servo{servo['id']}.{key}", f"servo {servo['id']} " + text.format(causes=causes(bits)))
 
     def _tell_bus(self, bus: dict[str, Any]) -> None:

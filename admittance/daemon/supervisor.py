@@ -84,9 +84,10 @@ class RunOptions:
     # Set to stop the run (the CLI's own SIGINT/SIGTERM handler sets it; see stopsignals). Anything
     # with set/is_set/wait; a StopRequest because signal handlers set it (a threading.Event can deadlock).
     stop: StopRequest = field(default_factory=StopRequest)
-    # Called once everything has started, before serving: `admittance run` settles its
-    # interpreter there (admittance.daemon.interpreter); process-wide, so never by default.
-    started: Callable[[], None] | None = None
+    # Called once everything is open, just before the loop starts (its full collection then
+    # delays nothing live): `admittance run` settles its interpreter there
+    # (admittance.daemon.interpreter); process-wide, so never by default.
+    before_loop: Callable[[], None] | None = None
 
 
 @dataclass
@@ -161,8 +162,6 @@ class Supervisor:
         try:
             with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
                 self._start(stack)
-                if self.options.started is not None:
-                    self.options.started()
                 self._serve()
                 self._stop()
             if self.fault_stop is not None:
@@ -193,6 +192,8 @@ class Supervisor:
         self._step("starting: bus")
         self._check_servos(stack, bus_port)  # the first write to a servo
         self._tare()
+        if self.options.before_loop is not None:
+            self.options.before_loop()
         self._start_loop(stack, bus_port)
         gate.open()
         self._start_mcap(stack)
