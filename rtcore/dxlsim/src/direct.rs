@@ -25,12 +25,12 @@
 use std::collections::VecDeque;
 use std::io;
 use std::panic::AssertUnwindSafe;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 
 use rtloop::bus::Transport;
 use rtloop::clock::{monotonic_ns, Clock, MonotonicClock};
 
-use crate::server::{BusConfig, Port, Shared};
+use crate::server::{lock, BusConfig, Port, Shared};
 use crate::wire::Answerer;
 
 /// One client's in-process wire to the simulated servos (see the module doc).
@@ -133,9 +133,4 @@ impl Transport for DirectLink {
         }
         plugged
     }
-}
-
-/// A lock that survives a panicked holder: every mutation is a single call.
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }

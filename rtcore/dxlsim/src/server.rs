@@ -179,7 +179,7 @@ impl MockBus {
     }
 
     fn port(&self) -> MutexGuard<'_, Port> {
-        self.port.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        lock(&self.port)
     }
 
     /// The device a client opens now, e.g. `/dev/pts/7` (the last one while unplugged).
@@ -261,7 +261,7 @@ impl MockBus {
     }
 
     fn handle(&self) -> MutexGuard<'_, Option<JoinHandle<io::Result<()>>>> {
-        self.thread.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        lock(&self.thread)
     }
 
     /// Starts the bus thread (a no-op when it runs already).
@@ -297,7 +297,7 @@ impl MockBus {
     /// The servos, locked (the lock survives a panicked thread: the data stays consistent
     /// because every mutation is a single call).
     pub fn lock(&self) -> MutexGuard<'_, Shared> {
-        self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        lock(&self.shared)
     }
 
     pub fn stats(&self) -> Stats {
@@ -362,8 +362,8 @@ impl Worker {
         stop: Arc<AtomicBool>,
         timing: Arc<Timing>,
     ) -> Worker {
-        let protocol = shared.lock().unwrap_or_else(|p| p.into_inner()).bus.protocol();
-        let generation = port.lock().unwrap_or_else(|p| p.into_inner()).generation;
+        let protocol = lock(&shared).bus.protocol();
+        let generation = lock(&port).generation;
         let answerer = Answerer::new(protocol, config, monotonic_ns());
         Worker { port, generation, shared, stop, rt_priority: config.rt_priority, answerer, output: VecDeque::new(), timing }
     }
@@ -395,10 +395,10 @@ impl Worker {
             self.flush_due(&pty)?;
             if self.wait(&pty)? {
                 let n = pty.read(&mut buf)?;
-                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+                let shared = &mut *lock(&self.shared);
                 self.answerer.receive(monotonic_ns(), &buf[..n], shared);
             } else {
-                let shared = &mut *self.shared.lock().unwrap_or_else(|p| p.into_inner());
+                let shared = &mut *lock(&self.shared);
                 self.answerer.drop_stale_partial(monotonic_ns(), shared);
             }
         }
@@ -408,7 +408,7 @@ impl Worker {
     /// The pty plugged in now, if any; after an unplug or replug, what was in flight on the
     /// old wire (a partial packet, replies not yet sent) is gone with it.
     fn current_pty(&mut self) -> Option<Arc<Pty>> {
-        let port = self.port.lock().unwrap_or_else(|p| p.into_inner());
+        let port = lock(&self.port);
         if port.generation != self.generation {
             self.generation = port.generation;
             self.answerer.clear(monotonic_ns());
@@ -418,7 +418,7 @@ impl Worker {
     }
 
     fn lock(&self) -> MutexGuard<'_, Shared> {
-        self.shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        lock(&self.shared)
     }
 
     /// Waits for bytes (see `wait_time`); true when some arrived. A wait that ends at or after
@@ -464,4 +464,10 @@ impl Worker {
         }
         Ok(())
     }
+}
+
+/// A lock that survives a panicked holder: the data stays consistent because every mutation is
+/// a single call. The one way dxlsim takes its locks.
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
