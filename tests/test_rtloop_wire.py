@@ -120,7 +120,7 @@ def test_one_sync_write_per_cycle_carries_every_joint(protocol):
         assert [data[k * record] for k in range(3)] == list(IDS)
     torque_on, torque_off = servos.sync_writes(regs["torque"])
     assert torque_on == bytes([1, 1, 2, 1, 3, 1]) and torque_off == bytes([1, 0, 2, 0, 3, 0])
-    assert loop.stats()["bus_errors"] == 0
+    assert loop.stats()["bus_errors"] == 0, loop.stats()
 
 
 def test_a_bus_that_stops_reading_costs_bus_errors_not_a_hang():

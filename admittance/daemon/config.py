@@ -172,6 +172,10 @@ class FaultsConfig:
                                    doc="the window of max_recoveries, and in which a second overload stops")
     check_period_ms: float = key("float", 100.0, unit="ms", lo=10.0, hi=10_000.0,
                                  doc="one servo's Torque Enable is read this often, in turn (torque found off)")
+    horn_speed_max: float = key("float", 50.0, unit="rad/s", lo=1.0, hi=1000.0,
+                                doc="the fastest a horn can turn: a position read implying more is a glitch, kept "
+                                    "out of the model, the goal and the recording until a second read confirms it; "
+                                    "the start and every re-anchor need two agreeing reads within the limits")
     sensor_lost_timeout_s: float = key("float", 0.0, unit="s", lo=0.0, hi=86_400.0,
                                        doc="no usable force sample for this long: stop, exit 75; 0 = hold forever "
                                            "(the reader keeps reopening the sensor)")

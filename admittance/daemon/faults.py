@@ -128,6 +128,10 @@ class FaultWatch:
         if faults.get("model_state_invalid", 0) > old.get("model_state_invalid", 0):
             self.events("model_state_invalid", "fault: model_state_invalid (a model state or gain the loop cannot "
                                                "use); the joint holds at its last good state")
+        if faults.get("position_glitch", 0) > old.get("position_glitch", 0):
+            self.events("position_glitch", "fault: position_glitch (a servo's position read jumped farther than a "
+                                           "horn can turn, or an anchoring read was not confirmed); the read is kept "
+                                           "out of the model, the goal and the recording")
 
     def _sensor_faults(self, sensor: dict[str, Any]) -> list[str]:
         now = self.clock()

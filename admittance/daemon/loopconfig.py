@@ -49,7 +49,8 @@ def fault_policy(cfg: DaemonConfig) -> dict[str, Any]:
     f = cfg.faults
     return {"servo_error": f.servo_error, "torque_off": f.torque_off, "bus_lost_timeout_s": f.bus_lost_timeout_s,
             "servo_silent_ms": f.servo_silent_ms, "max_recoveries": f.max_recoveries,
-            "recovery_window_s": f.recovery_window_s, "check_period_ms": f.check_period_ms}
+            "recovery_window_s": f.recovery_window_s, "check_period_ms": f.check_period_ms,
+            "horn_speed_max": f.horn_speed_max}
 
 
 def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:

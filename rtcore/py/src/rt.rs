@@ -47,7 +47,7 @@ const LOOP_KEYS: [&str; 22] = [
     "faults",
 ];
 
-const FAULT_KEYS: [&str; 7] = [
+const FAULT_KEYS: [&str; 8] = [
     "servo_error",
     "torque_off",
     "bus_lost_timeout_s",
@@ -55,6 +55,7 @@ const FAULT_KEYS: [&str; 7] = [
     "max_recoveries",
     "recovery_window_s",
     "check_period_ms",
+    "horn_speed_max",
 ];
 
 const JOINT_KEYS: [&str; 20] = [
@@ -213,6 +214,7 @@ fn fault_policy(d: &Bound<'_, PyDict>) -> PyResult<FaultPolicy> {
     duration_ns(d, "recovery_window_s", 1.0, &mut p.recovery_window_ns)?;
     duration_ns(d, "check_period_ms", 1e-3, &mut p.check_period_ns)?;
     set(d, "max_recoveries", "config.faults", &mut p.max_recoveries)?;
+    set(d, "horn_speed_max", "config.faults", &mut p.horn_speed_max)?;
     Ok(p)
 }
 

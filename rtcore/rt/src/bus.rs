@@ -536,6 +536,8 @@ pub(crate) mod memory {
         pub reboots: Vec<u8>,
         /// Bytes of a late reply still in flight: they arrive just before the next reply.
         pub late: Vec<u8>,
+        /// Encoder glitches: (id, offset) added to that servo's next present-position reply only.
+        pub glitches: Vec<(u8, i64)>,
     }
 
     impl Wire {
@@ -577,6 +579,15 @@ pub(crate) mod memory {
             }
             self.rebooting.retain(|r| r.0 != id || r.1 > 0);
             true
+        }
+
+        /// The tick a present-position read of `id` answers now (a queued glitch once).
+        fn present_reply(&mut self, id: u8) -> i64 {
+            let tick = self.present.iter().find(|p| p.0 == id).map_or(0, |p| p.1);
+            match self.glitches.iter().position(|g| g.0 == id) {
+                Some(i) => tick + self.glitches.remove(i).1,
+                None => tick,
+            }
         }
     }
 
@@ -631,7 +642,6 @@ pub(crate) mod memory {
                 if !wire.answers(id) {
                     return;
                 }
-                let tick = wire.present.iter().find(|p| p.0 == id).map_or(0, |p| p.1);
                 match (address, length) {
                     (a, 1) if a == torque_address => {
                         let on = u8::from(wire.torque_of(id));
@@ -641,8 +651,14 @@ pub(crate) mod memory {
                         let bits = wire.hardware_of(id);
                         status(wire, id, &[bits]);
                     }
-                    (_, 4) => status(wire, id, &(tick as i32).to_le_bytes()),
-                    (_, 2) => status(wire, id, &(tick as u16).to_le_bytes()),
+                    (_, 4) => {
+                        let tick = wire.present_reply(id);
+                        status(wire, id, &(tick as i32).to_le_bytes());
+                    }
+                    (_, 2) => {
+                        let tick = wire.present_reply(id);
+                        status(wire, id, &(tick as u16).to_le_bytes());
+                    }
                     _ => {}
                 }
             }
@@ -673,10 +689,11 @@ pub(crate) mod memory {
                 } else {
                     params[1..].chunks(3).map(|c| c[1]).collect()
                 };
-                for (id, tick) in wire.present.clone() {
+                for (id, _) in wire.present.clone() {
                     if !listed.contains(&id) || !wire.answers(id) {
                         continue;
                     }
+                    let tick = wire.present_reply(id);
                     if wire.protocol2 {
                         status(wire, id, &(tick as i32).to_le_bytes());
                     } else {

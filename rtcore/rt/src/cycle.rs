@@ -32,6 +32,7 @@
 //! every joint (`BusLost`) until it is back, and `recovery` asks for a stop if it is not back
 //! within the policy's timeout. A joint that its recovery holds (a servo shut down, silent, or
 //! being brought back) holds the same way: its model frozen at its last good state.
+use crate::anchor::{AnchorRefusal, ReadCheck};
 use crate::bus::{BusError, BusErrorKind, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
@@ -70,9 +71,23 @@ struct JointSlot {
     force: f64,
     torque: f64,
     present: i64,
-    /// The servo answered this cycle's read of the present positions.
+    /// The servo answered this cycle's read of the present positions, with a trusted read.
     read_now: bool,
+    /// Its position reads, each checked against what the horn could have done (`anchor`).
+    reads: ReadCheck,
     compensation: Compensation,
+}
+
+/// Reads the start takes to confirm every joint's position (two agreeing ones suffice).
+pub const START_READS: usize = 8;
+
+/// Why the loop did not start at the servos' present positions.
+#[derive(Debug)]
+pub enum StartRefusal {
+    /// The bus did not answer.
+    Bus(BusError),
+    /// A servo answered, but its position could not be trusted: the message says why.
+    Position(String),
 }
 
 /// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
@@ -149,6 +164,7 @@ impl Controller {
                 torque: 0.0,
                 present: -1,
                 read_now: false,
+                reads: ReadCheck::default(),
                 compensation: Compensation::new(jp.servo, jp.compensation),
             })
             .collect::<Vec<_>>();
@@ -202,19 +218,37 @@ impl Controller {
     }
 
     /// Bumpless start: the model starts where each servo is, so the first goal is no jump.
-    /// With `enable_torque`, the goals are first set to the present positions and only then is
+    /// No single read decides where that is: each joint's position is read until two reads
+    /// agree and lie within its range and limits (`anchor`), at most [`START_READS`] times.
+    /// With `enable_torque`, the goals are first set to those positions and only then is
     /// torque enabled, so a servo never lunges towards a goal left over from before.
-    pub fn start_at_present(&mut self, t: &mut dyn Transport, deadline_ns: u64, enable_torque: bool) -> Result<(), BusError> {
-        let ticks = self.bus.read_present(t, deadline_ns)?;
-        for ((slot, goal), &tick) in self.joints.iter_mut().zip(self.goals.iter_mut()).zip(ticks) {
-            slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+    pub fn start_at_present<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64, enable_torque: bool) -> Result<(), StartRefusal> {
+        let speed = self.recovery.policy().horn_speed_max;
+        let mut refusals: Vec<Option<AnchorRefusal>> = vec![Some(AnchorRefusal::Unconfirmed); self.joints.len()];
+        for _ in 0..START_READS {
+            let ticks = self.bus.read_present(t, deadline_ns).map_err(StartRefusal::Bus)?;
+            let now_ns = clock.now_ns();
+            for ((slot, refusal), &tick) in self.joints.iter_mut().zip(refusals.iter_mut()).zip(ticks) {
+                if refusal.is_some() {
+                    *refusal = slot.reads.anchor(tick, now_ns, &slot.wiring.ticks, &slot.limits, speed).err();
+                    slot.present = tick;
+                }
+            }
+            if refusals.iter().all(Option::is_none) {
+                break;
+            }
+        }
+        if let Some((slot, refusal)) = self.joints.iter().zip(&refusals).find_map(|(s, r)| r.map(|r| (s, r))) {
+            return Err(StartRefusal::Position(start_refusal_message(slot, refusal)));
+        }
+        for (slot, goal) in self.joints.iter_mut().zip(self.goals.iter_mut()) {
+            slot.state = State { theta: slot.wiring.ticks.theta_of(slot.present), omega: 0.0 };
             slot.good = slot.state;
-            slot.present = tick;
-            *goal = tick;
+            *goal = slot.present;
         }
         if enable_torque {
-            self.bus.write_goals(t, &self.goals)?;
-            self.bus.set_torque(t, true)?;
+            self.bus.write_goals(t, &self.goals).map_err(StartRefusal::Bus)?;
+            self.bus.set_torque(t, true).map_err(StartRefusal::Bus)?;
         }
         Ok(())
     }
@@ -311,25 +345,38 @@ impl Controller {
         let alert = self.bus.health()[k].alert(self.bus.protocol());
         let answered = !matches!(&result, Err(e) if e.unanswered());
         self.recovery.observe(k, answered, alert, now_ns);
-        if let (Action::ReadPresent, Ok(tick)) = (action, &result) {
-            self.reanchor(k, *tick);
+        let mut result = result.map_err(|e| self.bus_error(t, &e, e.read_kind(), now_ns));
+        if let (Action::ReadPresent, Ok(tick)) = (action, result) {
+            // Not confirmed yet (or not where torque may go on): read again, torque stays off.
+            result = self.reanchor(k, tick, now_ns);
         }
-        if let Err(e) = &result {
-            self.bus_error(t, e, e.read_kind(), now_ns);
-        }
-        self.recovery.on_result(k, action, result.map_err(drop), now_ns);
+        self.recovery.on_result(k, action, result, now_ns);
     }
 
-    /// The model of joint `k` starts again where its horn is: θ = the present tick's angle at
-    /// rest, the compensation's lead dropped, so the goal the next SyncWrite carries is the
-    /// present position itself (torque goes on only after that write: no jump).
-    fn reanchor(&mut self, k: usize, tick: i64) {
+    /// The model of joint `k` starts again where its horn is, once a read confirms where that
+    /// is (`anchor`): θ = the present tick's angle at rest, the compensation's lead dropped, so
+    /// the goal the next SyncWrite carries is the present position itself (torque goes on only
+    /// after that write: no jump). `Err` while the read is not confirmed: the recovery reads again.
+    fn reanchor(&mut self, k: usize, tick: i64, now_ns: u64) -> Result<i64, ()> {
+        let speed = self.recovery.policy().horn_speed_max;
         let slot = &mut self.joints[k];
-        slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
-        slot.good = slot.state;
-        slot.present = tick;
-        slot.compensation.reanchor();
-        self.goals[k] = tick;
+        match slot.reads.anchor(tick, now_ns, &slot.wiring.ticks, &slot.limits, speed) {
+            Ok(tick) => {
+                slot.state = State { theta: slot.wiring.ticks.theta_of(tick), omega: 0.0 };
+                slot.good = slot.state;
+                slot.present = tick;
+                slot.compensation.reanchor();
+                self.goals[k] = tick;
+                Ok(tick)
+            }
+            Err(refusal) => {
+                // The first read of an anchoring has nothing to agree with yet: not a glitch.
+                if refusal != AnchorRefusal::Unconfirmed {
+                    slot.faults.insert(FaultKind::PositionGlitch);
+                }
+                Err(())
+            }
+        }
     }
 
     fn adopt_params(&mut self) {
@@ -487,6 +534,7 @@ impl Controller {
         let result = self.bus.read_present_of(t, deadline_ns, |k| recovery.in_sync_read(k));
         let now_ns = clock.now_ns();
         let protocol = self.bus.protocol();
+        let speed = self.recovery.policy().horn_speed_max;
         let mut any = false;
         for (k, slot) in self.joints.iter_mut().enumerate() {
             if !self.recovery.in_sync_read(k) {
@@ -494,11 +542,17 @@ impl Controller {
             }
             let answered = self.bus.answered()[k];
             self.recovery.observe(k, answered, self.bus.health()[k].alert(protocol), now_ns);
-            if answered {
+            if !answered {
+                continue;
+            }
+            // A jump no horn can make is marked and kept out of the record (`anchor`).
+            if slot.reads.running(self.bus.present()[k], now_ns, &slot.wiring.ticks, speed) {
                 slot.present = self.bus.present()[k];
                 slot.read_now = true;
-                any = true;
+            } else {
+                slot.faults.insert(FaultKind::PositionGlitch);
             }
+            any = true;
         }
         match result {
             Ok(()) => {
@@ -561,6 +615,27 @@ impl Controller {
             return Err(BusError::Io(std::io::ErrorKind::NotConnected.into()));
         }
         self.bus.set_torque(t, false)
+    }
+}
+
+/// The start's one line for a joint whose position it could not trust.
+fn start_refusal_message(slot: &JointSlot, refusal: AnchorRefusal) -> String {
+    let id = slot.wiring.id;
+    let Limits { position_min, position_max, .. } = slot.limits;
+    match refusal {
+        AnchorRefusal::OutsideLimits { theta } => format!(
+            "servo {id} rests at {theta:.3} rad, outside its position limits [{position_min:.3}, {position_max:.3}] rad: \
+             move the joint within them by hand (torque stays off), or widen the limits"
+        ),
+        AnchorRefusal::OutOfRange { tick } => format!(
+            "servo {id} reports position tick {tick}, outside its range {}..={}: check its operating mode and encoder",
+            slot.wiring.ticks.tick_min, slot.wiring.ticks.tick_max
+        ),
+        AnchorRefusal::Unconfirmed | AnchorRefusal::Disagrees | AnchorRefusal::Jump { .. } => format!(
+            "servo {id}'s position reads did not agree in {START_READS} reads (the last: tick {}): a loose encoder or \
+             bus noise; torque stays off",
+            slot.present
+        ),
     }
 }
 

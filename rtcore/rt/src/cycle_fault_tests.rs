@@ -13,7 +13,7 @@ fn driving(present: &[(u8, i64)], policy: FaultPolicy) -> Rig {
     r.ctl.set_fault_policy(policy, true);
     r.ctl.sync_read_divisor = 1;
     let mut bus = r.bus.clone();
-    r.ctl.start_at_present(&mut bus, 0, true).unwrap();
+    r.ctl.start_at_present(&mut bus, &r.clock, 0, true).unwrap();
     r.ctl.begin(r.clock.now_ns());
     r
 }
@@ -253,4 +253,94 @@ fn a_whole_recovery_allocates_nothing() {
     assert_eq!((v.counts.reboots, v.counts.recoveries), (1, 1), "the recovery ran through");
     assert!(servo.torque);
     assert_eq!(allocations, 0, "a cycle allocated");
+}
+
+/// Every goal joint `id` was sent, in order (SYNC_WRITEs to Goal Position, 116).
+fn goals_sent(r: &Rig, id: u8) -> Vec<i64> {
+    packets(r).iter().filter(|(ins, _, p)| *ins == 0x83 && p[0] == 116).filter_map(|(_, _, p)| goal_in(p, id)).collect()
+}
+
+#[test]
+fn a_glitched_first_read_at_start_never_becomes_a_goal() {
+    for glitch in [2000, -2000, 5000] {
+        let mut r = rig(free_joint_for(1), &[(1, 2048)]);
+        r.ctl.set_fault_policy(FaultPolicy::default(), true);
+        r.bus.wire().glitches.push((1, glitch));
+        let mut bus = r.bus.clone();
+        r.ctl.start_at_present(&mut bus, &r.clock, 0, true).unwrap();
+        assert_eq!(goals_sent(&r, 1), vec![2048], "glitch {glitch}: the first goal is where the horn is");
+        assert_eq!(r.ctl.states().next().unwrap().theta, 0.0);
+    }
+}
+
+#[test]
+fn a_start_whose_reads_never_agree_or_rest_outside_the_limits_is_refused_with_torque_off() {
+    let mut r = rig(free_joint_for(1), &[(1, 2048)]);
+    r.ctl.set_fault_policy(FaultPolicy::default(), true);
+    r.bus.wire().glitches.extend((0..START_READS as i64).map(|i| (1, if i % 2 == 0 { 1500 } else { 0 })));
+    let mut bus = r.bus.clone();
+    let refused = r.ctl.start_at_present(&mut bus, &r.clock, 0, true);
+    assert!(matches!(&refused, Err(StartRefusal::Position(m)) if m.contains("did not agree")), "{refused:?}");
+    assert!(goals_sent(&r, 1).is_empty() && r.bus.written().iter().all(|p| p[7] != 0x03), "no goal, no torque");
+
+    let beyond = TickMap { zero_tick: 2048, direction: 1, ticks_per_rev: 4096.0, tick_min: 0, tick_max: 4095 }.goal_tick(3.0);
+    let mut limited = free_joint_for(1);
+    limited.joints[0].limits.position_max = 2.5;
+    let mut r = rig(limited, &[(1, beyond)]);
+    r.ctl.set_fault_policy(FaultPolicy::default(), true);
+    let mut bus = r.bus.clone();
+    let refused = r.ctl.start_at_present(&mut bus, &r.clock, 0, true);
+    assert!(matches!(&refused, Err(StartRefusal::Position(m)) if m.contains("outside its position limits")), "{refused:?}");
+    assert!(r.bus.written().iter().all(|p| p[7] != 0x03 && p[7] != 0x83));
+}
+
+#[test]
+fn a_glitched_re_anchor_after_a_recovery_is_read_again_before_torque_goes_on() {
+    let mut r = driving(&[(1, 2048)], FaultPolicy::default());
+    run_until(&mut r, 20, |_| false);
+    {
+        let mut wire = r.bus.wire();
+        wire.set_torque(1, false); // a brown-out: torque found off, no error
+        wire.present[0].1 = 2375;
+    }
+    // The re-anchor's first READ of the present position glitches, +2000 (no SyncReads
+    // meanwhile, so the glitch reaches that READ and no other).
+    r.ctl.sync_read_divisor = 0;
+    let before = r.bus.written().len();
+    let mut glitched = 0;
+    let records = run_until(&mut r, 3_000, |r| {
+        let mut wire = r.bus.wire();
+        let anchoring = r.ctl.recovery.view(0).unwrap().phase == crate::recovery::Phase::Reanchor;
+        if anchoring && glitched == 0 && wire.glitches.is_empty() {
+            wire.glitches.push((1, 2000));
+            glitched += 1;
+        }
+        wire.torque_of(1) && r.ctl.recovery.view(0).unwrap().phase == crate::recovery::Phase::Ok
+    });
+    assert_eq!(glitched, 1, "the glitch was armed during the re-anchor");
+    assert!(r.bus.wire().torque_of(1), "torque is back on");
+    let sent = &packets(&r)[before..];
+    let goals: Vec<i64> = sent.iter().filter(|(ins, _, p)| *ins == 0x83 && p[0] == 116).filter_map(|(_, _, p)| goal_in(p, 1)).collect();
+    assert!(goals.iter().all(|g| (2040..=2380).contains(g)), "no goal near the glitch: {:?}", goals.iter().max());
+    let enable = sent.iter().position(|(ins, id, p)| *ins == 0x03 && *id == 1 && p[..3] == [64, 0, 1]).unwrap();
+    let last_goal = sent[..enable].iter().rev().find(|(ins, ..)| *ins == 0x83).and_then(|(_, _, p)| goal_in(p, 1));
+    assert_eq!(last_goal, Some(2375), "torque on at the confirmed position");
+    assert!(records.iter().any(|rec| Faults::from_bits(rec.fault as u64).contains(FaultKind::PositionGlitch)));
+    assert!(records.iter().all(|rec| rec.theta < 1.0), "the model never went to the glitch");
+}
+
+#[test]
+fn a_running_glitch_is_marked_and_kept_out_of_the_record_and_the_goal() {
+    let mut r = driving(&[(1, 2048)], FaultPolicy::default());
+    run_until(&mut r, 20, |_| false);
+    let goals_before = goals_sent(&r, 1).len();
+    r.bus.wire().glitches.push((1, 2000));
+    let records = run_until(&mut r, 3, |_| false);
+    let glitched = &records[0];
+    assert!(Faults::from_bits(glitched.fault as u64).contains(FaultKind::PositionGlitch));
+    assert_eq!(glitched.present_tick, -1, "the glitched read is not recorded as the horn's position");
+    assert_eq!(glitched.mode, LoopMode::Running as i64, "a mark, not a hold");
+    assert_eq!(records[1].present_tick, 2048, "the next read is trusted again");
+    assert!(goals_sent(&r, 1)[goals_before..].iter().all(|g| (2040..=2056).contains(g)));
+    assert_eq!(events(&r, FaultKind::PositionGlitch), 1);
 }

@@ -53,7 +53,7 @@ pub(crate) fn rig(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
 pub(crate) fn started(initial: LoopParams, present: &[(u8, i64)]) -> Rig {
     let mut r = rig(initial, present);
     let mut bus = r.bus.clone();
-    r.ctl.start_at_present(&mut bus, 0, false).unwrap();
+    r.ctl.start_at_present(&mut bus, &r.clock, 0, false).unwrap();
     r.ctl.begin(r.clock.now_ns());
     r
 }
@@ -105,7 +105,7 @@ fn a_constant_force_gives_the_goal_ticks_of_the_model() {
         assert_eq!(rec.torque, fx * 0.1);
         assert!(rec.latency_ns >= 0);
     }
-    assert_eq!(r.bus.written().len(), 301, "one SyncRead at start, then one SyncWrite per cycle");
+    assert_eq!(r.bus.written().len(), 302, "two SyncReads at start (two agreeing reads), then one SyncWrite per cycle");
 }
 
 #[test]
@@ -115,11 +115,11 @@ fn the_loop_starts_where_the_servo_is() {
     assert_eq!(rec.goal_tick, 3000);
     let mut enabling = rig(free_joint(), &[(1, 1234)]);
     let mut bus = enabling.bus.clone();
-    enabling.ctl.start_at_present(&mut bus, 0, true).unwrap();
+    enabling.ctl.start_at_present(&mut bus, &enabling.clock, 0, true).unwrap();
     let written = enabling.bus.written();
-    assert_eq!(written.len(), 3, "read, goal = present, then torque on");
-    assert_eq!(enabling.last_goal_written_in(&written[1]), 1234);
-    assert_eq!(&written[2][8..13], &[64, 0, 1, 0, 1], "Torque Enable = 1 for id 1");
+    assert_eq!(written.len(), 4, "two agreeing reads, goal = present, then torque on");
+    assert_eq!(enabling.last_goal_written_in(&written[2]), 1234);
+    assert_eq!(&written[3][8..13], &[64, 0, 1, 0, 1], "Torque Enable = 1 for id 1");
 }
 
 #[test]

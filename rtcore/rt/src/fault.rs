@@ -43,11 +43,15 @@ pub enum FaultKind {
     SensorLost = 5,
     /// The force sensor reported saturated samples (raised by the supervisor).
     SensorSaturated = 6,
+    /// A servo's position read jumped farther than any horn can turn since the last trusted
+    /// read (`anchor`), or an anchoring read was not confirmed: the read is kept out of the
+    /// model, the goal and the record's present position. A mark, not a hold: the joint runs on.
+    PositionGlitch = 7,
 }
 
 impl FaultKind {
     /// Every kind, in bit order.
-    pub const ALL: [FaultKind; 7] = [
+    pub const ALL: [FaultKind; 8] = [
         FaultKind::ModelStateInvalid,
         FaultKind::ServoError,
         FaultKind::TorqueOff,
@@ -55,10 +59,14 @@ impl FaultKind {
         FaultKind::BusLost,
         FaultKind::SensorLost,
         FaultKind::SensorSaturated,
+        FaultKind::PositionGlitch,
     ];
 
     /// The kinds raised from outside the loop (`ExternalFaults`): the sensor's.
     pub const EXTERNAL: Faults = Faults(FaultKind::SensorLost.bit() | FaultKind::SensorSaturated.bit());
+
+    /// The kinds that mark a record without holding a joint: the loop's mode stays running.
+    pub const MARKS: Faults = Faults(FaultKind::PositionGlitch.bit());
 
     pub const fn bit(self) -> u64 {
         1 << (self as u8)
@@ -74,6 +82,7 @@ impl FaultKind {
             FaultKind::BusLost => "bus_lost",
             FaultKind::SensorLost => "sensor_lost",
             FaultKind::SensorSaturated => "sensor_saturated",
+            FaultKind::PositionGlitch => "position_glitch",
         }
     }
 }
@@ -170,7 +179,7 @@ impl LoopMode {
 
     /// Faulted beats holding beats running.
     pub fn of(faults: Faults, holding: bool) -> LoopMode {
-        if !faults.is_empty() {
+        if !Faults(faults.0 & !FaultKind::MARKS.0).is_empty() {
             LoopMode::Faulted
         } else if holding {
             LoopMode::Holding

@@ -12,7 +12,7 @@
 use crate::bus::{BusError, JointBus, Transport};
 use crate::clock::{monotonic_ns, MonotonicClock};
 use crate::config::LoopConfig;
-use crate::cycle::{Controller, ControllerParts};
+use crate::cycle::{Controller, ControllerParts, StartRefusal};
 use crate::doorbell::{ArrivalEstimator, Doorbell};
 use crate::fault::Faults;
 use crate::params::{LoopParams, ParamValue, Reach};
@@ -45,6 +45,8 @@ pub enum StartError {
     Port(String),
     /// The servos did not report their present positions.
     NoAnswer(String),
+    /// A servo's position could not be trusted (`anchor`): torque stays off.
+    Position(String),
     Thread(String),
 }
 
@@ -52,7 +54,7 @@ impl fmt::Display for StartError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             StartError::AlreadyStarted => write!(f, "the loop was already started; build a new one to run again"),
-            StartError::Port(e) | StartError::NoAnswer(e) | StartError::Thread(e) => f.write_str(e),
+            StartError::Port(e) | StartError::NoAnswer(e) | StartError::Position(e) | StartError::Thread(e) => f.write_str(e),
         }
     }
 }
@@ -204,9 +206,13 @@ impl LoopHandle {
             *kind = transport.kind();
         }
         let deadline = monotonic_ns() + (self.config.start_timeout_ms * 1e6) as u64;
-        if let Err(e) = controller.start_at_present(transport.as_mut(), deadline, self.config.torque_on_start) {
+        let started = controller.start_at_present(transport.as_mut(), &MonotonicClock, deadline, self.config.torque_on_start);
+        if let Err(refusal) = started {
             *idle = Some(controller);
-            return Err(StartError::NoAnswer(self.no_answer_message(&e)));
+            return Err(match refusal {
+                StartRefusal::Bus(e) => StartError::NoAnswer(self.no_answer_message(&e)),
+                StartRefusal::Position(why) => StartError::Position(why),
+            });
         }
         let (ready_tx, ready_rx) = mpsc::channel();
         let shared = self.shared.clone();

@@ -26,6 +26,7 @@
 //! - [`telemetry`]: the per-cycle record and the shared statistics.
 //! - [`cycle`]: one cycle; [`runner`]: the paced loop; [`config`], [`handle`]: building,
 //!   starting and steering a loop from another thread.
+pub mod anchor;
 pub mod bus;
 pub mod clock;
 pub mod compensation;

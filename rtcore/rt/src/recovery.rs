@@ -47,6 +47,10 @@ pub const HW_OVERLOAD: u8 = 0x20;
 pub const UNSAFE_HARDWARE_ERRORS: u8 = HW_OVERHEATING | HW_ENCODER | HW_ELECTRICAL_SHOCK;
 /// The most recoveries per joint a window may allow (the history is a fixed ring).
 pub const MAX_RECOVERIES_LIMIT: u32 = 16;
+/// No Dynamixel's horn turns faster than this unloaded (the XL330-M077's 383 rpm is 40 rad/s).
+pub const HORN_SPEED_MAX_DEFAULT: f64 = 50.0;
+/// What `horn_speed_max` may be set to (rad/s): above 1000 no read would ever be a glitch.
+pub const HORN_SPEED_MAX_RANGE: (f64, f64) = (1.0, 1000.0);
 /// A failed step is tried again after this (a silent servo then costs a read timeout per 10 ms,
 /// not per cycle).
 const RETRY_NS: u64 = 10_000_000;
@@ -84,6 +88,9 @@ pub struct FaultPolicy {
     pub recovery_window_ns: u64,
     /// One joint's Torque Enable is read this often, in turn.
     pub check_period_ns: u64,
+    /// The fastest any horn can turn (rad/s): a position read implying more is a glitch
+    /// (`anchor`): kept out of the model, the goal and the record until a second read confirms it.
+    pub horn_speed_max: f64,
 }
 
 impl Default for FaultPolicy {
@@ -96,6 +103,7 @@ impl Default for FaultPolicy {
             max_recoveries: 3,
             recovery_window_ns: 60_000_000_000,
             check_period_ns: 100_000_000,
+            horn_speed_max: HORN_SPEED_MAX_DEFAULT,
         }
     }
 }
@@ -114,6 +122,10 @@ impl FaultPolicy {
             if ns == 0 {
                 return Err(format!("faults.{name} must be > 0"));
             }
+        }
+        if !(HORN_SPEED_MAX_RANGE.0..=HORN_SPEED_MAX_RANGE.1).contains(&self.horn_speed_max) {
+            let (lo, hi) = HORN_SPEED_MAX_RANGE;
+            return Err(format!("faults.horn_speed_max must be within {lo}..{hi} rad/s, got {}", self.horn_speed_max));
         }
         if self.silent_after_ns >= self.lost_timeout_ns {
             return Err("faults: a servo must be silent (servo_silent_ms) before it is lost (bus_lost_timeout_s)".into());
