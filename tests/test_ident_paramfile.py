@@ -32,6 +32,7 @@ def test_a_servo_table_round_trips_and_its_names_agree_with_the_rust_model(tmp_p
     from admittance import _rtcore
 
     assert paramfile.SERVO_PARAM_NAMES == tuple(_rtcore.SERVO_PARAM_NAMES)
+    assert tuple(paramfile.SERVO_BOUNDS.values()) == tuple(tuple(b) for b in _rtcore.SERVO_DOMAIN)
     servo = {"time_constant": 0.017, "inertial_time": 0.02, "dead_time": 0.001, "compliance": 0.024, "deadband": 0.002}
     path = tmp_path / "with_servo.toml"
     paramfile.dump(path, {"motor_inertia": 0.0147}, servo=servo)
@@ -64,6 +65,16 @@ def test_names_agree_with_the_simulator():
         ("[servo]\ntime_constant = 0.02\ninertial_time = 0\ndead_time = 0\ncompliance = 0\ndeadband = -1\n",
          "deadband: must be in [0"),
         ("[servo]\ntime_constnt = 0.02\n", "time_constnt: unknown servo parameter"),
+        # Absurd values a hand edit (or a bad fit) could leave: each refused with its key.
+        ("[servo]\ntime_constant = 0.02\ninertial_time = 0\ndead_time = 0\ncompliance = 1e300\ndeadband = 0\n",
+         "compliance: must be in [-0.5, 0.5]"),
+        ("[servo]\ntime_constant = 0.02\ninertial_time = 0\ndead_time = 0\ncompliance = -1e6\ndeadband = 0\n",
+         "compliance: must be in"),
+        ("[servo]\ntime_constant = 0.02\ninertial_time = 0\ndead_time = 1.0\ncompliance = 0\ndeadband = 1e300\n",
+         "dead_time: must be in [-0.02, 0.2]"),
+        ("[params]\nmotor_inertia = 1e300\n", "motor_inertia: 1e+300 is outside its physical range"),
+        ("[params]\nmotor_inertia = 0.01\ndamping = -1.0\n", "damping: -1.0 is outside its physical range"),
+        ("[params]\nmotor_inertia = 0.01\ntorque_gain = 0\n", "torque_gain: 0 is outside"),
     ],
 )
 def test_bad_files_name_file_and_key(tmp_path, body, fragment):
@@ -74,6 +85,18 @@ def test_bad_files_name_file_and_key(tmp_path, body, fragment):
     assert str(path) in str(err.value)
     assert fragment in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def test_a_binary_or_huge_file_is_one_line_not_a_traceback(tmp_path):
+    binary = tmp_path / "params.toml"
+    binary.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(ConfigError, match="not a text file") as err:
+        paramfile.load(binary)
+    assert "\n" not in str(err.value)
+    huge = tmp_path / "huge.toml"
+    huge.write_bytes(b"# padding\n" * (paramfile.MAX_TOML_BYTES // 10 + 1))
+    with pytest.raises(ConfigError, match="larger than"):
+        paramfile.load(huge)
 
 
 def test_missing_file(tmp_path):
@@ -88,9 +111,15 @@ def test_dump_refuses_bad_values_before_writing(tmp_path):
     assert not path.exists()
 
 
+def params_within_bounds():
+    """A dict of some parameters, each value inside its physical range."""
+    names = st.sets(st.sampled_from(paramfile.PARAM_NAMES), min_size=1)
+    return names.flatmap(lambda chosen: st.fixed_dictionaries(
+        {name: st.floats(*paramfile.PARAM_BOUNDS[name], allow_nan=False) for name in chosen}))
+
+
 @settings(max_examples=examples(50))
-@given(st.dictionaries(st.sampled_from(paramfile.PARAM_NAMES),
-                       st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1))
+@given(params_within_bounds())
 def test_round_trip_property(tmp_path_factory, params):
     path = tmp_path_factory.mktemp("pf") / "p.toml"
     paramfile.dump(path, params)

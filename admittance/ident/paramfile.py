@@ -50,14 +50,44 @@ PARAM_DEFAULTS: dict[str, float | None] = {
     "friction_ripple_phase": 0.0,
 }
 PARAM_NAMES: tuple[str, ...] = tuple(PARAM_DEFAULTS)
-# plant::servo's parameter order (units: s, s, s, rad/N·m, rad), and each value's domain.
+# Each plant parameter's physical domain: a value outside is refused with the file and key, so
+# an absurd hand edit (1e300) never reaches the daemon. Generous, because in lumped mode the
+# torque parameters are per unit inertia (a small servo's Coulomb/I reaches 10^4).
+TORQUE_RANGE = (-1e6, 1e6)
+PARAM_BOUNDS: dict[str, tuple[float, float]] = {
+    "motor_inertia": (0.0, 100.0),  # kg·m² (0: a passive rig with no motor)
+    "damping": (0.0, 1e6),
+    "coulomb": (0.0, 1e6),
+    "coulomb_asym": TORQUE_RANGE,
+    "stribeck_torque": (0.0, 1e6),
+    "stribeck_velocity": (1e-4, 100.0),  # rad/s
+    "load_coulomb": (0.0, 10.0),  # a fraction of the load torque
+    "angle_offset": (-math.pi, math.pi),
+    "quadratic_drag": (0.0, 1e6),
+    "cogging_amplitude": (0.0, 1e6),
+    "cogging_period": (0.0, 1000.0),  # cycles/rev
+    "cogging_phase": (-100.0, 100.0),
+    "time_delay": (0.0, 1.0),  # s
+    "torque_bias": TORQUE_RANGE,
+    "torque_drift": TORQUE_RANGE,
+    "tanh_k": (1e-6, 1e6),
+    "torque_gain": (1e-6, 100.0),  # > 0: the plant refuses a reversed or dead sensor
+    "spring_stiffness": (0.0, 1e6),
+    "spring_neutral": (-100.0, 100.0),
+    "friction_ripple_amplitude": (0.0, 1e6),
+    "friction_ripple_period": (0.0, 1000.0),
+    "friction_ripple_phase": (-100.0, 100.0),
+}
+# plant::servo's parameter order (units: s, s, s, rad/N·m, rad), and each value's physical
+# domain: plant::servo::SERVO_DOMAIN (tests/test_ident_paramfile.py checks they agree; the
+# time constant is open at 0).
 SERVO_PARAM_NAMES: tuple[str, ...] = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband")
 SERVO_BOUNDS: dict[str, tuple[float, float]] = {
-    "time_constant": (0.0, 10.0),  # open at 0
-    "inertial_time": (0.0, 10.0),
-    "dead_time": (-0.1, 1.0),
-    "compliance": (-math.inf, math.inf),
-    "deadband": (0.0, math.inf),
+    "time_constant": (0.0, 1.0),
+    "inertial_time": (0.0, 0.5),
+    "dead_time": (-0.02, 0.2),
+    "compliance": (-0.5, 0.5),
+    "deadband": (0.0, 0.05),
 }
 FRICTION_LAWS = ("stick", "tanh")
 MODES = ("geometry", "lumped")
@@ -77,13 +107,22 @@ def load(path: str | Path) -> dict[str, Any]:
     return out
 
 
+# A parameter file or manifest is a few kB; a larger one is not one (a log, an image, a device).
+MAX_TOML_BYTES = 1 << 20
+
+
 def read_toml(path: Path, error: type[Exception], what: str) -> dict:
     """Parse a TOML file; every failure is ``error`` with one line naming the file."""
     try:
         with path.open("rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read(MAX_TOML_BYTES + 1)
+        if len(data) > MAX_TOML_BYTES:
+            raise error(f"{path}: larger than {MAX_TOML_BYTES >> 20} MiB: not a {what}")
+        return tomllib.loads(data.decode("utf-8"))
     except FileNotFoundError:
         raise error(f"{path}: {what} not found") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a text file (a {what} is UTF-8 TOML; byte {exc.start} is not UTF-8)") from None
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML ({exc})") from None
     except OSError as exc:
@@ -124,6 +163,9 @@ def validate_params(params: dict[str, Any], where: str = "params") -> dict[str, 
             raise ConfigError(f"{where}: [params] {key}: expected a number, got {value!r}")
         if not math.isfinite(value):
             raise ConfigError(f"{where}: [params] {key}: value must be finite, got {value!r}")
+        lo, hi = PARAM_BOUNDS[key]
+        if not lo <= value <= hi:
+            raise ConfigError(f"{where}: [params] {key}: {value!r} is outside its physical range [{lo:g}, {hi:g}]")
         out[key] = float(value)
     return {name: out[name] for name in PARAM_NAMES if name in out}
 

@@ -47,11 +47,13 @@ pub const SERVO_PARAM_NAMES: [&str; N_SERVO_PARAMS] =
 /// a reference that starts or reverses does not step the goal.
 pub const FRICTION_FADE_VELOCITY: f64 = 0.02;
 
-/// The bounds `validate` enforces (s): a lag up to 10 s, a dead time of −0.1…1 s. A slightly
-/// negative dead time is allowed because a recording labels the goal and the present position
-/// with the same cycle time, while the read happens after the write.
-pub const MAX_TIME_CONSTANT: f64 = 10.0;
-pub const DEAD_TIME_RANGE: (f64, f64) = (-0.1, 1.0);
+/// Each parameter's physical domain, in `SERVO_PARAM_NAMES` order: what a Dynamixel's position
+/// loop can be (a lag up to 1 s, a horn that gives at most 0.5 rad per N·m, a deadband up to
+/// 0.05 rad, about 3°). The fidelity fit searches inside it, and `validate` refuses anything
+/// outside, so an absurd `[servo]` table (a compliance of 1e300) never reaches the loop. A
+/// slightly negative dead time is allowed because a recording labels the goal and the present
+/// position with the same cycle time, while the read happens after the write.
+pub const SERVO_DOMAIN: [(f64, f64); N_SERVO_PARAMS] = [(0.0, 1.0), (0.0, 0.5), (-0.02, 0.2), (-0.5, 0.5), (0.0, 0.05)];
 
 /// A servo's tracking dynamics (see the module documentation for the equation).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -99,19 +101,12 @@ impl ServoModel {
         for (name, value) in SERVO_PARAM_NAMES.iter().zip(self.to_array()) {
             require_finite(name, value)?;
         }
-        let bad = |what: String| Err(PlantError::InvalidValue(what));
-        if !(self.time_constant > 0.0 && self.time_constant <= MAX_TIME_CONSTANT) {
-            return bad(format!("time_constant must be in (0, {MAX_TIME_CONSTANT}] s, got {}", self.time_constant));
-        }
-        if self.inertial_time < 0.0 || self.inertial_time > MAX_TIME_CONSTANT {
-            return bad(format!("inertial_time must be in [0, {MAX_TIME_CONSTANT}] s, got {}", self.inertial_time));
-        }
-        let (lo, hi) = DEAD_TIME_RANGE;
-        if !(lo..=hi).contains(&self.dead_time) {
-            return bad(format!("dead_time must be in [{lo}, {hi}] s, got {}", self.dead_time));
-        }
-        if self.deadband < 0.0 {
-            return bad(format!("deadband must be >= 0 rad, got {}", self.deadband));
+        for ((name, value), (lo, hi)) in SERVO_PARAM_NAMES.iter().zip(self.to_array()).zip(SERVO_DOMAIN) {
+            // time_constant's domain is open at 0 (it divides).
+            let inside = if *name == "time_constant" { value > lo && value <= hi } else { (lo..=hi).contains(&value) };
+            if !inside {
+                return Err(PlantError::InvalidValue(format!("{name} must be within [{lo}, {hi}], got {value}")));
+            }
         }
         Ok(())
     }
@@ -307,6 +302,20 @@ mod tests {
         let lag = v * 1.999 - out[1999];
         let expected = v * (MX.time_constant + MX.dead_time) + MX.deadband;
         assert!((lag - expected).abs() < 2e-4, "lag {lag} vs {expected}");
+    }
+
+    #[test]
+    fn absurd_servo_tables_are_refused_and_the_fit_s_own_domain_is_not() {
+        for (k, bad) in [(3, 1e300), (3, -1e6), (4, 1e300), (2, 1.0), (0, 0.0), (1, -0.1), (0, f64::NAN)] {
+            let mut v = MX.to_array();
+            v[k] = bad;
+            assert!(ServoModel::from_slice(&v).is_err(), "{} = {bad}", SERVO_PARAM_NAMES[k]);
+        }
+        for (k, (lo, hi)) in SERVO_DOMAIN.iter().enumerate() {
+            let mut v = MX.to_array();
+            v[k] = if k == 0 { *hi } else { *lo };
+            assert!(ServoModel::from_slice(&v).is_ok(), "{} at its bound", SERVO_PARAM_NAMES[k]);
+        }
     }
 
     #[test]

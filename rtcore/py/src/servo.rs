@@ -4,7 +4,7 @@
 //! trial under every parameter row without the GIL (rayon), which is what the fidelity fit's
 //! Jacobians need; `servo_lead` is the compensation's inverse, vectorised, for checks and plots.
 use numpy::{PyArray1, PyArrayMethods};
-use plant::servo::{self, ServoModel, ServoTrial, N_SERVO_PARAMS, SERVO_PARAM_NAMES};
+use plant::servo::{self, ServoModel, ServoTrial, N_SERVO_PARAMS, SERVO_DOMAIN, SERVO_PARAM_NAMES};
 use plant::State;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -98,6 +98,7 @@ fn servo_lead<'py>(
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SERVO_PARAM_NAMES", PyTuple::new(m.py(), SERVO_PARAM_NAMES)?)?;
+    m.add("SERVO_DOMAIN", PyTuple::new(m.py(), SERVO_DOMAIN)?)?;
     m.add_class::<PyServoTrial>()?;
     m.add_function(wrap_pyfunction!(servo_simulate_batch, m)?)?;
     m.add_function(wrap_pyfunction!(servo_lead, m)?)?;
