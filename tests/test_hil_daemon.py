@@ -383,3 +383,26 @@ def test_a_second_daemon_on_the_same_devices_stops_before_touching_them(tmp_path
     assert daemon.returncode == 0, daemon.stderr
     sensor = json.loads(stats_path.read_text())["daemon"]["sensor"]
     assert sensor["disconnects"] == 0 and sensor["state"] == "stopped"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2])
+def test_an_unexpected_signal_is_a_clean_stop_told_and_restartable(tmp_path, sig):
+    """SIGHUP and SIGUSR1/2 killed the daemon at once (no stop line, no stats, an unfinished
+    MCAP, no torque policy, and a death systemd counted as clean). They stop it cleanly, with
+    the stop line and a readable session.mcap, and exit 75 so that systemd restarts it."""
+    from mcap.reader import make_reader
+
+    config, endpoint = daemon_config(tmp_path, stop="torque_off")
+    stats_path, record = tmp_path / "stats.json", tmp_path / "rec"
+    with running_daemon(config, "--stats-json", str(stats_path), "--record", str(record), stop=sig) as daemon:
+        wait_alive(endpoint, PREFIX)
+    assert daemon.returncode == 75, daemon.stderr
+    name = signal.Signals(sig).name
+    assert f"stopped by {name}, which is not a stop signal" in daemon.stderr
+    assert "stopped (torque_off) after" in daemon.stderr, "the stop line, with the torque policy applied"
+    assert "Traceback" not in daemon.stderr
+    stats = json.loads(stats_path.read_text())
+    assert stats["fault_stop"] == {"cause": f"signal_{name.lower()}", "exit_status": 75}
+    with (record / "session.mcap").open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0, "the MCAP was finished"

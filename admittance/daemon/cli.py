@@ -134,7 +134,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # must not cut that exit short and turn a clean stop into -15. `--check` and
     # `--print-example-config` run nothing and leave them be.
     after = None if args.check or args.print_example_config else signal.SIG_IGN
-    with stop_signals_call(lambda *_: stop.set(), then=after):
+    with stop_signals_call(lambda signum, _frame: stop.set(signum), then=after):
         return _run(args, stop)
 
 

@@ -1,4 +1,10 @@
-"""SIGINT and SIGTERM as a stop request, for a block of code.
+"""SIGINT and SIGTERM as a stop request, for a block of code; SIGHUP, SIGUSR1 and SIGUSR2 too.
+
+SIGHUP (a closed terminal, a stray ``kill -HUP``) and SIGUSR1/2 (a tool that meant another
+process) would otherwise kill the daemon at once: no stop line, no stats, an unfinished MCAP,
+no torque policy, and an exit systemd counts as clean. They stop it cleanly instead, and the
+stop is told as what it is: an *unexpected* signal (``StopRequest.unexpected``), which the
+supervisor turns into exit 75 so that systemd restarts a service nobody meant to stop.
 
 The handler only records the request (it sets a :class:`StopRequest`); the stop itself (hold,
 torque policy, stats) runs on the main thread, where it is safe. A small module of its own
@@ -18,6 +24,8 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Signals whose default action is death but that nobody sends to stop a daemon on purpose.
+UNEXPECTED_SIGNALS = (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2)
 
 
 class StopRequest:
@@ -33,10 +41,13 @@ class StopRequest:
 
     def __init__(self) -> None:
         self._set = False
+        self.signal: int | None = None  # the first signal that set it, if a signal did
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)
 
-    def set(self) -> None:
+    def set(self, signum: int | None = None) -> None:
+        if not self._set:
+            self.signal = signum
         self._set = True
         try:
             os.write(self._write, b"\0")
@@ -45,6 +56,12 @@ class StopRequest:
 
     def is_set(self) -> bool:
         return self._set
+
+    def unexpected(self) -> str | None:
+        """The name of the unexpected signal (SIGHUP, SIGUSR1/2) that stopped it, if one did."""
+        if self.signal in UNEXPECTED_SIGNALS:
+            return signal.Signals(self.signal).name
+        return None
 
     def wait(self, timeout: float | None = None) -> bool:
         """Until set or ``timeout`` seconds passed; whether it is set."""
@@ -60,8 +77,9 @@ class StopRequest:
 
 @contextlib.contextmanager
 def stop_signals_call(handler: Callable[..., Any], *, then: Any = None) -> Iterator[None]:
-    """Inside the block SIGINT/SIGTERM call ``handler``; after it, the previous handlers come
-    back, or ``then`` (e.g. ``signal.SIG_IGN``) is installed instead.
+    """Inside the block SIGINT/SIGTERM (and the unexpected SIGHUP/SIGUSR1/SIGUSR2) call
+    ``handler(signum, frame)``; after it, the previous handlers come back, or ``then`` (e.g.
+    ``signal.SIG_IGN``) is installed instead.
 
     A second signal during the stop calls ``handler`` again (a no-op once the stop is under
     way), so it never interrupts the teardown. ``then=SIG_IGN`` is for a process whose work
@@ -73,7 +91,7 @@ def stop_signals_call(handler: Callable[..., Any], *, then: Any = None) -> Itera
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, handler) for sig in (*STOP_SIGNALS, *UNEXPECTED_SIGNALS)}
     try:
         yield
     finally:

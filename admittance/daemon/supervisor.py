@@ -65,7 +65,7 @@ from admittance.daemon.quantities import NAMES, bus_errors_text
 from admittance.daemon.recording import Recorder, gap_seconds
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
-from admittance.errors import AdmittanceError, DeviceError, FaultStop
+from admittance.errors import EXIT_TEMPFAIL, AdmittanceError, DeviceError, FaultStop
 from admittance.logs import RateLimitedLog
 
 STATS_PERIOD_S = 1.0
@@ -163,6 +163,7 @@ class Supervisor:
             with stop_signals_call(self.request_stop), contextlib.ExitStack() as stack:
                 self._start(stack)
                 self._serve()
+                self._note_unexpected_signal()
                 self._stop()
             if self.fault_stop is not None:
                 raise self.fault_stop  # after the same clean stop: its exit status
@@ -172,8 +173,18 @@ class Supervisor:
         self._write_stats()
         return 0
 
-    def request_stop(self, *_args: Any) -> None:
-        self.stop_event.set()
+    def request_stop(self, signum: int | None = None, _frame: Any = None) -> None:
+        self.stop_event.set(signum)
+
+    def _note_unexpected_signal(self) -> None:
+        """A stop by SIGHUP or SIGUSR1/2 is clean, but nobody asked for it: exit 75, so that
+        systemd restarts a service that a stray signal stopped (stopsignals.py)."""
+        name = getattr(self.stop_event, "unexpected", lambda: None)()
+        if name is not None and self.fault_stop is None:
+            self.fault_stop = FaultStop(f"stopped by {name}, which is not a stop signal (SIGINT, SIGTERM): "
+                                        f"a clean stop, exit {EXIT_TEMPFAIL} so that systemd restarts it",
+                                        EXIT_TEMPFAIL, f"signal_{name.lower()}")
+            self._event(str(self.fault_stop))
 
     def _start(self, stack: contextlib.ExitStack) -> None:
         self._step("starting: devices")
