@@ -155,6 +155,9 @@ class FakeNotifier:
         return True
 
 
+HARNESS_LIMIT_S = 20.0
+
+
 class Harness:
     def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None,
                  zenoh=None):
@@ -217,7 +220,9 @@ class Harness:
                                  make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
                                  claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
-        options = RunOptions(duration=stop_after, stats_json=self.stats_path)
+        # Always bounded: a run meant to end on a fault ends after HARNESS_LIMIT_S anyway (and the
+        # test's assertions then fail) instead of hanging when the fault's stop does not come.
+        options = RunOptions(duration=HARNESS_LIMIT_S if stop_after is None else stop_after, stats_json=self.stats_path)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
 
     def _maybe_fail(self, step):
