@@ -449,8 +449,9 @@ def test_a_full_disk_stops_the_recording_with_a_line_and_the_loop_runs_on(tmp_pa
     assert "Traceback" not in stderr
     assert sum("recording stopped" in line for line in lines) == 1, "one line"
     folder = tmp_path / "rec"
-    csv_text = (folder / "joint1_000.csv").read_text()
-    assert csv_text.endswith("\n") and len(csv_text.encode()) <= limit
-    assert load_dataset(folder).trials[0].n_samples > 1000
+    for csv_file in folder.glob("joint1_*.csv"):  # a loaded machine's stalls may start new trials
+        text = csv_file.read_text()
+        assert text.endswith("\n") and len(text.encode()) <= limit
+    assert sum(trial.n_samples for trial in load_dataset(folder).trials) > 1000
     recording = read_recording(folder / "session.mcap")
     assert recording.truncated and len(recording.joints[1]["t"]) > 1000
