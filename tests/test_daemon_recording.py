@@ -15,8 +15,8 @@ import tomli_w
 
 from admittance import data
 from admittance.daemon.recording import COLUMNS, Recorder
-from admittance.ident import paramfile
-from admittance.ident.dataset import load_dataset
+from admittance.formats import paramfile
+from admittance.formats.dataset import load_dataset
 
 BENCH = data.bench_config()
 MX64 = data.params_file("MX-64")
@@ -113,7 +113,7 @@ def test_where_the_model_did_not_follow_the_torque_a_new_trial_starts(tmp_path):
     next. The session.mcap's dataset is cut by the same rule."""
     from admittance._rtcore import MAX_CATCH_UP_STEPS
     from admittance.daemon.recording import trial_starts
-    from admittance.ident.loaders import _segments
+    from admittance.formats.converters import _segments
 
     period = 1e-3
     rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=period)

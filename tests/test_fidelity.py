@@ -178,7 +178,7 @@ def test_compensating_with_the_fitted_model_cuts_the_rendering_error_3x(tmp_path
 def test_the_cli_writes_the_contracts_json_and_a_params_file_that_turns_compensation_on(lag_recording, tmp_path):
     from admittance.cli import main
     from admittance.daemon.config import parse_config
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     folder, rendering = lag_recording
     out, params = tmp_path / "f.json", tmp_path / "with_servo.toml"

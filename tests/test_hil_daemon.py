@@ -417,8 +417,8 @@ def test_a_full_disk_stops_the_recording_with_a_line_and_the_loop_runs_on(tmp_pa
     import resource
     import threading
 
-    from admittance.ident.dataset import load_dataset
-    from admittance.ident.loaders import read_recording
+    from admittance.formats.dataset import load_dataset
+    from admittance.formats.converters import read_recording
 
     limit = 400 * 1024
 

@@ -191,9 +191,9 @@ def test_degenerate_batches():
 @pytest.mark.parametrize("effect", ["base", "stribeck", "load_coulomb", "cogging", "spring", "friction_ripple",
                                     "torque_gain_and_bias", "time_delay"])
 def test_rust_plant_converges_to_the_test_oracle(effect):
-    """A third reading of Contract 1 with another integrator (tests/ivp_oracle.py: solve_ivp
+    """A third reading of Contract 1 with another integrator (tests/oracles/ivp.py: solve_ivp
     between stick events): the Rust plant approaches it at first order as the step shrinks."""
-    import ivp_oracle
+    from oracles import ivp as ivp_oracle
 
     params = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084,
               **{k: v * (10.0 if k in ("coulomb_asym", "stribeck_torque", "cogging_amplitude", "torque_bias",

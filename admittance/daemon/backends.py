@@ -222,7 +222,7 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
 
 
 def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
-    from admittance.drivers.sensor import create_sensor
+    from admittance.drivers.force_reader import create_sensor
 
     s = cfg.sensor
     section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),

@@ -37,7 +37,7 @@ from admittance import data
 from admittance.daemon import endpoints
 from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
 from admittance.errors import ConfigError
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 
 MOCK_PORT = "mock"
 AXES = ("x", "y", "z")

@@ -14,7 +14,7 @@ any MCAP reader open without our code:
 
 ``t`` is the CSV dataset's time base (recording.py): the loop integrates one step per deadline,
 so the deadline is the model's clock. A cycle message carries the torque that cycle
-integrated; the CSV row and :func:`admittance.ident.loaders.load_recording` pair each angle
+integrated; the CSV row and :func:`admittance.formats.converters.load_recording` pair each angle
 with the next cycle's (recording.with_next_cycle), so both files give the same dataset.
 
 Every message's ``log_time`` is its wall-clock time (ns since the Unix epoch) and
@@ -23,7 +23,7 @@ the wall time is that plus the offset between the two clocks when the cycles wer
 
 Chunks are :data:`CHUNK_BYTES` long (about 1.5 s of one joint at 1 kHz) and the file is
 flushed after every tick, so a session cut short (SIGKILL, power loss) leaves a file that reads
-back, in a streaming reader, up to its last complete chunk (admittance.ident.loaders); the CSV
+back, in a streaming reader, up to its last complete chunk (admittance.formats.converters); the CSV
 dataset, flushed every batch, loses less. The writer keeps one index entry per chunk in memory
 until the summary is written at the close; as mcap's objects they cost about 680 bytes each, so
 a recording's memory grew with its length (2.5 MB an hour of one joint at 1 kHz with 256 KiB
@@ -195,7 +195,7 @@ class McapRecorder:
     def close(self) -> None:
         """The summary and index at the end: a seeking reader can then open it too. The file is
         closed even when the summary cannot be written (a full disk): what reached it is still
-        read back by a streaming reader (admittance.ident.loaders.read_recording)."""
+        read back by a streaming reader (admittance.formats.converters.read_recording)."""
         try:
             self._writer.finish()
         finally:

@@ -38,7 +38,7 @@ and its torque was never integrated: the predecessor's row is then *superseded* 
 so ``t`` stays strictly increasing and each row's ``tau`` is the one the model stepped with.
 
 The same rows are made from a ``session.mcap`` (every cycle) by :func:`recorded_rows`, so both
-files of a session give the same dataset (admittance.ident.loaders.load_recording).
+files of a session give the same dataset (admittance.formats.converters.load_recording).
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With

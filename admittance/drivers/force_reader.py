@@ -462,7 +462,7 @@ def require_key(section: Mapping[str, Any], key: str) -> Any:
 SENSOR_KINDS: dict[str, tuple[str, str]] = {
     "optoforce": ("admittance.drivers.optoforce", "OptoForceSerialReader"),
     "can": ("admittance.drivers.can_sensor", "CanForceReader"),
-    "mock": ("admittance.mockbench.sensor", "ScriptedForceSensor"),  # lives with the other simulations
+    "mock": ("admittance.mockbench.simulated_sensor", "ScriptedForceSensor"),  # lives with the other simulations
 }
 
 

@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.ident.dataset import MIN_SAMPLES as DATASET_MIN_SAMPLES
-from admittance.ident.dataset import TrialArrays, check_series
+from admittance.formats.dataset import MIN_SAMPLES as DATASET_MIN_SAMPLES
+from admittance.formats.dataset import TrialArrays, check_series
 
 
 TICKS_PER_REV = 4096
@@ -550,7 +550,7 @@ def recording_dataset(rec: Recording):
     """The Dataset of a read recording: one trial per segment of :func:`recording_segments`, in
     its order (joints by id)."""
     from admittance.daemon.recording import NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE
-    from admittance.ident.dataset import Dataset, TrialData, load_geometry
+    from admittance.formats.dataset import Dataset, TrialData, load_geometry
 
     measured = bool(rec.session.get("measured_theta", True))
     models = {int(j["id"]): j.get("model", "") for j in rec.session.get("joints", [])}

@@ -8,7 +8,7 @@ rest of the pipeline sees only numbers per trial.
 
 Trial files are CSV by default. A ``[[trials]]`` entry may carry ``format = "..."`` (an extension
 of the contract) for the recorders' own formats; those are read by
-``admittance.ident.loaders.load_trial``, imported only when needed so a plain CSV dataset never
+``admittance.formats.converters.load_trial``, imported only when needed so a plain CSV dataset never
 pays for the loaders.
 """
 
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.ident.paramfile import read_toml
+from admittance.formats.paramfile import read_toml
 
 GRAVITY = 9.80665  # m/s², standard gravity
 MIN_SAMPLES = 10  # fewer cannot pin an initial state and three parameters
@@ -71,7 +71,7 @@ def load_dataset(folder: str | Path) -> Dataset:
     """Read ``folder/manifest.toml`` and every trial it lists (or a session.mcap: loaders.load_recording)."""
     folder = Path(folder)
     if folder.suffix == ".mcap" and folder.is_file():
-        from admittance.ident.loaders import load_recording
+        from admittance.formats.converters import load_recording
 
         return load_recording(folder)
     if not folder.is_dir():
@@ -177,7 +177,7 @@ def _load_entry(folder: Path, manifest_path: Path, index: int, entry: Any, rod, 
 def _read_series(path: Path, fmt: str) -> TrialArrays:
     if fmt == "csv":
         return read_csv_trial(path)
-    from admittance.ident import loaders  # only datasets in recorder formats need it
+    from admittance.formats import converters  # only datasets in recorder formats need it
 
     return loaders.load_trial(path, fmt)
 

@@ -13,11 +13,11 @@ The pipeline, one module per step:
 - ``residual``: whiteness and where the residual is large
 - ``identify``: the orchestration and its result (JSON, parameter file)
 - ``report``: Markdown + PNG report; ``synthetic``: datasets with known truth
-- ``paramfile``: Contract 2 parameter files
 
-Beside the pipeline, the thesis's own procedures (``tools_cli``: ``admittance thesis``,
-``breakaway``, ``predict``, ``ladder``, ``convert``): ``thesis`` and its SciPy-only twin
-``baseline_thesis`` (the benchmark's baseline), ``breakaway``, ``predict`` and ``ladder``.
+Datasets and parameter files are formats (``admittance.formats``); the thesis's own procedures
+(``admittance thesis``, ``breakaway``, ``predict``) are the package ``admittance.thesis``.
+``tools_cli`` registers ``admittance ladder`` (chosen effect sets scored by identify's
+cross-validation, ``ladder``) and ``admittance convert`` (``formats.converters``).
 
 Python API (what ``admittance identify`` does)::
 
@@ -35,9 +35,9 @@ from __future__ import annotations
 from importlib import import_module
 
 _EXPORTS = {
-    "TrialData": "admittance.ident.dataset",
-    "Dataset": "admittance.ident.dataset",
-    "load_dataset": "admittance.ident.dataset",
+    "TrialData": "admittance.formats.dataset",
+    "Dataset": "admittance.formats.dataset",
+    "load_dataset": "admittance.formats.dataset",
     "IdentifySettings": "admittance.ident.identify",
     "IdentifyResult": "admittance.ident.identify",
     "identify_dataset": "admittance.ident.identify",

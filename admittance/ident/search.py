@@ -83,7 +83,7 @@ from admittance.ident.effects import (
 from admittance.ident.fit import FitResult, Progress, autocorrelation_time, fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
 from admittance.ident.residual import noise_of
-from admittance.ident.sensor import Sensor
+from admittance.ident.angle_sensor import Sensor
 
 PHASE_SPREAD = math.pi / 3  # rad: how far a fold's cogging phase may stray from the others'
 REGIME_P = 1e-3  # tail probability of the stability tests below which two regimes disagree

@@ -127,8 +127,8 @@ def _register_convert(subparsers) -> None:
 
 
 def _run_thesis(args) -> int:
-    from admittance.ident import thesis
-    from admittance.ident.dataset import load_dataset
+    from admittance.thesis import alternating as thesis
+    from admittance.formats.dataset import load_dataset
 
     _check_thesis_options(args)
     dataset = load_dataset(args.dataset)
@@ -156,8 +156,8 @@ def _check_thesis_options(args) -> None:
 
 
 def _run_breakaway(args) -> int:
-    from admittance.ident import breakaway
-    from admittance.ident.dataset import load_dataset
+    from admittance.thesis import breakaway
+    from admittance.formats.dataset import load_dataset
 
     dataset = load_dataset(args.dataset)
     summary = breakaway.summarise([breakaway.breakaway_of(tr) for tr in dataset.trials])
@@ -168,8 +168,8 @@ def _run_breakaway(args) -> int:
 
 
 def _run_predict(args) -> int:
-    from admittance.ident import predict
-    from admittance.ident.dataset import load_dataset
+    from admittance.thesis import predict
+    from admittance.formats.dataset import load_dataset
 
     if args.thesis_k is not None and not (math.isfinite(args.thesis_k) and args.thesis_k > 0):
         from admittance.errors import ConfigError
@@ -195,7 +195,7 @@ def _run_ladder(args) -> int:
     from dataclasses import asdict
 
     from admittance.ident import ladder
-    from admittance.ident.dataset import load_dataset
+    from admittance.formats.dataset import load_dataset
 
     dataset = load_dataset(args.dataset)
     rungs = [tuple(e.strip() for e in rung.split(",") if e.strip()) for rung in args.rung]
@@ -210,7 +210,7 @@ def _run_ladder(args) -> int:
 
 
 def _run_convert(args) -> int:
-    from admittance.ident import loaders
+    from admittance.formats import converters as loaders
 
     if args.format == "mcap":  # a recording holds its own geometry and trials
         out = loaders.convert_recording(args.files, args.out)

@@ -64,7 +64,7 @@ class TrialPrediction:
 
 def load_params(path: str | Path) -> tuple[dict[str, float], str]:
     """(parameters with defaults filled in, friction law) of a geometry-mode Contract 2 file."""
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     doc = paramfile.load(path)
     if doc["model"].get("mode", "geometry") != "geometry":
@@ -110,7 +110,7 @@ def predict_position(trial, params: dict[str, float], friction: str, max_step: f
     ``identify``'s held-out trials; ``"data"`` takes them from the first 50 ms of the record.
     """
     from admittance import sim
-    from admittance.ident.thesis import initial_state
+    from admittance.thesis.alternating import initial_state
 
     start = initial_state(trial, "data")
     if x0 == "fit":
