@@ -418,7 +418,7 @@ def test_a_full_disk_stops_the_recording_with_a_line_and_the_loop_runs_on(tmp_pa
     import threading
 
     from admittance.formats.dataset import load_dataset
-    from admittance.formats.converters import read_recording
+    from admittance.formats.recording import read_recording
 
     limit = 400 * 1024
 

@@ -16,7 +16,7 @@ from admittance.daemon.mcap_recording import McapRecorder
 from admittance.daemon.recording import Recorder
 from admittance.errors import DataError
 from admittance.formats.dataset import load_dataset
-from admittance.formats.converters import load_recording, read_recording
+from admittance.formats.recording import load_recording, read_recording
 
 from helpers import examples
 

@@ -62,7 +62,8 @@ from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.quantities import NAMES, bus_errors_text
-from admittance.daemon.recording import Recorder, gap_seconds
+from admittance.daemon.recording import Recorder
+from admittance.formats.recording import gap_seconds
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 from admittance.errors import EXIT_TEMPFAIL, AdmittanceError, DeviceError, FaultStop

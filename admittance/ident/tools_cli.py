@@ -85,7 +85,9 @@ def _run_convert(args) -> int:
     from admittance.formats import converters as loaders
 
     if args.format == "mcap":  # a recording holds its own geometry and trials
-        out = loaders.convert_recording(args.files, args.out)
+        from admittance.formats.recording import convert_recording
+
+        out = convert_recording(args.files, args.out)
         print(f"wrote {out}")
         return 0
     options = dict(_parse_option(item) for item in args.option)
