@@ -1,6 +1,6 @@
 //! Python bindings of the `rt` crate: `AdmittanceLoop` and its `ForceSink` (Contract 5).
 //!
-//! The configuration dict is read here, key by key, into `rtloop::LoopConfig`; an unknown key
+//! The configuration dict is read here, key by key, into `rt::LoopConfig`; an unknown key
 //! or a bad value is an `admittance.errors.ConfigError` naming the key, a missing or silent bus
 //! at `start()` an `admittance.errors.DeviceError`. `start()` and `stop()` block (bus reads,
 //! thread join) and release the GIL while they do; everything else is O(1) or proportional to
@@ -10,14 +10,14 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
-use rtloop::fault::{FaultKind, Faults, LoopMode};
-use rtloop::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
-use rtloop::histogram::Percentiles;
-use rtloop::params::{joint_value, LoopParams};
-use rtloop::sched::{Policy, RtRequest};
-use rtloop::sensor::ForceSample;
-use rtloop::telemetry::{Record, RECORD_FIELDS};
-use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
+use rt::fault::{FaultKind, Faults, LoopMode};
+use rt::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
+use rt::histogram::Percentiles;
+use rt::params::{joint_value, LoopParams};
+use rt::sched::{Policy, RtRequest};
+use rt::sensor::ForceSample;
+use rt::telemetry::{Record, RECORD_FIELDS};
+use rt::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
 use crate::dict_fields::{first_unknown_key, opt};
 use crate::dxlsim::PyMockBus;
 use crate::errors::{config_error, device_error};
@@ -276,7 +276,7 @@ pub(crate) fn percentiles<'py>(py: Python<'py>, p: &Percentiles) -> PyResult<Bou
 fn params_dict<'py>(py: Python<'py>, p: &LoopParams, ids: &[u8]) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (joint, id) in p.joints.iter().zip(ids) {
-        for key in rtloop::params::known_names() {
+        for key in rt::params::known_names() {
             if let Some(v) = joint_value(joint, key) {
                 d.set_item(format!("{id}.{key}"), v)?;
             }
@@ -597,7 +597,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     // Model steps a late cycle catches up at most; a longer stall loses its time (recording.py).
-    m.add("MAX_CATCH_UP_STEPS", rtloop::cycle::MAX_CATCH_UP_STEPS)?;
+    m.add("MAX_CATCH_UP_STEPS", rt::cycle::MAX_CATCH_UP_STEPS)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
