@@ -44,7 +44,7 @@ from admittance.mockbench.simulated_sensor import (
 )
 
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
-SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
+SIMULATED_SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
 MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
@@ -157,8 +157,8 @@ class MockBench:
         except TypeError as exc:
             raise ConfigError(f"MockBench: {exc}") from None
         cfg = self.config
-        if cfg.sensor not in SENSOR_KINDS:
-            raise ConfigError(f"the mock bench's sensor is one of {', '.join(SENSOR_KINDS)}, not '{cfg.sensor}'")
+        if cfg.sensor not in SIMULATED_SENSOR_KINDS:
+            raise ConfigError(f"the mock bench's sensor is one of {', '.join(SIMULATED_SENSOR_KINDS)}, not '{cfg.sensor}'")
         specs = servo_specs(cfg)
         self.servo_ids = [s["id"] for s in specs]
         self.hand_servo_id = cfg.hand_servo_id if cfg.hand_servo_id is not None else self.servo_ids[0]

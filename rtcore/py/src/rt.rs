@@ -6,7 +6,7 @@
 //! thread join) and release the GIL while they do; everything else is O(1) or proportional to
 //! the telemetry drained. The RT thread itself never touches Python.
 use dxl::Protocol;
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
@@ -598,9 +598,43 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     // Model steps a late cycle catches up at most; a longer stall loses its time (recording.py).
     m.add("MAX_CATCH_UP_STEPS", rt::cycle::MAX_CATCH_UP_STEPS)?;
+    m.add("MAX_JOINT_ID", rt::params::MAX_JOINT_ID)?;
+    m.add_function(wrap_pyfunction!(split_param_name, m)?)?;
+    m.add("LOOP_DEFAULTS", loop_defaults(m.py())?)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
     m.add("UNSAFE_HARDWARE_ERRORS", UNSAFE_HARDWARE_ERRORS)?;
     Ok(())
+}
+
+
+/// `"3.limits.position_max"` → (3, "position_max"); a loop-wide or all-joints name has no id
+/// (None). ValueError when the id is not 0..=MAX_JOINT_ID. The one parser of the grammar.
+#[pyfunction]
+fn split_param_name(name: &str) -> PyResult<(Option<u8>, String)> {
+    rt::params::split_name(name).map(|(id, key)| (id, key.to_string())).map_err(PyValueError::new_err)
+}
+
+/// The loop's own defaults (rt::config), by the daemon's key names: the daemon's configuration
+/// reads its defaults for the same keys from here, so the two cannot differ.
+fn loop_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let c = LoopConfig::default();
+    let j = JointConfig::new(1, Protocol::V2);
+    let f = FaultPolicy::default();
+    let d = PyDict::new(py);
+    d.set_item("baudrate", c.baudrate)?;
+    d.set_item("rate_hz", c.rate_hz)?;
+    d.set_item("sync_read_divisor", c.sync_read_divisor)?;
+    d.set_item("ramp_time_s", c.ramp_time_s)?;
+    d.set_item("stale_timeout_ms", c.sensor.stale_timeout_ms)?;
+    d.set_item("deadband", c.sensor.deadband)?;
+    d.set_item("lowpass_hz", c.sensor.lowpass_hz)?;
+    d.set_item("zero_tick", j.ticks.zero_tick)?;
+    d.set_item("direction", j.ticks.direction)?;
+    d.set_item("velocity_max", j.limits.velocity_max)?;
+    d.set_item("acceleration_max", j.limits.acceleration_max)?;
+    d.set_item("max_recoveries", f.max_recoveries)?;
+    d.set_item("horn_speed_max", f.horn_speed_max)?;
+    Ok(d)
 }
