@@ -1,4 +1,4 @@
-"""The thesis method in plain Python and SciPy, with no Rust: the bench's baseline.
+"""TEST ORACLE: the thesis method in plain Python and SciPy, with no Rust: the bench's baseline.
 
 This is what a straightforward port of the thesis's MATLAB/Simulink pipeline looks like:
 a fixed-step Bogacki–Shampine integrator (Simulink's ``ode3``) written as a Python loop, and
