@@ -2,15 +2,16 @@
 
 The pipeline, one module per step:
 
-- ``dataset``: read and validate a dataset folder (shared/contracts/datasets.md) → ``Dataset``;
-  ``loaders``: recorder formats (Motive, encoder logs, DFKI) and conversion to datasets
+- (``admittance.formats.dataset``: read and validate a dataset folder → ``Dataset``;
+  ``formats.converters``: recorder formats and conversion to datasets)
 - ``split``: the deterministic held-out and validation picks
 - ``equation_error`` (with ``smoothing``): smoothed derivatives and a bounded linear fit, the
   starting point
 - ``model`` / ``fit``: the Rust batch simulator and a structured Levenberg–Marquardt on the
   output error (simulated − measured angle), shared parameters + per-trial initial states
 - ``effects``: rank candidate effects on the residual, admit them on validation trials
-- ``residual``: whiteness and where the residual is large
+- ``residual``: whiteness and where the residual is large; ``angle_sensor``: what the angle sensor
+  (motion capture or an encoder) does to the data
 - ``identify``: the orchestration and its result (JSON, parameter file)
 - ``report``: Markdown + PNG report; ``synthetic``: datasets with known truth
 

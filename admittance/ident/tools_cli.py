@@ -82,7 +82,7 @@ def _run_ladder(args) -> int:
 
 
 def _run_convert(args) -> int:
-    from admittance.formats import converters as loaders
+    from admittance.formats import converters
 
     if args.format == "mcap":  # a recording holds its own geometry and trials
         from admittance.formats.recording import convert_recording
@@ -105,7 +105,7 @@ def _run_convert(args) -> int:
         extra["bob_distance"] = args.bob[1]
     outfolder.check(args.out, args.force, "--out")
     with tempfile.TemporaryDirectory(dir=_existing_parent(args.out)) as tmp:  # a bad input leaves DIR as it was
-        loaders.convert_files(args.files, args.format, tmp, header=header, extra=extra, **options)
+        converters.convert_files(args.files, args.format, tmp, header=header, extra=extra, **options)
         out = outfolder.clear(args.out, "--out")
         for path in Path(tmp).iterdir():
             path.replace(out / path.name)
