@@ -63,6 +63,7 @@ def test_the_graph_is_read():
 @pytest.mark.parametrize("source, target", [
     ("admittance.daemon", "admittance.ident"),
     ("admittance.ident", "admittance.daemon"),
+    ("admittance.ident", "admittance.thesis"),  # the thesis's procedures use the pipeline, not back
 ])
 def test_daemon_and_identification_do_not_import_each_other(source, target):
     assert _edges(source, target) == []
