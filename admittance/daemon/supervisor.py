@@ -78,6 +78,7 @@ STATS_PERIOD_S = 1.0
 FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
 TARE_MIN_RATE_HZ = 30.0
 WARNING_BURST = 5  # distinct warnings from one source (the loop, the bench) per 10 s, then held back
+PARAMS_LOG_BURST = 10  # "params set" lines per 10 s; a flood of sets is then counted, not logged each
 STALL_MS = 0.25  # the simulated bus thread's stall threshold (rtcore/dxlsim/src/server.rs, STALL)
 
 log = logging.getLogger(__name__)
@@ -165,6 +166,7 @@ class Supervisor:
         self._t0 = 0.0
         self._warned: set[str] = set()
         self._warn_limit = RateLimitedLog(log, burst=WARNING_BURST)
+        self._params_log = RateLimitedLog(log, burst=PARAMS_LOG_BURST)
         self.watchdog: Watchdog | None = None
         self.faults = FaultWatch(cfg, self._event)
         self.fault_stop: FaultStop | None = None
@@ -482,7 +484,7 @@ class Supervisor:
             return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            log.info("params set: %s", clip(json.dumps(request, sort_keys=True), 400))
+            self._params_log("params", f"params set: {clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
             self._record(lambda recorder: recorder.set_targets(self.loop.params()))
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
