@@ -10,7 +10,7 @@ CARGO_MANIFEST := rtcore/Cargo.toml
 # before would be imported first and shadow every rebuild, so it goes.
 STALE_EXT := admittance/_rtcore.cpython-*.so
 
-.PHONY: setup ext run test test-rust test-python test-thorough bench clean
+.PHONY: setup ext run test test-rust test-stub test-python test-thorough bench clean
 
 setup: $(STAMP)
 
@@ -30,7 +30,13 @@ ext:
 run: setup
 	$(BIN)/admittance run
 
-test: setup test-rust test-python
+test: setup test-rust test-stub test-python
+
+# The typed boundary: the stub admittance/_rtcore.pyi against the built extension (every name and
+# signature), and the loop's configuration builder against the stub's types.
+test-stub: setup
+	$(BIN)/python -m mypy.stubtest admittance._rtcore
+	$(BIN)/python -m mypy --follow-imports=silent --ignore-missing-imports admittance/daemon/loopconfig.py admittance/loop_config.py
 
 test-rust:
 	cargo test --manifest-path $(CARGO_MANIFEST) --workspace --exclude admittance-py

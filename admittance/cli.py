@@ -24,7 +24,8 @@ SUBCOMMAND_MODULES = (
     "admittance.mockbench.cli",  # mock-bench
     "admittance.bringup.cli",  # setup
     "admittance.ident.cli",  # identify, synth
-    "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
+    "admittance.thesis.cli",  # thesis, breakaway, predict
+    "admittance.ident.tools_cli",  # ladder, convert
     "admittance.fidelity.cli",  # fidelity
 )
 

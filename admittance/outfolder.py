@@ -38,3 +38,13 @@ def clear(folder: Path, option: str, patterns: Sequence[str] = DATASET_FILES) ->
     except OSError as exc:
         raise ConfigError(f"{option} {folder}: cannot prepare it ({exc.strerror})") from None
     return folder
+
+
+def write_texts(folder: Path, files: dict[str, str]) -> None:
+    """Write each ``name: text`` into ``folder`` (made if missing); a failure is one ConfigError line."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, text in files.items():
+            (folder / name).write_text(text)
+    except OSError as exc:
+        raise ConfigError(f"{folder}: cannot write ({exc.strerror})") from None

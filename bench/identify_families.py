@@ -1,7 +1,7 @@
 """`identify` on every family of test data, one table: what it names, how close I/B/F come, and
 the held-out error before and after.
 
-Families (all synthetic sets come from the TEST ORACLE tests/ivp_oracle.py: SciPy's solve_ivp
+Families (all synthetic sets come from the TEST ORACLE tests/oracles/ivp.py: SciPy's solve_ivp
 with stick events, not the Rust plant that identify fits with):
 
 - clean: no effect, under each sensor: 2 mrad Gaussian (motion capture), a 4096-tick encoder
@@ -38,9 +38,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-import ivp_oracle as oracle  # noqa: E402  (the test oracle lives with the tests)
+from oracles import ivp as oracle  # noqa: E402  (the test oracle lives with the tests)
 
-from admittance.ident.dataset import load_dataset  # noqa: E402
+from admittance.formats.dataset import load_dataset  # noqa: E402
 from admittance.ident.identify import IdentifySettings, identify_dataset  # noqa: E402
 
 LIBRARY = [("stribeck", 0.04, False), ("asymmetric_coulomb", 0.02, False), ("load_dependent_coulomb", 0.1, False),
@@ -124,7 +124,7 @@ def real_rows(tmp: Path) -> list[dict]:
     from conftest import REAL_DATA
     from test_realdata import _dfki_files, _xl330_files
 
-    from admittance.ident.loaders import convert_files
+    from admittance.formats.converters import convert_files
 
     if not REAL_DATA.is_dir():
         return []

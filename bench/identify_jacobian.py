@@ -21,7 +21,7 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from admittance.ident.dataset import load_dataset
+from admittance.formats.dataset import load_dataset
 from admittance.ident.equation_error import fit_equation_error, initial_states
 from admittance.ident.fit import _Problem, fit_output_error, rmse
 from admittance.ident.model import Simulator, bounds_for, free_params

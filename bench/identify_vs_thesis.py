@@ -2,7 +2,7 @@
 
 The data: 5 bob distances × cw/ccw × 3 repeats = 30 pendulum drops, 120 Hz, 10 s each, MX-64-like
 truth (I 0.0147 kg·m², B 0.035 N·m·s/rad, F 0.084 N·m), 2 mrad Gaussian noise, made by the TEST
-ORACLE (tests/ivp_oracle.py: SciPy's solve_ivp with stick events, an integrator independent of
+ORACLE (tests/oracles/ivp.py: SciPy's solve_ivp with stick events, an integrator independent of
 the Rust plant that identify fits with). In one run, on all 30 trials, nothing extrapolated:
 
 - ``identify`` (the core's Python API: Rust batch simulator, joint output-error LM, effect
@@ -35,10 +35,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import ivp_oracle as oracle  # noqa: E402  (the test oracle lives with the tests)
+from oracles import ivp as oracle  # noqa: E402  (the test oracle lives with the tests)
 
-from admittance.ident import baseline_thesis, synthetic, thesis  # noqa: E402
-from admittance.ident.dataset import load_dataset  # noqa: E402
+from admittance.ident import synthetic  # noqa: E402
+from admittance.thesis import alternating as thesis  # noqa: E402
+from oracles import thesis_ode3 as baseline_thesis  # noqa: E402
+from admittance.formats.dataset import load_dataset  # noqa: E402
 from admittance.ident.identify import IdentifySettings, identify_dataset  # noqa: E402
 
 PARAMS = ("motor_inertia", "damping", "coulomb")

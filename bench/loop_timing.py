@@ -62,7 +62,7 @@ import numpy as np
 import serial
 
 from admittance import _rtcore
-from admittance.drivers.sensor import ForceSensor
+from admittance.drivers.force_reader import ForceSensor
 from admittance.logs import ROOT
 
 RATES_HZ = (250, 500, 1000, 2000)

@@ -21,7 +21,7 @@ import tty
 
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import CanForceReader, split_into_can_payloads
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 
 N_FRAMES = 50_000
 NEEDED_SAMPLES_HZ = 1000.0

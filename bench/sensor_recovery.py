@@ -20,9 +20,9 @@ import tempfile
 import time
 
 from admittance.drivers.optoforce import OptoForceSerialReader
-from admittance.drivers.sensor import RECONNECT_FIRST_S, RECONNECT_MAX_S, SampleBuffer
+from admittance.drivers.force_reader import RECONNECT_FIRST_S, RECONNECT_MAX_S, SampleBuffer
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, SimulatedOptoForce
 
 OUTAGES_S = (0.1, 0.5, 1.0, 3.0)
 REPEATS = 3

@@ -4,7 +4,7 @@ Prints ratios, not only absolutes: the machine is shared and noisy, so compare t
 with each other. Three alternatives simulate the same model (Contract 1, every effect on):
 
 - ``rtcore``: ``_rtcore.simulate_batch`` (one trial, one parameter set, one thread);
-- ``python``: ``admittance.sim.simulate_reference``, a plain Python loop;
+- ``python``: ``simulate_reference`` of the test oracle tests/oracles/reference.py, a plain Python loop;
 - ``numpy``: the loop in Python, each substep vectorised over S parameter sets (the usual
   way to batch a time-stepping model in NumPy). Checked against rtcore in the same run.
 
@@ -15,11 +15,16 @@ rayon's pool. Runs in well under a minute.
 from __future__ import annotations
 
 import os
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 from admittance import sim
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracles import reference  # noqa: E402  (the test oracle lives with the tests)
 
 RATE_HZ = 120.0
 DURATION_S = 12.0
@@ -89,7 +94,7 @@ def per_step_costs() -> None:
     vector = sim.pack_params(PARAMS)[None, :]
     x0 = np.array([[[0.3, 0.0]]])
     rust_s = best_of(20, lambda: sim.simulate_many([trial], vector, x0, max_step=MAX_STEP, threads=1))
-    python_s = best_of(1, lambda: sim.simulate_reference(trial, PARAMS, 0.3, 0.0, max_step=MAX_STEP))
+    python_s = best_of(1, lambda: reference.simulate_reference(trial, PARAMS, 0.3, 0.0, max_step=MAX_STEP))
     sets = np.repeat(vector, N_SETS, axis=0)
     numpy_result = {}
     numpy_s = best_of(1, lambda: numpy_result.setdefault("theta", numpy_simulate(trial, sets, 0.3)))

@@ -20,7 +20,7 @@ import time
 
 from admittance.drivers.can_sensor import CanForceReader
 from admittance.drivers.optoforce import OptoForceSerialReader
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 
 COUNTS_PER_NEWTON = 451.89
 WINDOW_S = 3.0

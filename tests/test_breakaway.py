@@ -11,8 +11,8 @@ import pytest
 from admittance import sim
 from admittance.cli import main
 from admittance.errors import DataError
-from admittance.ident import breakaway
-from admittance.ident.loaders import ConvertedTrial, write_dataset
+from admittance.thesis import breakaway
+from admittance.formats.converters import ConvertedTrial, write_dataset
 
 RATE = 0.05  # N·m/s, a slow hand ramp
 

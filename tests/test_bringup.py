@@ -9,7 +9,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from admittance.bringup import arm, scan, sensor, servo, wizard
+from admittance.bringup import arm, scan, servo, wizard
+from admittance.bringup import sensor_axis as sensor
 from admittance.bringup.simulated import SimulatedPerson, simulated_bench
 from admittance.daemon import config
 from admittance.drivers.dynamixel import ServoBus

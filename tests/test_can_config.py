@@ -13,7 +13,7 @@ import pytest
 from admittance.daemon import config
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import CanForceReader, split_into_can_payloads
-from admittance.drivers.sensor import SampleBuffer, create_sensor
+from admittance.drivers.force_reader import SampleBuffer, create_sensor
 from admittance.errors import ConfigError
 
 from test_daemon_config import error_of, minimal, write

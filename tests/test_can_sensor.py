@@ -11,10 +11,10 @@ from hypothesis import strategies as st
 
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import CanForceReader, split_into_can_payloads
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, SimulatedCanOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, SimulatedCanOptoForce
 
 from helpers import wait_until
 

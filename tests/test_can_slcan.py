@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import CanForceReader, split_into_can_payloads
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import DataError, DeviceError
 from admittance.mockbench import slcan
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, PtyPort, SimulatedSlcanOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, PtyPort, SimulatedSlcanOptoForce
 
 from helpers import first_line, start_mock_bench, wait_until
 

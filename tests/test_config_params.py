@@ -63,11 +63,11 @@ def test_mx28_friction_typo_is_corrected(repo_root, thesis_data):
     assert _load(repo_root, "mx28.toml")["params"]["coulomb"] == pytest.approx(0.0064, abs=1e-4)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("admittance.ident.paramfile") is None,
-                    reason="admittance.ident.paramfile not written yet")
+@pytest.mark.skipif(importlib.util.find_spec("admittance.formats.paramfile") is None,
+                    reason="admittance.formats.paramfile not written yet")
 @pytest.mark.parametrize("name", sorted(MOTORS.values()))
 def test_paramfile_reader_accepts_them(repo_root, name):
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     loaded = paramfile.load(data.path("params", name))
     assert loaded["model"]["friction"] == "tanh"

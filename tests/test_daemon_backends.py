@@ -8,7 +8,7 @@ import pytest
 from admittance import _rtcore
 from admittance.daemon import backends
 from admittance.daemon.config import parse_config
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import DeviceError
 
 from helpers import wait_until

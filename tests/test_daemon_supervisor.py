@@ -389,7 +389,7 @@ def test_sigterm_stops_cleanly_with_the_torque_policy(tmp_path):
 
 
 def test_recording_writes_a_dataset_of_the_rows_with_a_present_position(tmp_path):
-    from admittance.ident.dataset import load_dataset
+    from admittance.formats.dataset import load_dataset
 
     h = Harness(tmp_path, record="rec", stop_after=0.2)
     h.supervisor.run()

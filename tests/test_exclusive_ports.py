@@ -15,10 +15,10 @@ import pytest
 from admittance import _rtcore
 from admittance.drivers.dynamixel import ServoBus
 from admittance.drivers.optoforce import OptoForceSerialReader
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, SimulatedOptoForce
 
 from helpers import MX64_PLANT
 

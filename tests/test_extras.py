@@ -51,7 +51,7 @@ def test_commands_stop_with_one_line_before_any_work(without, capsys, tmp_path, 
 
 def test_the_can_reader_says_which_extra_it_needs(without):
     from admittance.drivers.can_sensor import CanForceReader
-    from admittance.drivers.sensor import SampleBuffer
+    from admittance.drivers.force_reader import SampleBuffer
 
     without("can")
     reader = CanForceReader("vcan0", 451.89, SampleBuffer())

@@ -25,6 +25,7 @@ import tomli_w
 from admittance.daemon.mcap_recording import McapRecorder
 from admittance.daemon.recording import Recorder
 from admittance.errors import DataError
+from oracles import virtual_joint
 
 RATE = 1000.0
 H = 1.0 / RATE
@@ -38,14 +39,6 @@ def multisine(t: float) -> float:
     """A hand from 0.3 to 3 Hz (N·m)."""
     return 0.06 * math.sin(2 * math.pi * 0.3 * t) + 0.05 * math.sin(2 * math.pi * 0.9 * t + 1.0) \
         + 0.05 * math.sin(2 * math.pi * 1.7 * t + 2.0) + 0.06 * math.sin(2 * math.pi * 3.0 * t + 0.5)
-
-
-def virtual_step_oracle(theta, omega, tau, inertia, damping, coulomb, h=H):
-    """Contract 1's virtual joint: stick friction, implicit damping, semi-implicit Euler."""
-    gain = h / inertia
-    free = omega + gain * tau
-    omega = 0.0 if abs(free) <= gain * coulomb else (free - math.copysign(gain * coulomb, free)) / (1 + gain * damping)
-    return theta + h * omega, omega
 
 
 class LagOracle:
@@ -89,7 +82,7 @@ def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
         t = k * H
         tau = hand(t)
         before = omega
-        theta, omega = virtual_step_oracle(theta, omega, tau, *VIRTUAL)
+        theta, omega = virtual_joint.step(theta, omega, tau, *VIRTUAL, H)
         goal = theta + (lead(omega, (omega - before) / H, tau) if lead else 0.0)
         goal = round(goal / TICK) * TICK
         read = None
@@ -178,7 +171,7 @@ def test_compensating_with_the_fitted_model_cuts_the_rendering_error_3x(tmp_path
 def test_the_cli_writes_the_contracts_json_and_a_params_file_that_turns_compensation_on(lag_recording, tmp_path):
     from admittance.cli import main
     from admittance.daemon.config import parse_config
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     folder, rendering = lag_recording
     out, params = tmp_path / "f.json", tmp_path / "with_servo.toml"

@@ -31,6 +31,7 @@ from admittance.daemon.messages import STATS_KEYS
 from daemon_process import (ADMITTANCE, START_TIMEOUT_S, read_recording, run_daemon, running_daemon, wait_alive,
                             wait_for_cycles, wait_for_state)
 from helpers import free_endpoint, wait_until
+from oracles import virtual_joint
 
 pytestmark = pytest.mark.hil
 
@@ -58,20 +59,6 @@ def daemon_config(tmp_path: Path, *, bus: str = "mock", sensor: str = "mock", jo
     return path, endpoint
 
 
-def virtual_step(theta: float, omega: float, tau: float, inertia: float, damping: float, coulomb: float,
-                 h: float = 1.0 / RATE_HZ) -> tuple[float, float]:
-    """One cycle of the virtual joint as architecture.md (Contract 1) defines it: the torque needed
-    to stop the joint within the step is clipped to ±F (stick), damping taken implicitly,
-    semi-implicit Euler. Written here from the contract, not from the loop's code."""
-    gain = h / inertia
-    free = omega + gain * tau
-    if abs(free) <= gain * coulomb:
-        omega = 0.0
-    else:
-        omega = (free - math.copysign(gain * coulomb, free)) / (1.0 + gain * damping)
-    return theta + h * omega, omega
-
-
 def replay_runs(rec: dict[str, np.ndarray], inertia: float, damping: float, coulomb: float) -> np.ndarray:
     """Replay the recorded torque through the virtual joint over every run of consecutive cycles
     (rows are missing where a present-position read failed), each run started from its first
@@ -86,7 +73,7 @@ def replay_runs(rec: dict[str, np.ndarray], inertia: float, damping: float, coul
         if np.isnan(out[i - 1]):
             theta, omega = rec["theta_model"][i - 1], rec["omega_model"][i - 1]
         for _ in range(round((rec["t"][i] - rec["t"][i - 1]) * RATE_HZ)):
-            theta, omega = virtual_step(theta, omega, rec["tau"][i - 1], inertia, damping, coulomb)
+            theta, omega = virtual_joint.step(theta, omega, rec["tau"][i - 1], inertia, damping, coulomb, 1.0 / RATE_HZ)
         out[i] = theta
     return out
 
@@ -417,8 +404,8 @@ def test_a_full_disk_stops_the_recording_with_a_line_and_the_loop_runs_on(tmp_pa
     import resource
     import threading
 
-    from admittance.ident.dataset import load_dataset
-    from admittance.ident.loaders import read_recording
+    from admittance.formats.dataset import load_dataset
+    from admittance.formats.recording import read_recording
 
     limit = 400 * 1024
 

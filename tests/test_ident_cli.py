@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from admittance.cli import main
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 
 
 def _run(*args):

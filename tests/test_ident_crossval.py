@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from admittance.ident.crossval import make_folds, paired_gain
-from admittance.ident.dataset import TrialData
+from admittance.formats.dataset import TrialData
 
 
 def _trial(name: str, seconds: float, rate: float = 100.0, distance: float = 0.2) -> TrialData:

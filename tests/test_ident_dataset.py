@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from admittance.errors import DataError
-from admittance.ident.dataset import GRAVITY, load_dataset, read_csv_trial
+from admittance.formats.dataset import GRAVITY, load_dataset, read_csv_trial
 
 from helpers import examples
 
@@ -107,7 +107,7 @@ def test_missing_manifest_and_folder(tmp_path):
 
 
 def test_other_formats_go_to_the_loaders(tmp_path, monkeypatch):
-    from admittance.ident import loaders
+    from admittance.formats import converters as loaders
 
     calls = []
 

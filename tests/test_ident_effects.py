@@ -1,6 +1,6 @@
 """Each candidate effect, injected alone and undeclared at a meaningful size, is found, named,
 with I/B/F within 5/10/15 %, and lowers the held-out error; the data come from the TEST ORACLE
-(tests/ivp_oracle.py: solve_ivp with stick events), an integrator independent of the fit. The
+(tests/oracles/ivp.py: solve_ivp with stick events), an integrator independent of the fit. The
 ranking's linear algebra, the torque-sensor conventions and the backward step are checked on
 their own."""
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import ivp_oracle as oracle
-from admittance.ident.dataset import load_dataset
+from oracles import ivp as oracle
+from admittance.formats.dataset import load_dataset
 from admittance.ident.effects import _explained, candidate_effects, grown, significance
 from admittance.ident.identify import identify_dataset
 from admittance.ident.synthetic import SynthSpec, generate
@@ -134,7 +134,7 @@ def test_backward_step_drops_an_effect_a_later_one_explains(tmp_path):
     from admittance.ident.fit import fit_output_error
     from admittance.ident.model import Simulator, free_params, vector_from
     from admittance.ident.search import SearchSettings, _redundant, cross_validate
-    from admittance.ident.sensor import Sensor
+    from admittance.ident.angle_sensor import Sensor
 
     folder = oracle.generate(tmp_path, oracle.OracleSpec(n_trials=4, duration=4.0, seed=5, effect="asymmetric_coulomb",
                                                          size=0.02))

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from admittance.ident.dataset import load_dataset, load_geometry
+from admittance.formats.dataset import load_dataset, load_geometry
 from admittance.ident.equation_error import fit_equation_error, initial_states
 from admittance.ident.fit import _Problem, fit_output_error
 from admittance.ident.identify import IdentifySettings, identify_dataset
@@ -142,10 +142,10 @@ def test_base_fit_leaves_a_friction_basin_a_single_start_cannot(tmp_path, monkey
     B at 0.2× the truth, the base fit from that start alone stalls far from the data; with its
     friction grid (a few rebalanced starts) it reaches the noise floor and the truth. Data from
     the test oracle (solve_ivp), not the fit's own simulator."""
-    import ivp_oracle
+    from oracles import ivp as ivp_oracle
     from admittance.ident import base
     from admittance.ident.equation_error import initial_state_starts
-    from admittance.ident.sensor import Sensor
+    from admittance.ident.angle_sensor import Sensor
 
     ds = load_dataset(ivp_oracle.generate(tmp_path, ivp_oracle.OracleSpec(seed=1)))
     sim = Simulator(ds.trials, ds.mode)

@@ -1,7 +1,7 @@
 """identify stays honest: nothing on clean encoder data, no library name for an effect the
 library lacks (more such effects, two seeds each, in bench/identify_families.py), drag found on three long swings by time-segment cross-validation, identify and
 the ladder agreeing, held-out errors that are the held-out trials' own, and each admission gate
-holding on its own. The data come from the TEST ORACLE (tests/ivp_oracle.py: solve_ivp with
+holding on its own. The data come from the TEST ORACLE (tests/oracles/ivp.py: solve_ivp with
 stick events, an integrator independent of the fit) with noise the fit does not assume."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-import ivp_oracle as oracle
+from oracles import ivp as oracle
 from admittance import sim
 from admittance.ident import crossval
-from admittance.ident.dataset import load_dataset
+from admittance.formats.dataset import load_dataset
 from admittance.ident.identify import IdentifySettings, identify_dataset
 from admittance.ident.ladder import effect_ladder
 from admittance.ident.split import stratified_pick

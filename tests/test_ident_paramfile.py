@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from admittance import data
 from admittance.errors import ConfigError
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 
 from helpers import examples
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from admittance.ident.dataset import TrialData
+from admittance.formats.dataset import TrialData
 from admittance.ident.fit import autocorrelation_time
 from admittance.ident.residual import binned_rms, ljung_box, noise_estimate
 from admittance.ident.split import stratified_pick

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from admittance.errors import DataError
-from admittance.ident.loaders import ConvertedTrial, convert_files, load_trial, parse_motive, trial_names, write_dataset
+from admittance.formats.converters import ConvertedTrial, convert_files, load_trial, parse_motive, trial_names, write_dataset
 
 from helpers import examples
 
@@ -313,7 +313,7 @@ def test_convert_cli_writes_a_geometry_dataset(tmp_path, capsys):
 
 
 def test_dataset_loader_dispatches_trial_formats(tmp_path):
-    from admittance.ident.dataset import load_dataset
+    from admittance.formats.dataset import load_dataset
 
     t = np.arange(60) * 0.005
     bam_json(tmp_path / "drop.json", t, np.cos(t), t < 0.05)

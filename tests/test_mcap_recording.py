@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from admittance.daemon.mcap_recording import McapRecorder
 from admittance.daemon.recording import Recorder
 from admittance.errors import DataError
-from admittance.ident.dataset import load_dataset
-from admittance.ident.loaders import load_recording, read_recording
+from admittance.formats.dataset import load_dataset
+from admittance.formats.recording import load_recording, read_recording
 
 from helpers import examples
 

@@ -10,7 +10,7 @@ import pytest
 from admittance import data
 from admittance.drivers.dynamixel import ServoBus
 from admittance.drivers.optoforce import OptoForceSerialReader
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import ConfigError
 from admittance.mockbench.bench import MockBench, params_path
 from admittance.mockbench.cli import parse_effects

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from admittance.drivers import optoforce as of
 from admittance.errors import ConfigError, DataError
 from admittance.mockbench import hand
-from admittance.mockbench.sensor import ForceModel
+from admittance.mockbench.simulated_sensor import ForceModel
 
 times = st.floats(0.0, 1e4, allow_nan=False)
 

@@ -9,10 +9,10 @@ import tty
 import pytest
 
 from admittance.drivers import optoforce as of
-from admittance.drivers.sensor import SampleBuffer
+from admittance.drivers.force_reader import SampleBuffer
 from admittance.errors import DeviceError
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, SimulatedOptoForce
 
 from helpers import wait_until
 

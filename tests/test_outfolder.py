@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from admittance.cli import main
-from admittance.ident.dataset import load_dataset
+from admittance.formats.dataset import load_dataset
 
 
 def _synth(folder, *extra):

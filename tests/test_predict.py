@@ -11,8 +11,9 @@ import pytest
 from admittance import sim
 from admittance.cli import main
 from admittance.errors import ConfigError, DataError
-from admittance.ident import paramfile, predict
-from admittance.ident.loaders import ConvertedTrial, write_dataset
+from admittance.formats import paramfile
+from admittance.thesis import predict
+from admittance.formats.converters import ConvertedTrial, write_dataset
 
 TRUTH = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.02, "tanh_k": 100.0}
 LOAD_INERTIA = 0.005

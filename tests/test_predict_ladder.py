@@ -8,8 +8,9 @@ import pytest
 
 from admittance.cli import main
 from admittance.errors import ConfigError
-from admittance.ident import ladder, paramfile, synthetic
-from admittance.ident.dataset import load_dataset
+from admittance.formats import paramfile
+from admittance.ident import ladder, synthetic
+from admittance.formats.dataset import load_dataset
 
 
 @pytest.fixture(scope="module")

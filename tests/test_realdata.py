@@ -11,10 +11,10 @@ import math
 
 import pytest
 
-from admittance.ident.dataset import load_dataset
+from admittance.formats.dataset import load_dataset
 from admittance.ident.identify import IdentifySettings, identify_dataset
 from admittance.ident.ladder import effect_ladder
-from admittance.ident.loaders import convert_files, load_trial
+from admittance.formats.converters import convert_files, load_trial
 
 pytestmark = pytest.mark.realdata
 

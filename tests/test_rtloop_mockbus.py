@@ -15,6 +15,7 @@ import pytest
 
 from admittance import _rtcore
 from admittance.errors import DeviceError
+from oracles import virtual_joint
 
 RATE_HZ = 500.0
 INERTIA, DAMPING = 0.02, 0.01
@@ -76,10 +77,10 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     deadline = rec["deadline_ns"].astype(np.int64)
     steps = np.minimum(np.round(np.diff(deadline) / (1e9 / RATE_HZ)).astype(int), 10)
     omega_want, theta_want = rec["omega"][:-1].copy(), rec["theta"][:-1].copy()
-    for k in range(steps.max()):
-        more = steps > k
-        omega_want[more] = (omega_want[more] + h * rec["torque"][1:][more] / INERTIA) / (1 + h * DAMPING / INERTIA)
-        theta_want[more] += h * omega_want[more]
+    for i, n in enumerate(steps):
+        for _ in range(n):
+            theta_want[i], omega_want[i] = virtual_joint.step(theta_want[i], omega_want[i], rec["torque"][i + 1],
+                                                              INERTIA, DAMPING, 0.0, h)
     held = rec["mode"][1:] != 0
     omega_want[held], theta_want[held] = 0.0, rec["theta"][:-1][held]
     np.testing.assert_allclose(rec["omega"][1:], omega_want, rtol=1e-9, atol=1e-12)

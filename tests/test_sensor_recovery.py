@@ -13,10 +13,10 @@ import pytest
 
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import CanForceReader
-from admittance.drivers.sensor import EventLog, ForceSensor, SampleBuffer
+from admittance.drivers.force_reader import EventLog, ForceSensor, SampleBuffer
 from admittance.errors import ConfigError, DeviceError
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce, SimulatedSlcanOptoForce
+from admittance.mockbench.simulated_sensor import ForceModel, SimulatedOptoForce, SimulatedSlcanOptoForce
 
 from helpers import wait_until
 

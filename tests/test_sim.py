@@ -7,6 +7,7 @@ import pytest
 
 from admittance import _rtcore, sim
 from admittance.errors import ConfigError, DataError
+from oracles import reference
 
 BASE = {"motor_inertia": 2e-3, "damping": 0.01, "coulomb": 0.01}
 
@@ -155,7 +156,7 @@ def test_batch_refuses_bad_requests(free_swing, kwargs, words):
 def test_rust_matches_the_python_reference(driven_trial, effect, friction):
     params = {**BASE, **EFFECTS[effect]}
     fast = sim.simulate(driven_trial, params, 0.4, -0.5, max_step=1e-3, friction=friction, return_velocity=True)
-    slow = sim.simulate_reference(driven_trial, params, 0.4, -0.5, max_step=1e-3, friction=friction,
+    slow = reference.simulate_reference(driven_trial, params, 0.4, -0.5, max_step=1e-3, friction=friction,
                                   return_velocity=True)
     np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-9)
     plain = sim.simulate(driven_trial, BASE, 0.4, -0.5, max_step=1e-3, friction=friction)
@@ -167,7 +168,7 @@ def test_reference_matches_on_a_free_swing_with_measurement_effects(free_swing):
     # Gain, bias and drift correct a measured torque; a free swing has none, so both sides ignore them.
     params = {**BASE, "torque_bias": 0.01, "torque_drift": 0.01, "torque_gain": 0.7}
     fast = sim.simulate(free_swing, params, 1.0, 0.0)
-    np.testing.assert_allclose(fast, sim.simulate_reference(free_swing, params, 1.0, 0.0), atol=1e-9)
+    np.testing.assert_allclose(fast, reference.simulate_reference(free_swing, params, 1.0, 0.0), atol=1e-9)
     np.testing.assert_array_equal(fast, sim.simulate(free_swing, BASE, 1.0, 0.0))
 
 
@@ -191,9 +192,9 @@ def test_degenerate_batches():
 @pytest.mark.parametrize("effect", ["base", "stribeck", "load_coulomb", "cogging", "spring", "friction_ripple",
                                     "torque_gain_and_bias", "time_delay"])
 def test_rust_plant_converges_to_the_test_oracle(effect):
-    """A third reading of Contract 1 with another integrator (tests/ivp_oracle.py: solve_ivp
+    """A third reading of Contract 1 with another integrator (tests/oracles/ivp.py: solve_ivp
     between stick events): the Rust plant approaches it at first order as the step shrinks."""
-    import ivp_oracle
+    from oracles import ivp as ivp_oracle
 
     params = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084,
               **{k: v * (10.0 if k in ("coulomb_asym", "stribeck_torque", "cogging_amplitude", "torque_bias",

@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from admittance import sim
+from oracles import reference
 
 from helpers import examples
 
@@ -46,7 +47,7 @@ def test_rust_matches_reference_on_random_plants(params, friction, theta0, omega
     t = np.linspace(0.0, 0.4, 41)
     trial = sim.make_trial(t, 0.05 * np.sin(7.0 * t), load_inertia=5e-4, gravity_torque=0.05)
     fast = sim.simulate(trial, params, theta0, omega0, max_step=2e-3, friction=friction, return_velocity=True)
-    slow = sim.simulate_reference(trial, params, theta0, omega0, max_step=2e-3, friction=friction,
+    slow = reference.simulate_reference(trial, params, theta0, omega0, max_step=2e-3, friction=friction,
                                   return_velocity=True)
     assert np.all(np.isfinite(fast))
     np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-9)

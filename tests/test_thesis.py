@@ -12,9 +12,10 @@ import pytest
 from admittance import sim
 from admittance.cli import main
 from admittance.errors import DataError
-from admittance.ident import baseline_thesis, thesis
-from admittance.ident.dataset import load_dataset, load_geometry
-from admittance.ident.loaders import ConvertedTrial, write_dataset
+from admittance.thesis import alternating as thesis
+from oracles import thesis_ode3 as baseline_thesis
+from admittance.formats.dataset import load_dataset, load_geometry
+from admittance.formats.converters import ConvertedTrial, write_dataset
 
 ROD = {"mass": 0.0402, "length": 0.456}
 BOB = {"mass": 0.1034}

@@ -25,7 +25,7 @@ import tomli_w
 
 from admittance.bringup import arm as arm_step
 from admittance.bringup import dryrun, scan
-from admittance.bringup import sensor as sensor_step
+from admittance.bringup import sensor_axis as sensor_step
 from admittance.bringup import servo as servo_step
 from admittance.bringup.prompt import Prompter
 from admittance.drivers.dynamixel import ServoBus
@@ -156,7 +156,7 @@ def _sensor(opts: SetupOptions, bus: ServoBus, servo_id: int, model: str, direct
 
 @contextlib.contextmanager
 def _sensor_samples(section: dict[str, Any]) -> Iterator[Any]:
-    from admittance.drivers.sensor import SampleBuffer, create_sensor
+    from admittance.drivers.force_reader import SampleBuffer, create_sensor
 
     if section.get("kind") != "can" and not section.get("port"):
         raise ConfigError("the sensor step needs the force sensor's port: give --sensor-port")

@@ -11,12 +11,12 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Callable, Iterator
-from typing import Any, NamedTuple
+from collections.abc import Iterator
+from typing import Any
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
 from admittance.daemon.loopconfig import loop_config
-from admittance.daemon.supervisor import Backends
+from admittance.daemon.supervisor import Backends, BenchPorts
 from admittance.daemon.telemetry import TICKS_PER_REV
 from admittance.errors import DeviceError
 
@@ -61,16 +61,6 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
         yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go, bench.stats, bench.bus)
     finally:
         bench.stop()
-
-
-class BenchPorts(NamedTuple):
-    bus: str
-    sensor: str
-    start_hand: Callable[[], None]  # called once the loop runs (a no-op on real hardware)
-    stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's counters (None on hardware)
-    # The embedded bench's servos: the loop reaches them in-process, not through the pty
-    # (which the start-up checks use), so the simulation answers on the wire model's time.
-    simulated_bus: Any = None
 
 
 class DelayedHand:
@@ -222,7 +212,7 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
 
 
 def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
-    from admittance.drivers.sensor import create_sensor
+    from admittance.drivers.force_reader import create_sensor
 
     s = cfg.sensor
     section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),

@@ -34,14 +34,18 @@ from pathlib import Path
 from typing import Any
 
 from admittance import data
+# The loop's defaults and ID range are the Rust core's (rt::config, rt::params): one source.
+from admittance._rtcore import LOOP_DEFAULTS, MAX_JOINT_ID
 from admittance.daemon import endpoints
 from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
+from admittance.drivers.force_reader import READER_CLASSES
 from admittance.errors import ConfigError
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 
 MOCK_PORT = "mock"
 AXES = ("x", "y", "z")
-SENSOR_KINDS = ("optoforce", "can", "mock")
+# [sensor].kind: one of the readers the driver registry knows (drivers.force_reader.READER_CLASSES).
+CONFIG_SENSOR_KINDS = tuple(READER_CLASSES)
 _KEY_CHUNK = re.compile(r"^[^*$?#/]+$")
 # Every supported model (MX-28/64/106, XM430, XL330) has a 12-bit absolute encoder, and position
 # mode (set up by the servo checks) takes goals of one turn.
@@ -54,7 +58,7 @@ DEFAULT_POSITION_LIMIT = 3.1  # rad
 @dataclass(frozen=True, kw_only=True)
 class BusConfig:
     port: str = key("str", doc='serial device, or "mock" for the embedded simulated bench')
-    baudrate: int = key("int", 1_000_000, unit="bit/s", lo=9600, hi=10_500_000, doc="bus baud rate")
+    baudrate: int = key("int", LOOP_DEFAULTS["baudrate"], unit="bit/s", lo=9600, hi=10_500_000, doc="bus baud rate")
     protocol: int = key("int", 2, choices=(1, 2), doc="Dynamixel protocol")
 
 
@@ -68,18 +72,18 @@ class LimitsConfig:
                                      doc="lowest model angle")
     position_max: float | None = key("float", None, unit="rad", lo=-math.pi, hi=math.pi, live=True,
                                      doc="highest model angle")
-    velocity_max: float = key("float", 6.0, unit="rad/s", lo=0.0, lo_open=True, hi=12.0, live=True,
+    velocity_max: float = key("float", LOOP_DEFAULTS["velocity_max"], unit="rad/s", lo=0.0, lo_open=True, hi=12.0, live=True,
                               doc="model speed limit")
-    acceleration_max: float = key("float", 200.0, unit="rad/s²", lo=0.0, lo_open=True, hi=1000.0, live=True,
+    acceleration_max: float = key("float", LOOP_DEFAULTS["acceleration_max"], unit="rad/s²", lo=0.0, lo_open=True, hi=1000.0, live=True,
                                   doc="model acceleration limit")
 
 
 @dataclass(frozen=True, kw_only=True)
 class JointConfig:
-    id: int = key("int", lo=0, hi=252, doc="Dynamixel ID")
+    id: int = key("int", lo=0, hi=MAX_JOINT_ID, doc="Dynamixel ID")
     model: str = key("str", doc="servo model, e.g. MX-64 (the model table's names)")
-    zero_tick: int = key("int", 2048, unit="tick", lo=0, hi=4095, doc="encoder tick of joint angle 0")
-    direction: int = key("int", 1, choices=(1, -1), doc="+1: the angle grows with the tick; -1: reversed")
+    zero_tick: int = key("int", LOOP_DEFAULTS["zero_tick"], unit="tick", lo=0, hi=4095, doc="encoder tick of joint angle 0")
+    direction: int = key("int", LOOP_DEFAULTS["direction"], choices=(1, -1), doc="+1: the angle grows with the tick; -1: reversed")
     params: str = key("str", "", doc="fitted parameter file (Contract 2); default params/<model>.toml")
     name: str = key("str", "", doc="the joint's name in ROS 2 joint_states and MCAP; default joint<ID>")
     # None = the fitted plant's value (filled by _resolve_joint).
@@ -103,7 +107,7 @@ class JointConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class SensorConfig:
-    kind: str = key("str", choices=SENSOR_KINDS, doc="force sensor kind")
+    kind: str = key("str", choices=CONFIG_SENSOR_KINDS, doc="force sensor kind")
     port: str = key("str", "", doc='serial path (optoforce); for can an alias of channel; "mock" = the bench\'s')
     channel: str = key("str", "", doc="python-can channel, e.g. can0, /dev/ttyACM0, PCAN_USBBUS1 (can only)")
     interface: str = key("str", "", doc="python-can interface (can only); socketcan when a channel is given, "
@@ -116,9 +120,9 @@ class SensorConfig:
     axis: str = key("str", "x", choices=AXES, doc="force axis that drives the joints")
     lever_arm: float = key("float", unit="m", lo=-2.0, hi=2.0, min_abs=1e-3,
                            doc="torque = force × lever_arm (negative flips the direction)")
-    deadband: float = key("float", 0.0, unit="N", lo=0.0, hi=100.0, live=True,
+    deadband: float = key("float", LOOP_DEFAULTS["deadband"], unit="N", lo=0.0, hi=100.0, live=True,
                           doc="half-width of the smooth dead zone on the force")
-    lowpass_hz: float = key("float", 0.0, unit="Hz", lo=0.0, hi=2000.0, live=True,
+    lowpass_hz: float = key("float", LOOP_DEFAULTS["lowpass_hz"], unit="Hz", lo=0.0, hi=2000.0, live=True,
                             doc="first-order low-pass on the torque; 0 = off")
     bias: list = key("float_list", [0.0] * 6, unit="N, N·m", lo=-2000.0, hi=2000.0, length=6, live=True,
                      doc="offset the loop subtracts (fx fy fz tx ty tz) after the start-up tare")
@@ -130,13 +134,13 @@ class SensorConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class LoopConfig:
-    rate_hz: float = key("float", 1000.0, unit="Hz", lo=10.0, hi=4000.0, doc="control rate")
+    rate_hz: float = key("float", LOOP_DEFAULTS["rate_hz"], unit="Hz", lo=10.0, hi=4000.0, doc="control rate")
     rt_priority: int = key("int", 80, lo=0, hi=99, doc="SCHED_FIFO priority asked for; 0 = stay SCHED_OTHER")
     lock_memory: bool = key("bool", True, doc="mlockall the process (falls back, and reports, when refused)")
-    sync_read_divisor: int = key("int", 10, lo=0, hi=10_000, doc="read present positions every N cycles; 0 = never")
-    stale_timeout_ms: float = key("float", 50.0, unit="ms", lo=0.0, lo_open=True, hi=500.0, live=True,
+    sync_read_divisor: int = key("int", LOOP_DEFAULTS["sync_read_divisor"], lo=0, hi=10_000, doc="read present positions every N cycles; 0 = never")
+    stale_timeout_ms: float = key("float", LOOP_DEFAULTS["stale_timeout_ms"], unit="ms", lo=0.0, lo_open=True, hi=500.0, live=True,
                                   doc="no force sample for this long: hold position")
-    ramp_time_s: float = key("float", 0.5, unit="s", lo=0.0, hi=10.0, live=True,
+    ramp_time_s: float = key("float", LOOP_DEFAULTS["ramp_time_s"], unit="s", lo=0.0, hi=10.0, live=True,
                              doc="a live parameter change blends in over this time (no jump)")
     trigger: str = key("str", "sample", choices=("sample", "schedule"),
                        doc="what starts a cycle: a force sample's arrival in the period's window, or the fixed schedule")
@@ -165,14 +169,14 @@ class FaultsConfig:
                                         "long: stop, exit 75 (systemd restarts the daemon)")
     servo_silent_ms: float = key("float", 100.0, unit="ms", lo=5.0, hi=10_000.0,
                                  doc="a servo that does not answer for this long is silent: its joint holds")
-    max_recoveries: int = key("int", 3, lo=0, hi=16,
+    max_recoveries: int = key("int", LOOP_DEFAULTS["max_recoveries"], lo=0, hi=16,
                               doc="reboots and re-enables allowed per servo within recovery_window_s; one more "
                                   "stops (exit 69); 0 = never recover")
     recovery_window_s: float = key("float", 60.0, unit="s", lo=1.0, hi=86_400.0,
                                    doc="the window of max_recoveries, and in which a second overload stops")
     check_period_ms: float = key("float", 100.0, unit="ms", lo=10.0, hi=10_000.0,
                                  doc="one servo's Torque Enable is read this often, in turn (torque found off)")
-    horn_speed_max: float = key("float", 50.0, unit="rad/s", lo=1.0, hi=1000.0,
+    horn_speed_max: float = key("float", LOOP_DEFAULTS["horn_speed_max"], unit="rad/s", lo=1.0, hi=1000.0,
                                 doc="the fastest a horn can turn: a position read implying more is a glitch, kept "
                                     "out of the model, the goal and the recording until a second read confirms it; "
                                     "the start and every re-anchor need two agreeing reads within the limits")

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from admittance.daemon import telemetry
+from admittance.formats.mcap_layout import MCAP_NAME
 
-MCAP_NAME = "session.mcap"
 
 
 class Ecosystem:

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from typing import Any
 
 from admittance.drivers.dynamixel import decode_hardware_error
-from admittance.drivers.sensor import EVENT_REPEAT_S, EventLog
+from admittance.drivers.force_reader import EVENT_REPEAT_S, EventLog
 from admittance.errors import EXIT_TEMPFAIL, EXIT_UNAVAILABLE, FaultStop
 
 # What a restart may cure exits 75 (EX_TEMPFAIL: systemd restarts it); what needs a person at the

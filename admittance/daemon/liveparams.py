@@ -23,14 +23,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from admittance._rtcore import split_param_name
 from admittance.daemon.config import (
     ALL_KEYS, JOINT_LIVE, LOOP_LIVE, DaemonConfig, check_joint_params, check_loop_params, has_servo_model,
     reachable_range,
 )
 from admittance.daemon.schema import check_value, clip, did_you_mean
 from admittance.errors import ConfigError
-
-MAX_ID_DIGITS = 3  # joint ids are 0..252
 
 
 class LiveParams:
@@ -68,15 +67,13 @@ class LiveParams:
         """(the joint ids a name sets, its key); no ids for a loop-wide key. ConfigError says why not."""
         if not isinstance(name, str):
             raise ConfigError(f"parameter names are strings, got {clip(repr(name))}")
-        head, dot, rest = name.partition(".")
-        joint_id = None
-        if dot and head.isascii() and head.isdigit():
-            if len(head) > MAX_ID_DIGITS or int(head) not in self.joints:
-                raise ConfigError(f"{clip(name)}: no joint with id {clip(head)} (joints: {sorted(self.joints)})")
-            joint_id, name_key = int(head), rest
-        else:
-            name_key = name
-        key = name_key.removeprefix("limits.")
+        try:
+            joint_id, key = split_param_name(name)  # the loop's own parser of [id.][limits.]key
+        except ValueError:
+            joint_id, key = -1, ""
+        if joint_id is not None and joint_id not in self.joints:
+            head = name.partition(".")[0]
+            raise ConfigError(f"{clip(name)}: no joint with id {clip(head)} (joints: {sorted(self.joints)})")
         if key in JOINT_LIVE:
             return ([joint_id] if joint_id is not None else list(self.joints)), key
         if key in LOOP_LIVE:

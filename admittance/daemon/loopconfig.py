@@ -1,4 +1,5 @@
-"""The RT loop's configuration dict (docs/realtime.md), built from a validated daemon config.
+"""The RT loop's configuration (docs/realtime.md; typed: ``admittance.loop_config``), built from a
+validated daemon config.
 
 The daemon's TOML speaks the user's language (a model name, a lever arm, limits in rad); the
 loop wants register addresses and tick ranges. The addresses come from the one model table
@@ -9,10 +10,9 @@ limits lie within what that range reaches from the joint's zero tick (config.py 
 
 from __future__ import annotations
 
-from typing import Any
-
 from admittance.daemon.config import GOAL_TICKS, TICKS_PER_REV, DaemonConfig, JointConfig
 from admittance.errors import ConfigError
+from admittance.loop_config import FaultPolicyDict, JointDict, LoopConfigDict
 
 GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Torque Enable"
 # The loop's first read of the present positions. The servos answered the setup checks a
@@ -21,7 +21,7 @@ GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Tor
 START_TIMEOUT_MS = 2000.0
 
 
-def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
+def loop_config(cfg: DaemonConfig, bus_port: str) -> LoopConfigDict:
     s, lp = cfg.sensor, cfg.loop
     return {
         "port": bus_port,
@@ -44,7 +44,7 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
     }
 
 
-def fault_policy(cfg: DaemonConfig) -> dict[str, Any]:
+def fault_policy(cfg: DaemonConfig) -> FaultPolicyDict:
     """The loop's part of [faults] (the sensor's timeout is the supervisor's)."""
     f = cfg.faults
     return {"servo_error": f.servo_error, "torque_off": f.torque_off, "bus_lost_timeout_s": f.bus_lost_timeout_s,
@@ -53,7 +53,7 @@ def fault_policy(cfg: DaemonConfig) -> dict[str, Any]:
             "horn_speed_max": f.horn_speed_max}
 
 
-def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
+def joint_entry(joint: JointConfig, protocol: int, axis: str) -> JointDict:
     from admittance.drivers.control_table import table_for_name
 
     table = table_for_name(joint.model, protocol)
@@ -64,7 +64,9 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
     if not tick_min <= joint.zero_tick <= tick_max:
         raise ConfigError(f"[joints.{joint.id}].zero_tick: {joint.zero_tick} is outside the {joint.model}'s "
                           f"goal range {tick_min}..{tick_max}")
-    limits = joint.resolved_limits
+    limits, plant = joint.resolved_limits, joint.plant
+    if limits is None or plant is None:  # a JointConfig not through config.resolve
+        raise ConfigError(f"[joints.{joint.id}]: its limits and parameter file are not resolved")
     return {
         "id": joint.id,
         "model": table.name,
@@ -74,17 +76,25 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "zero_tick": joint.zero_tick, "direction": joint.direction, "ticks_per_rev": float(TICKS_PER_REV),
         "tick_min": tick_min, "tick_max": tick_max,
         "axis": axis,
-        "virtual_inertia": joint.virtual_inertia,
-        "virtual_damping": joint.virtual_damping,
-        "virtual_coulomb": joint.virtual_coulomb,
-        "lever_arm": joint.lever_arm,
-        "servo": joint.plant.get("servo"),
-        "servo_compensation": joint.servo_compensation,
+        "virtual_inertia": _resolved(joint, "virtual_inertia"),
+        "virtual_damping": _resolved(joint, "virtual_damping"),
+        "virtual_coulomb": _resolved(joint, "virtual_coulomb"),
+        "lever_arm": _resolved(joint, "lever_arm"),
+        "servo": plant.get("servo"),
+        "servo_compensation": _resolved(joint, "servo_compensation"),
         "limits": {
             # Within what the tick range reaches: the configuration checked (or clipped) them.
-            "position_min": limits.position_min,
-            "position_max": limits.position_max,
+            "position_min": _resolved(limits, "position_min", joint.id),
+            "position_max": _resolved(limits, "position_max", joint.id),
             "velocity_max": limits.velocity_max,
             "acceleration_max": limits.acceleration_max,
         },
     }
+
+
+def _resolved(table: object, name: str, joint_id: int | None = None) -> float:
+    """A value config.resolve fills (None until then: the plant's or the reach's default)."""
+    value = getattr(table, name)
+    if value is None:
+        raise ConfigError(f"[joints.{getattr(table, 'id', joint_id)}].{name} is not resolved")
+    return float(value)

@@ -14,7 +14,7 @@ any MCAP reader open without our code:
 
 ``t`` is the CSV dataset's time base (recording.py): the loop integrates one step per deadline,
 so the deadline is the model's clock. A cycle message carries the torque that cycle
-integrated; the CSV row and :func:`admittance.ident.loaders.load_recording` pair each angle
+integrated; the CSV row and :func:`admittance.formats.recording.load_recording` pair each angle
 with the next cycle's (recording.with_next_cycle), so both files give the same dataset.
 
 Every message's ``log_time`` is its wall-clock time (ns since the Unix epoch) and
@@ -23,7 +23,7 @@ the wall time is that plus the offset between the two clocks when the cycles wer
 
 Chunks are :data:`CHUNK_BYTES` long (about 1.5 s of one joint at 1 kHz) and the file is
 flushed after every tick, so a session cut short (SIGKILL, power loss) leaves a file that reads
-back, in a streaming reader, up to its last complete chunk (admittance.ident.loaders); the CSV
+back, in a streaming reader, up to its last complete chunk (admittance.formats.converters); the CSV
 dataset, flushed every batch, loses less. The writer keeps one index entry per chunk in memory
 until the summary is written at the close; as mcap's objects they cost about 680 bytes each, so
 a recording's memory grew with its length (2.5 MB an hour of one joint at 1 kHz with 256 KiB
@@ -43,26 +43,11 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from admittance.daemon.recording import with_defaults
 from admittance.errors import ConfigError
+from admittance.formats.mcap_layout import CYCLE_SCHEMA, EVENT_SCHEMA, PARAMS_SCHEMA, SESSION_SCHEMA
+from admittance.formats.recording import with_defaults
 
 CHUNK_BYTES = 256 * 1024
-NUMBER = {"type": "number"}
-NULLABLE = {"type": ["number", "null"]}
-CYCLE_SCHEMA = {
-    "title": "admittance.Cycle", "type": "object",
-    "properties": {"t": NUMBER, "t_wake": NUMBER, "wall": NUMBER, "cycle": {"type": "integer"}, "force": NUMBER,
-                   "tau": NUMBER, "theta_model": NUMBER, "omega_model": NUMBER, "theta_goal": NUMBER,
-                   "theta_present": NULLABLE, "rendering_error": NULLABLE, "fault": {"type": "integer"},
-                   "mode": {"type": "integer"}},
-}
-OBJECT = {"type": "object"}
-SESSION_SCHEMA = {"title": "admittance.Session", "type": "object",
-                  "properties": {"joints": {"type": "array"}, "t0": NUMBER, "segment_s": NUMBER,
-                                 "measured_theta": {"type": "boolean"}, "rate_hz": NUMBER, "prefix": {"type": "string"}}}
-PARAMS_SCHEMA = {"title": "admittance.Params", "type": "object",
-                 "properties": {"source": {"type": "string"}, "request": OBJECT, "params": OBJECT}}
-EVENT_SCHEMA = {"title": "admittance.Event", "type": "object", "properties": {"text": {"type": "string"}}}
 
 
 class PackedChunkIndices:
@@ -195,7 +180,7 @@ class McapRecorder:
     def close(self) -> None:
         """The summary and index at the end: a seeking reader can then open it too. The file is
         closed even when the summary cannot be written (a full disk): what reached it is still
-        read back by a streaming reader (admittance.ident.loaders.read_recording)."""
+        read back by a streaming reader (admittance.formats.recording.read_recording)."""
         try:
             self._writer.finish()
         finally:

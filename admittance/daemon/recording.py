@@ -38,7 +38,7 @@ and its torque was never integrated: the predecessor's row is then *superseded* 
 so ``t`` stays strictly increasing and each row's ``tau`` is the one the model stepped with.
 
 The same rows are made from a ``session.mcap`` (every cycle) by :func:`recorded_rows`, so both
-files of a session give the same dataset (admittance.ident.loaders.load_recording).
+files of a session give the same dataset (admittance.formats.recording.load_recording).
 
 ``theta`` is what a refit needs: the joint's *measured* angle, so a row is written each cycle
 the servo's present position was read (every ``[loop].sync_read_divisor`` cycles). With
@@ -81,18 +81,15 @@ from typing import Any, BinaryIO
 import numpy as np
 import tomli_w
 
-from admittance._rtcore import MAX_CATCH_UP_STEPS
-from admittance.daemon.telemetry import MODE_RUNNING, fault_names
+from admittance.daemon.telemetry import fault_names
 from admittance.errors import ConfigError
+from admittance.formats.recording import (  # the rows' format and where trials start
+    COLUMNS, DEFAULT_GAP_S, MIN_ROWS, NEGLIGIBLE_BOB, NEGLIGIBLE_BOB_DISTANCE, recorded_rows, trial_starts,
+    with_defaults, with_next_cycle,
+)
 
-COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
-           "fault")
 # The per-joint values written into each trial's manifest entry: what the loop ran.
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
-MIN_ROWS = 10  # the dataset loader's minimum per trial
-NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
-NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
-DEFAULT_GAP_S = 0.25  # s: rows further apart than this are a gap (see the module doc)
 
 
 class Recorder:
@@ -334,104 +331,3 @@ def csv_text(rows: list) -> bytes:
     buffer = io.StringIO(newline="")
     csv.writer(buffer).writerows(rows)
     return buffer.getvalue().encode()
-
-
-def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault``
-    0, none ``superseded``."""
-    zeros = np.zeros(len(columns["t"]))
-    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, "superseded": zeros, **columns}
-
-
-def with_next_cycle(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Consecutive cycles with what the cycle after each says about it (module doc): ``tau`` the
-    following cycle's torque, and ``superseded`` where the following cycle took no step."""
-    follows = np.diff(columns["cycle"]) == 1
-    superseded = np.zeros(len(columns["cycle"]))
-    superseded[:-1] = follows & (np.diff(columns["t"]) <= 0)
-    return {**columns, "tau": next_cycle_tau(columns["tau"], columns["cycle"]), "superseded": superseded}
-
-
-def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
-    """Each cycle's row with the following cycle's torque (module doc); a cycle whose next record
-    is missing (a dropped record, the last one) keeps its own."""
-    out = np.array(tau, dtype=float)
-    follows = np.diff(cycle) == 1
-    out[:-1] = np.where(follows, tau[1:], tau[:-1])
-    return out
-
-
-def held_cycles(mode: np.ndarray) -> np.ndarray:
-    """1 on a cycle where the model did not follow the torque: the loop was not running."""
-    return (np.isfinite(mode) & (mode != MODE_RUNNING)).astype(np.int64)  # NaN: an older file, running
-
-
-def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> tuple[np.ndarray, int]:
-    """Per cycle, the bitwise OR of ``flags`` over the cycles since the previous kept row up to
-    its own kept row (``carry``: what the cycles after the last batch's last row had); and the
-    carry for the next batch."""
-    if not carry and not flags.any():  # the usual batch: nothing held, no fault
-        return np.zeros(len(keep), np.int64), 0
-    group = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
-    acc = np.zeros(int(group[-1]) + 1 if len(group) else 1, np.int64)
-    np.bitwise_or.at(acc, group, flags.astype(np.int64))
-    acc[0] |= carry
-    return acc[group], int(acc[-1]) if len(keep) and not keep[-1] else 0
-
-
-def gap_seconds(rate_hz: float, sync_read_divisor: int) -> float:
-    """Rows further apart than this are a gap: the servo unread for ten read periods (a retried
-    read is never that late), at least ``DEFAULT_GAP_S``."""
-    return max(DEFAULT_GAP_S, 10.0 * sync_read_divisor / rate_hz)
-
-
-def trial_starts(t: np.ndarray, held: np.ndarray, lapse: np.ndarray, gap_s: float, previous_t: float | None = None,
-                 previous_held: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the rows that must start a new trial: after a gap (``t`` more than ``gap_s``
-    after the previous row; ``previous_t``: the row before ``t[0]``); after time the model lost
-    (``lapse``); where a hold begins (the interval before a held row was not followed, the row's
-    state is a good start); and after a hold of two rows or more, whose rows then form a trial of
-    their own, so the recording still covers the run (``previous_held``: ``held`` of the row
-    before ``t[0]`` and of the one before that). Returns (gaps, breaks), disjoint."""
-    previous = t[0] if previous_t is None else previous_t
-    after_gap = np.diff(np.concatenate([[previous], t])) > gap_s
-    h = np.concatenate([previous_held[::-1], held]) > 0
-    begins = h[2:] & ~h[1:-1]
-    ends = ~h[2:] & h[1:-1] & h[:-2]
-    return np.flatnonzero(after_gap), np.flatnonzero(((lapse > 0) | begins | ends) & ~after_gap)
-
-
-def model_lapses(t: np.ndarray, period_s: float | None, previous_t: float | None = None) -> np.ndarray:
-    """1 on a cycle whose deadline ``t`` (s) came after a stall longer than the loop catches up:
-    the model lost that time (docs/realtime.md). ``previous_t``: the cycle before ``t[0]``."""
-    if not period_s or len(t) == 0:
-        return np.zeros(len(t), np.int64)
-    before = np.concatenate([[t[0] if previous_t is None else previous_t], t[:-1]])
-    return (t - before > (MAX_CATCH_UP_STEPS + 0.5) * period_s).astype(np.int64)
-
-
-def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
-                  carry: tuple[int, int] = (0, 0), period_s: float | None = None,
-                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
-    """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
-    cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
-    reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
-    previous row. Also the (held, fault) carry. With the loop's ``period_s``, a cycle where the
-    model lost time counts as held (``previous_t``: the absolute deadline before ``columns``')."""
-    columns = with_defaults(columns)
-    n = len(columns["t"])
-    keep = np.isfinite(columns["theta_present"]) if measured_theta else np.ones(n, bool)
-    keep &= columns["superseded"] == 0
-    # Bit 0: held; bit 1: the model lost time. Both gathered since the previous row.
-    flags = held_cycles(columns["mode"]) | (model_lapses(columns["t"], period_s, previous_t) << 1)
-    flags, held_carry = since_previous_row(flags, keep, carry[0])
-    held, lapse = flags & 1, flags >> 1
-    faults = columns["fault"]
-    faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
-    fault, fault_carry = since_previous_row(faults, keep, carry[1])
-    theta = columns["theta_present"] if measured_theta else columns["theta_model"]
-    rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
-            "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
-            "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
-            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float)}
-    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)

@@ -52,7 +52,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from admittance.daemon import endpoints, interpreter, telemetry
 from admittance.daemon.config import DaemonConfig, record_dir
@@ -62,11 +62,17 @@ from admittance.daemon.liveparams import LiveParams
 from admittance.daemon.messages import Codec, stats_message
 from admittance.daemon.notify import Notifier, Watchdog
 from admittance.daemon.quantities import NAMES, bus_errors_text
-from admittance.daemon.recording import Recorder, gap_seconds
+from admittance.daemon.recording import Recorder
+from admittance.formats.recording import gap_seconds
 from admittance.daemon.schema import clip
 from admittance.daemon.stopsignals import StopRequest, stop_signals_call
 from admittance.errors import EXIT_TEMPFAIL, AdmittanceError, DeviceError, FaultStop
 from admittance.logs import RateLimitedLog
+
+if TYPE_CHECKING:
+    from admittance._rtcore import AdmittanceLoop, MockBus
+    from admittance.daemon.zenoh_iface import DaemonInterface
+    from admittance.drivers.force_reader import ForceSensor
 
 STATS_PERIOD_S = 1.0
 FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
@@ -91,16 +97,28 @@ class RunOptions:
     before_loop: Callable[[], None] | None = None
 
 
+class BenchPorts(NamedTuple):
+    """What ``Backends.start_bench`` yields: the devices' ports, and the simulated bench's parts."""
+
+    bus: str
+    sensor: str
+    start_hand: Callable[[], None]  # called once the loop runs (a no-op on real hardware)
+    stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's counters (None on hardware)
+    # The embedded bench's servos: the loop reaches them in-process, not through the pty
+    # (which the start-up checks use), so the simulation answers on the wire model's time.
+    simulated_bus: MockBus | None = None
+
+
 @dataclass
 class Backends:
     """Factories for the other parts of the project (the real ones are in admittance.daemon.backends)."""
 
-    start_bench: Callable[[DaemonConfig], Any]  # -> context manager of (bus, sensor, start_hand)
+    start_bench: Callable[[DaemonConfig], Any]  # -> context manager of BenchPorts (or a tuple of its fields)
     check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
-    make_sensor: Callable[[DaemonConfig, str, Any], Any]  # (cfg, port, sink) -> ForceSensor
-    make_loop: Callable[[DaemonConfig, str], Any]  # (cfg, bus_port) -> AdmittanceLoop
-    make_interface: Callable[..., Any] | None  # (zenoh cfg, codec, handler) -> DaemonInterface
+    make_sensor: Callable[[DaemonConfig, str, Any], ForceSensor]  # (cfg, port, sink)
+    make_loop: Callable[[DaemonConfig, str], AdmittanceLoop]  # (cfg, bus_port)
+    make_interface: Callable[..., DaemonInterface] | None  # (zenoh cfg, codec, handler)
     # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
     claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
 
@@ -136,9 +154,9 @@ class Supervisor:
         self.options = options or RunOptions()
         self.notifier = notifier or Notifier()
         self.stop_event = self.options.stop
-        self.loop: Any = None
-        self.sensor: Any = None
-        self.interface: Any = None
+        self.loop: AdmittanceLoop | None = None
+        self.sensor: ForceSensor | None = None
+        self.interface: DaemonInterface | None = None
         self.recorder: Recorder | None = None
         self.ecosystem = Ecosystem()  # session.mcap, ROS 2 bridge, Foxglove view: all optional
         self.final_stats: dict[str, Any] | None = None
@@ -154,7 +172,7 @@ class Supervisor:
         self.fault_stop: FaultStop | None = None
         self._healthy = True
         self._bench_stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's, if any
-        self._simulated_bus: Any = None  # the embedded bench's servos, reached in-process
+        self._simulated_bus: MockBus | None = None  # the embedded bench's servos, reached in-process
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -191,10 +209,9 @@ class Supervisor:
     def _start(self, stack: contextlib.ExitStack) -> None:
         self._step("starting: devices")
         stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
-        ports = stack.enter_context(self.backends.start_bench(self.cfg))
-        bus_port, sensor_port, start_hand = ports[:3]
-        self._bench_stats = ports[3] if len(ports) > 3 else None
-        self._simulated_bus = ports[4] if len(ports) > 4 else None
+        ports = BenchPorts(*stack.enter_context(self.backends.start_bench(self.cfg)))
+        bus_port, sensor_port, start_hand = ports.bus, ports.sensor, ports.start_hand
+        self._bench_stats, self._simulated_bus = ports.stats, ports.simulated_bus
         for warning in endpoints.exposure_warnings(self.cfg.zenoh):
             self._warn(warning)
         self._open_interface(stack)

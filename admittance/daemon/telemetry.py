@@ -22,7 +22,6 @@ from admittance.daemon.messages import JointState, State
 
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
 NOT_READ = -1  # present_tick of a cycle that did not read the servo
-MODE_RUNNING = _rtcore.LOOP_MODES.index("running")  # a cycle where every joint followed its model
 
 
 def tick_to_rad(tick: np.ndarray | int, joint) -> np.ndarray | float:

@@ -5,7 +5,7 @@
   at setup only, the RT loop speaks the Rust codec).
 - ``admittance.drivers.control_table`` items by name and their SI units, from the shared model
   table (``_rtcore.model_table()``).
-- ``admittance.drivers.sensor``     ``ForceSensor`` base, tare/bias, and the registry of kinds
+- ``admittance.drivers.force_reader``     ``ForceSensor`` base, tare/bias, and the registry of kinds
   (``create_sensor(section, sink)``).
 - ``admittance.drivers.optoforce``  the OptoForce DAQ wire format and the serial reader.
 - ``admittance.drivers.can_sensor`` the same frames over CAN, through python-can.
@@ -16,6 +16,6 @@ Nothing here imports the daemon or the RT loop; importing this package loads nei
 python-can nor dynamixel-sdk (each module imports its library when a device is opened).
 """
 
-from admittance.drivers.sensor import ForceSensor, TareResult, create_sensor, estimate_bias, sensor_class
+from admittance.drivers.force_reader import ForceSensor, TareResult, create_sensor, estimate_bias, sensor_class
 
 __all__ = ["ForceSensor", "TareResult", "create_sensor", "estimate_bias", "sensor_class"]

@@ -39,7 +39,7 @@ from typing import Any
 
 from admittance.drivers.optoforce import SampleConverter
 from admittance.drivers.ports import open_error_message
-from admittance.drivers.sensor import ForceSensor, Sink, require_key
+from admittance.drivers.force_reader import ForceSensor, Sink, require_key
 from admittance.errors import DeviceError
 
 STANDARD_ID_MAX = 0x7FF

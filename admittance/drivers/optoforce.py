@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from admittance.drivers.ports import exclusive_serial, open_error_message
-from admittance.drivers.sensor import ForceSensor, Sink, counts_per_unit, require_key
+from admittance.drivers.force_reader import ForceSensor, Sink, counts_per_unit, require_key
 from admittance.errors import ConfigError, DeviceError
 
 log = logging.getLogger(__name__)

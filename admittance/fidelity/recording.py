@@ -6,7 +6,7 @@ angle read from the servo) and ``tau``, the cycle's ``theta_model``, ``omega_mod
 where ``theta`` came from and, per segment, what the loop ran (``virtual_*``,
 ``servo_compensation``). The same session's ``session.mcap`` (a file, or a folder holding one
 and no manifest) gives the same segments: its cycles are turned into the CSV's rows by the
-recorder's own function (``admittance.ident.loaders.recording_segments``), what the loop ran
+recorder's own function (``admittance.formats.recording.recording_segments``), what the loop ran
 comes from its ``/params`` messages and the joints' plants from ``/session``.
 Everything is checked here, so the analysis never meets a half recording: each problem is one
 ``DataError`` line that says what is wrong and what to do.
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from admittance.daemon.ecosystem import MCAP_NAME
 from admittance.errors import DataError
-from admittance.ident.dataset import MANIFEST, MIN_SAMPLES, TrialData, load_dataset
-from admittance.ident.paramfile import read_toml
+from admittance.formats.dataset import MANIFEST, MIN_SAMPLES, TrialData, load_dataset
+from admittance.formats.mcap_layout import MCAP_NAME
+from admittance.formats.paramfile import read_toml
 
 REQUIRED = ("t", "theta", "tau", "theta_model", "omega_model", "theta_goal")
 OPTIONAL = ("t_wake", "cycle", "force", "held")
@@ -135,7 +135,7 @@ def _no_present_positions(where: Path, source: str) -> DataError:
 
 def _from_mcap(path: Path) -> Recording:
     """The segments of a session.mcap, as its CSV folder gives them."""
-    from admittance.ident.loaders import read_recording, recording_dataset, recording_segments
+    from admittance.formats.recording import read_recording, recording_dataset, recording_segments
 
     rec = read_recording(path)  # DataError: not found, not an MCAP of ours
     if not rec.session.get("measured_theta", True):

@@ -25,7 +25,7 @@ import numpy as np
 from admittance.errors import DataError
 from admittance.fidelity.recording import TARGET_KEYS, Recording, Segment
 from admittance.fidelity.servo import fit_servo
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 
 PLANT_NAMES = {"virtual_inertia": "motor_inertia", "virtual_damping": "damping", "virtual_coulomb": "coulomb"}
 
@@ -93,7 +93,7 @@ def _target(segments: list[Segment]) -> tuple[dict | None, str]:
 
 def _identify(segments: list[Segment], column: str) -> dict:
     """`identify`'s base model (no effect search) on the segments with ``theta := column``."""
-    from admittance.ident.dataset import Dataset
+    from admittance.formats.dataset import Dataset
     from admittance.ident.identify import IdentifySettings, identify_dataset
 
     dataset = Dataset(mode="geometry", trials=tuple(s.as_trial(column) for s in segments))

@@ -29,7 +29,7 @@ import numpy as np
 
 from admittance.fidelity.recording import Segment
 from admittance.ident.fit import autocorrelation_time, rmse
-from admittance.ident.paramfile import SERVO_PARAM_NAMES
+from admittance.formats.paramfile import SERVO_PARAM_NAMES
 from admittance.ident.residual import verdict
 
 BURN_IN_S = 0.25

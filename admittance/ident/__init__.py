@@ -2,22 +2,23 @@
 
 The pipeline, one module per step:
 
-- ``dataset``: read and validate a dataset folder (shared/contracts/datasets.md) → ``Dataset``;
-  ``loaders``: recorder formats (Motive, encoder logs, DFKI) and conversion to datasets
+- (``admittance.formats.dataset``: read and validate a dataset folder → ``Dataset``;
+  ``formats.converters``: recorder formats and conversion to datasets)
 - ``split``: the deterministic held-out and validation picks
 - ``equation_error`` (with ``smoothing``): smoothed derivatives and a bounded linear fit, the
   starting point
 - ``model`` / ``fit``: the Rust batch simulator and a structured Levenberg–Marquardt on the
   output error (simulated − measured angle), shared parameters + per-trial initial states
 - ``effects``: rank candidate effects on the residual, admit them on validation trials
-- ``residual``: whiteness and where the residual is large
+- ``residual``: whiteness and where the residual is large; ``angle_sensor``: what the angle sensor
+  (motion capture or an encoder) does to the data
 - ``identify``: the orchestration and its result (JSON, parameter file)
 - ``report``: Markdown + PNG report; ``synthetic``: datasets with known truth
-- ``paramfile``: Contract 2 parameter files
 
-Beside the pipeline, the thesis's own procedures (``tools_cli``: ``admittance thesis``,
-``breakaway``, ``predict``, ``ladder``, ``convert``): ``thesis`` and its SciPy-only twin
-``baseline_thesis`` (the benchmark's baseline), ``breakaway``, ``predict`` and ``ladder``.
+Datasets and parameter files are formats (``admittance.formats``); the thesis's own procedures
+(``admittance thesis``, ``breakaway``, ``predict``) are the package ``admittance.thesis``.
+``tools_cli`` registers ``admittance ladder`` (chosen effect sets scored by identify's
+cross-validation, ``ladder``) and ``admittance convert`` (``formats.converters``).
 
 Python API (what ``admittance identify`` does)::
 
@@ -35,9 +36,9 @@ from __future__ import annotations
 from importlib import import_module
 
 _EXPORTS = {
-    "TrialData": "admittance.ident.dataset",
-    "Dataset": "admittance.ident.dataset",
-    "load_dataset": "admittance.ident.dataset",
+    "TrialData": "admittance.formats.dataset",
+    "Dataset": "admittance.formats.dataset",
+    "load_dataset": "admittance.formats.dataset",
     "IdentifySettings": "admittance.ident.identify",
     "IdentifyResult": "admittance.ident.identify",
     "identify_dataset": "admittance.ident.identify",

@@ -22,7 +22,7 @@ from admittance.ident.equation_error import initial_state_starts
 from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, screen_starts
 from admittance.ident.model import INDEX, Simulator
 from admittance.ident.search import SearchContext, SearchSettings, nothing_left
-from admittance.ident.sensor import Sensor
+from admittance.ident.angle_sensor import Sensor
 
 # (Coulomb, damping) multipliers of the equation-error start.
 FRICTION_GRID = ((3.0, 1.0), (10.0, 0.25), (0.3, 1.0), (3.0, 0.25))

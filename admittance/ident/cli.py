@@ -68,7 +68,7 @@ def register(subparsers) -> None:
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    from admittance.ident.dataset import load_dataset
+    from admittance.formats.dataset import load_dataset
     from admittance.ident.identify import IdentifySettings, identify_dataset
 
     if args.max_effects < 0:

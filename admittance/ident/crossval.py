@@ -39,7 +39,7 @@ from typing import Sequence
 
 import numpy as np
 
-from admittance.ident.dataset import TrialData
+from admittance.formats.dataset import TrialData
 from admittance.ident.fit import autocorrelation_time
 from admittance.ident.split import stratum_order
 

@@ -30,6 +30,7 @@ across folds) is in search.py.
 
 from __future__ import annotations
 
+import enum
 import math
 from statistics import NormalDist
 from dataclasses import dataclass, field
@@ -80,6 +81,14 @@ class Variant:
     params: tuple[str, ...] = ()  # what the refit frees; empty: all of the effect's parameters
 
 
+class StandIn(enum.Enum):
+    """Why an admitted effect is a stand-in (helps predict, not claimed as the effect)."""
+
+    REGIMES = "not one model across the operating regimes"  # search.regime_inconsistency said so
+    BESIDE = "judged beside a stand-in"  # search.BESIDE_REASON
+    FLEXIBLE = "a periodic term that leaves more than sensor noise"  # search.FLEXIBLE_REASON
+
+
 @dataclass
 class Evidence:
     """What the ranking, the refit and the admission tests found for one candidate effect."""
@@ -104,6 +113,7 @@ class Evidence:
     fold_values: list[dict[str, float]] = field(default_factory=list)  # evidence params per fold
     regimes: list[dict] = field(default_factory=list)  # evidence params per operating regime
     stand_in: bool = False  # passed every test but regime consistency: helps, but is not the effect
+    stand_in_why: StandIn | None = None  # set with an admitted stand-in: what later evidence may lift
     accepted: bool = False
     reason: str = ""
 

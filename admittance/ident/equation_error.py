@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.ident.dataset import TrialData
+from admittance.formats.dataset import TrialData
 from admittance.ident.model import INDEX, default_vector
 from admittance.ident.smoothing import nonneg_lstsq, savgol
 

@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from admittance.errors import ConfigError
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 from admittance.ident.base import fit_base, search_context, torque_scale_of
 from admittance.ident.crossval import Folds
-from admittance.ident.dataset import Dataset
+from admittance.formats.dataset import Dataset
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
 from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
@@ -46,10 +46,10 @@ from admittance.ident.model import (
     lumped_ratios,
     physical_params,
 )
-from admittance.ident.paramfile import PARAM_DEFAULTS
+from admittance.formats.paramfile import PARAM_DEFAULTS
 from admittance.ident.residual import analyse
 from admittance.ident.search import SearchOutcome, SearchSettings, nothing_left, search_effects
-from admittance.ident.sensor import Sensor, sensor_for
+from admittance.ident.angle_sensor import Sensor, sensor_for
 from admittance.ident.split import stratified_pick
 from admittance.ident.unexplained import describe_unexplained
 

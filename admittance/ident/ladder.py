@@ -30,7 +30,7 @@ from admittance.ident.equation_error import fit_equation_error, initial_state_st
 from admittance.ident.fit import fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, free_params, lumped_ratios, physical_params
 from admittance.ident.search import Scored, SearchSettings, assess, cross_validate, refit_effect
-from admittance.ident.sensor import sensor_for
+from admittance.ident.angle_sensor import sensor_for
 
 
 @dataclass
@@ -218,7 +218,7 @@ def write_params(rungs: Sequence[Rung], dataset, folder, friction: str = "stick"
     """One Contract 2 file per rung (geometry mode only), named after its effects."""
     from pathlib import Path
 
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     if dataset.mode != "geometry":
         raise ConfigError("parameter files are written for geometry-mode datasets only (the daemon refuses lumped)")

@@ -27,8 +27,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from admittance.ident.dataset import TrialData
-from admittance.ident.paramfile import PARAM_DEFAULTS, PARAM_NAMES
+from admittance.formats.dataset import TrialData
+from admittance.formats.paramfile import PARAM_DEFAULTS, PARAM_NAMES
 
 N_PARAMS = len(PARAM_NAMES)
 INDEX = {name: i for i, name in enumerate(PARAM_NAMES)}

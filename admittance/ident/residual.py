@@ -22,7 +22,7 @@ import numpy as np
 
 from admittance.ident.fit import FitResult, autocorrelation_time
 from admittance.ident.model import INDEX, Simulator
-from admittance.ident.sensor import (
+from admittance.ident.angle_sensor import (
     WHITE_P,
     NoiseVerdict,
     Sensor,

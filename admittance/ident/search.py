@@ -69,6 +69,7 @@ from admittance.ident.effects import (
     FREED_SHAPES,
     PERIODIC,
     SHAPE_PARAMS,
+    StandIn,
     Evidence,
     candidate_effects,
     physical_problems,
@@ -83,7 +84,7 @@ from admittance.ident.effects import (
 from admittance.ident.fit import FitResult, Progress, autocorrelation_time, fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
 from admittance.ident.residual import noise_of
-from admittance.ident.sensor import Sensor
+from admittance.ident.angle_sensor import Sensor
 
 PHASE_SPREAD = math.pi / 3  # rad: how far a fold's cogging phase may stray from the others'
 REGIME_P = 1e-3  # tail probability of the stability tests below which two regimes disagree
@@ -257,8 +258,7 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
                 stand_ins.remove(note.effect)
             steps.append(Step(list(effects), current.rmse, current.full.rmse, f"-{note.effect}", note.crossval))
     promoted = [e for r in rounds for e in r if e.accepted and e.stand_in and e.effect in stand_ins
-                and any(e.reason.startswith("admitted as a stand-in, not claimed: " + why)
-                        for why in (FLEXIBLE_REASON, BESIDE_REASON))]
+                and e.stand_in_why in (StandIn.FLEXIBLE, StandIn.BESIDE)]
     if promoted and len(promoted) == len(stand_ins) and nothing_left(ctx.sim, current.full, ctx.sensor):
         # A periodic term kept only because structure remained, or an effect judged beside such a
         # term, is claimed once the final model leaves nothing but sensor noise; never while a
@@ -332,10 +332,11 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     if unstable:
         return _refuse(evidence, f"not the same effect in every fold: {unstable}")
     regimes, evidence.regimes = regime_inconsistency(ctx, evidence, refit, current.full)
+    why = StandIn.REGIMES if regimes else None
     if not regimes and stand_ins:
-        regimes = BESIDE_REASON
+        regimes, why = BESIDE_REASON, StandIn.BESIDE
     if not regimes and evidence.effect in PERIODIC and not nothing_left(ctx.sim, refit, ctx.sensor):
-        regimes = FLEXIBLE_REASON
+        regimes, why = FLEXIBLE_REASON, StandIn.FLEXIBLE
     if regimes and gain.folds_supporting < gain.n_folds:
         evidence.stand_in = True
         return _refuse(evidence, f"a stand-in ({regimes}) is kept for its predictions only, and only when every "
@@ -348,6 +349,7 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
                                      f"carry over between regimes: {worse}")
     evidence.accepted = True
     evidence.stand_in = bool(regimes)
+    evidence.stand_in_why = why
     evidence.reason = ("admitted as a stand-in, not claimed: " + regimes + "; " if regimes else "") + (
                        f"cross-validated gain {100 * gain.pooled_gain:.1f} % (lower bound "
                        f"{100 * gain.gain_lower_bound:.1f} %), {gain.folds_supporting} of "

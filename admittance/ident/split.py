@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from admittance.ident.dataset import TrialData
+from admittance.formats.dataset import TrialData
 
 STRIDE = 3
 

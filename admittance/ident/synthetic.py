@@ -28,9 +28,9 @@ import numpy as np
 import tomli_w
 
 from admittance.errors import ConfigError
-from admittance.ident.dataset import load_geometry
+from admittance.formats.dataset import load_geometry
 from admittance.ident.model import EFFECTS, vector_from
-from admittance.ident.paramfile import PARAM_NAMES
+from admittance.formats.paramfile import PARAM_NAMES
 
 MX64 = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
 ROD = {"mass": 0.0402, "length": 0.456}

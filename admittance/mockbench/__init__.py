@@ -2,7 +2,7 @@
 
 - ``admittance.mockbench.bench``  ``MockBench`` / ``BenchConfig``: the whole bench, started and
   stopped together.
-- ``admittance.mockbench.sensor`` the simulated OptoForce sensor (pty or CAN) and the
+- ``admittance.mockbench.simulated_sensor`` the simulated OptoForce sensor (pty or CAN) and the
   ``"mock"`` sensor kind.
 - ``admittance.mockbench.hand``   scripted hand-torque profiles.
 - ``admittance.mockbench.cli``    ``admittance mock-bench``.

@@ -7,7 +7,7 @@ An *effect* (``cogging_amplitude=0.02``...) changes the simulated truth without 
 configuration the daemon reads: that is how a test checks what an unmodelled effect does to
 the loop, or whether identification finds it.
 
-The force sensor is a :mod:`admittance.mockbench.sensor` mock. One hand-torque profile drives
+The force sensor is a :mod:`admittance.mockbench.simulated_sensor` mock. One hand-torque profile drives
 both: the hand pushes on the sensor mounted on the horn, so at each sensor sample the same τ(t)
 goes to the sensor (as F = τ / lever_arm) and to the horn (``bus.set_external_torque``). Doing
 both in the sensor's thread keeps them consistent without a second 1 kHz thread.
@@ -35,7 +35,7 @@ from typing import Any
 
 from admittance.errors import ConfigError, DeviceError
 from admittance.mockbench.hand import Profile, make_profile
-from admittance.mockbench.sensor import (
+from admittance.mockbench.simulated_sensor import (
     DEFAULT_COUNTS_PER_NEWTON,
     ForceModel,
     SimulatedCanOptoForce,
@@ -44,7 +44,7 @@ from admittance.mockbench.sensor import (
 )
 
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
-SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
+SIMULATED_SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
 MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
@@ -96,7 +96,7 @@ def params_path(model: str) -> Path:
 
 def load_plant(model: str, params_file: str | None, effects: Mapping[str, float]) -> tuple[dict[str, float], str]:
     """The fitted parameters and friction law of ``model`` (Contract 2), ``effects`` laid over them."""
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     path = Path(params_file) if params_file else params_path(model)
     if not path.is_file():
@@ -157,8 +157,8 @@ class MockBench:
         except TypeError as exc:
             raise ConfigError(f"MockBench: {exc}") from None
         cfg = self.config
-        if cfg.sensor not in SENSOR_KINDS:
-            raise ConfigError(f"the mock bench's sensor is one of {', '.join(SENSOR_KINDS)}, not '{cfg.sensor}'")
+        if cfg.sensor not in SIMULATED_SENSOR_KINDS:
+            raise ConfigError(f"the mock bench's sensor is one of {', '.join(SIMULATED_SENSOR_KINDS)}, not '{cfg.sensor}'")
         specs = servo_specs(cfg)
         self.servo_ids = [s["id"] for s in specs]
         self.hand_servo_id = cfg.hand_servo_id if cfg.hand_servo_id is not None else self.servo_ids[0]

@@ -7,7 +7,7 @@ while the channel is open, writes every received CAN frame as a ``t``/``T`` line
 followed by a 4-digit millisecond timestamp after ``Z1``).
 
 :class:`SlcanAdapter` is only that command state machine and line codec; it owns no port. The
-simulated sensor (:mod:`admittance.mockbench.sensor`) moves its bytes on a pty, so the same
+simulated sensor (:mod:`admittance.mockbench.simulated_sensor`) moves its bytes on a pty, so the same
 machine could sit behind any byte pipe. The refusals follow the Lawicel rules (a bit rate only
 while closed, no second ``O``) rather than being lenient, so that the reader is tested against
 the BEL answers a real adapter gives; python-can ignores them.

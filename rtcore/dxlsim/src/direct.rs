@@ -27,8 +27,8 @@ use std::io;
 use std::panic::AssertUnwindSafe;
 use std::sync::{Arc, Mutex};
 
-use rtloop::bus::Transport;
-use rtloop::clock::{monotonic_ns, Clock, MonotonicClock};
+use rt::bus::Transport;
+use rt::clock::{monotonic_ns, Clock, MonotonicClock};
 
 use crate::server::{lock, BusConfig, Port, Shared};
 use crate::wire::Answerer;

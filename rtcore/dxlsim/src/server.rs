@@ -11,7 +11,7 @@
 //! Scheduling and honesty about it: a real servo's firmware answers on time whatever the host
 //! does, but this thread is one more thread of a loaded machine. It therefore asks for the
 //! scheduling the RT loop gets (`rt_priority`: SCHED_FIFO at that priority when permitted, the
-//! same fallback to SCHED_OTHER and the same warning as the loop, via `rtloop::sched`), and
+//! same fallback to SCHED_OTHER and the same warning as the loop, via `rt::sched`), and
 //! measures how late it ran by its own clock (`Timing`): each reply's write behind its due
 //! time, each timed wait's return behind its deadline, and the stalls (either later than
 //! `STALL`). A client that times out on a simulated bus can so be told whether the simulation
@@ -38,9 +38,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use rtloop::clock::monotonic_ns;
-use rtloop::histogram::{Histogram, Percentiles};
-use rtloop::sched::{self, Policy, RtReport, RtRequest};
+use rt::clock::monotonic_ns;
+use rt::histogram::{Histogram, Percentiles};
+use rt::sched::{self, Policy, RtReport, RtRequest};
 
 use crate::bus::{Bus, Counters};
 use crate::direct::DirectLink;

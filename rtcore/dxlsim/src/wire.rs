@@ -8,7 +8,7 @@
 //! replies (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its
 //! servo's Return Delay Time. Without `wire_delay` replies are due at once.
 //!
-//! Times are CLOCK_MONOTONIC nanoseconds (`rtloop::clock::monotonic_ns`), the loop's own clock,
+//! Times are CLOCK_MONOTONIC nanoseconds (`rt::clock::monotonic_ns`), the loop's own clock,
 //! so the in-process link compares a reply's due time with the loop's read deadline directly.
 use std::collections::VecDeque;
 

@@ -6,8 +6,8 @@ use std::time::Duration;
 use dxl::Protocol;
 use dxlsim::{build_bus, BusConfig, MockBus, ServoConfig};
 use plant::Params;
-use rtloop::bus::{link_gone, JointBus, Registers, Transport};
-use rtloop::clock::monotonic_ns;
+use rt::bus::{link_gone, JointBus, Registers, Transport};
+use rt::clock::monotonic_ns;
 
 const BAUD: u32 = 57_600; // slow enough that the wire time is far above any scheduling noise
 

@@ -16,7 +16,7 @@
 //! the simulator interpolates it.
 use crate::error::{require_finite, PlantError};
 use crate::friction::{self, FrictionLaw};
-use crate::model::Load;
+use crate::model::{static_torques, Load, StaticTorques};
 use crate::params::Params;
 use crate::trial::TorqueSeries;
 
@@ -32,9 +32,7 @@ pub fn required_torque(
     velocity_eps: f64,
 ) -> f64 {
     let inertia = p.motor_inertia + load.inertia;
-    let gravity = load.gravity_torque * (theta - p.angle_offset).sin();
-    let cogging = p.cogging_amplitude * (p.cogging_period * theta + p.cogging_phase).sin();
-    let spring = p.spring_stiffness * (theta - p.spring_neutral);
+    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, theta);
     let applied =
         inertia * alpha + gravity + cogging + spring + p.damping * omega + p.quadratic_drag * omega * omega.abs();
     // At ω = 0 the level's direction comes from the drive; the shape is 0 there anyway.

@@ -22,6 +22,28 @@ pub struct State {
     pub omega: f64,
 }
 
+/// The torques that depend on the angle alone. Gravity is kept apart because the friction level
+/// of `load_coulomb` reads it; cogging and spring are kept apart so each side adds them in its
+/// own order, as before (bit for bit). The simulator (`step`) and the
+/// inverse (`crate::inverse`) both take them from here, so the two read Contract 1 once.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StaticTorques {
+    pub gravity: f64,
+    pub cogging: f64,
+    pub spring: f64,
+}
+
+#[inline]
+pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
+    let gravity = load.gravity_torque * (theta - p.angle_offset).sin();
+    let cogging = if p.cogging_amplitude != 0.0 {
+        p.cogging_amplitude * (p.cogging_period * theta + p.cogging_phase).sin()
+    } else {
+        0.0
+    };
+    StaticTorques { gravity, cogging, spring: p.spring_stiffness * (theta - p.spring_neutral) }
+}
+
 /// Advances `state` by one semi-implicit Euler substep of length `h` (velocity first, then
 /// position with the new velocity), under applied torque `tau` at time `t` (the time only
 /// enters through `torque_drift`). Damping and quadratic drag act at the new velocity
@@ -33,13 +55,7 @@ pub struct State {
 pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
     let inertia = p.motor_inertia + load.inertia;
     let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
-    let gravity = load.gravity_torque * (state.theta - p.angle_offset).sin();
-    let cogging = if p.cogging_amplitude != 0.0 {
-        p.cogging_amplitude * (p.cogging_period * state.theta + p.cogging_phase).sin()
-    } else {
-        0.0
-    };
-    let spring = p.spring_stiffness * (state.theta - p.spring_neutral);
+    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, state.theta);
     let omega = state.omega;
     let dissipation = p.damping + p.quadratic_drag * omega.abs();
     let drive = tau_corrected - gravity - cogging - spring;

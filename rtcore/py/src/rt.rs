@@ -1,23 +1,23 @@
 //! Python bindings of the `rt` crate: `AdmittanceLoop` and its `ForceSink` (Contract 5).
 //!
-//! The configuration dict is read here, key by key, into `rtloop::LoopConfig`; an unknown key
+//! The configuration dict is read here, key by key, into `rt::LoopConfig`; an unknown key
 //! or a bad value is an `admittance.errors.ConfigError` naming the key, a missing or silent bus
 //! at `start()` an `admittance.errors.DeviceError`. `start()` and `stop()` block (bus reads,
 //! thread join) and release the GIL while they do; everything else is O(1) or proportional to
 //! the telemetry drained. The RT thread itself never touches Python.
 use dxl::Protocol;
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
-use rtloop::fault::{FaultKind, Faults, LoopMode};
-use rtloop::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
-use rtloop::histogram::Percentiles;
-use rtloop::params::{joint_value, LoopParams};
-use rtloop::sched::{Policy, RtRequest};
-use rtloop::sensor::ForceSample;
-use rtloop::telemetry::{Record, RECORD_FIELDS};
-use rtloop::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
+use rt::fault::{FaultKind, Faults, LoopMode};
+use rt::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
+use rt::histogram::Percentiles;
+use rt::params::{joint_value, LoopParams};
+use rt::sched::{Policy, RtRequest};
+use rt::sensor::ForceSample;
+use rt::telemetry::{Record, RECORD_FIELDS};
+use rt::{ForceSink, JointConfig, LoopConfig, LoopHandle, ParamValue, StartError, StopPolicy, TriggerMode};
 use crate::dict_fields::{first_unknown_key, opt};
 use crate::dxlsim::PyMockBus;
 use crate::errors::{config_error, device_error};
@@ -276,7 +276,7 @@ pub(crate) fn percentiles<'py>(py: Python<'py>, p: &Percentiles) -> PyResult<Bou
 fn params_dict<'py>(py: Python<'py>, p: &LoopParams, ids: &[u8]) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     for (joint, id) in p.joints.iter().zip(ids) {
-        for key in rtloop::params::known_names() {
+        for key in rt::params::known_names() {
             if let Some(v) = joint_value(joint, key) {
                 d.set_item(format!("{id}.{key}"), v)?;
             }
@@ -597,10 +597,44 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LOOP_MODES", LoopMode::ALL.iter().map(|mode| mode.name()).collect::<Vec<_>>())?;
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     // Model steps a late cycle catches up at most; a longer stall loses its time (recording.py).
-    m.add("MAX_CATCH_UP_STEPS", rtloop::cycle::MAX_CATCH_UP_STEPS)?;
+    m.add("MAX_CATCH_UP_STEPS", rt::cycle::MAX_CATCH_UP_STEPS)?;
+    m.add("MAX_JOINT_ID", rt::params::MAX_JOINT_ID)?;
+    m.add_function(wrap_pyfunction!(split_param_name, m)?)?;
+    m.add("LOOP_DEFAULTS", loop_defaults(m.py())?)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
     m.add("UNSAFE_HARDWARE_ERRORS", UNSAFE_HARDWARE_ERRORS)?;
     Ok(())
+}
+
+
+/// `"3.limits.position_max"` → (3, "position_max"); a loop-wide or all-joints name has no id
+/// (None). ValueError when the id is not 0..=MAX_JOINT_ID. The one parser of the grammar.
+#[pyfunction]
+fn split_param_name(name: &str) -> PyResult<(Option<u8>, String)> {
+    rt::params::split_name(name).map(|(id, key)| (id, key.to_string())).map_err(PyValueError::new_err)
+}
+
+/// The loop's own defaults (rt::config), by the daemon's key names: the daemon's configuration
+/// reads its defaults for the same keys from here, so the two cannot differ.
+fn loop_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let c = LoopConfig::default();
+    let j = JointConfig::new(1, Protocol::V2);
+    let f = FaultPolicy::default();
+    let d = PyDict::new(py);
+    d.set_item("baudrate", c.baudrate)?;
+    d.set_item("rate_hz", c.rate_hz)?;
+    d.set_item("sync_read_divisor", c.sync_read_divisor)?;
+    d.set_item("ramp_time_s", c.ramp_time_s)?;
+    d.set_item("stale_timeout_ms", c.sensor.stale_timeout_ms)?;
+    d.set_item("deadband", c.sensor.deadband)?;
+    d.set_item("lowpass_hz", c.sensor.lowpass_hz)?;
+    d.set_item("zero_tick", j.ticks.zero_tick)?;
+    d.set_item("direction", j.ticks.direction)?;
+    d.set_item("velocity_max", j.limits.velocity_max)?;
+    d.set_item("acceleration_max", j.limits.acceleration_max)?;
+    d.set_item("max_recoveries", f.max_recoveries)?;
+    d.set_item("horn_speed_max", f.horn_speed_max)?;
+    Ok(d)
 }

@@ -47,7 +47,7 @@ impl JointConfig {
             ticks,
             axis: 0,
             gains: JointGains { inertia: 0.01467, damping: 0.03471, coulomb: 0.08426, lever_arm: 0.1 },
-            limits: Limits { position_min, position_max, velocity_max: std::f64::consts::TAU, acceleration_max: 200.0 },
+            limits: Limits { position_min, position_max, velocity_max: 6.0, acceleration_max: 200.0 },
             servo: None,
             compensation: 0.0,
         }

@@ -210,11 +210,18 @@ fn shown(name: &str) -> String {
     }
 }
 
-/// Splits `"3.limits.position_max"` into (Some(3), "position_max").
-fn split_name(name: &str) -> Result<(Option<u8>, &str), String> {
+/// The highest Dynamixel ID a joint can have (253 is reserved, 254 is the broadcast ID).
+pub const MAX_JOINT_ID: u8 = 252;
+
+/// The `[id.][limits.]key` grammar of a live parameter's name, the one parser of it (the daemon
+/// calls it through `_rtcore.split_param_name`): `"3.limits.position_max"` is
+/// (Some(3), "position_max"); an id is 0..=MAX_JOINT_ID.
+pub fn split_name(name: &str) -> Result<(Option<u8>, &str), String> {
     let (id, key) = match name.split_once('.') {
         Some((head, rest)) if head.chars().all(|c| c.is_ascii_digit()) && !head.is_empty() => {
-            let id = head.parse::<u8>().map_err(|_| format!("'{}': joint id {} is not 0..=253", shown(name), shown(head)))?;
+            let id = head.parse::<u8>().ok().filter(|id| *id <= MAX_JOINT_ID).ok_or_else(|| {
+                format!("'{}': joint id {} is not 0..={MAX_JOINT_ID}", shown(name), shown(head))
+            })?;
             (Some(id), rest)
         }
         _ => (None, name),

@@ -6,7 +6,7 @@ use std::collections::VecDeque;
 use std::io;
 
 use dxl::{protocol2, Protocol};
-use rtloop::bus::{JointBus, Registers, Transport};
+use rt::bus::{JointBus, Registers, Transport};
 
 thread_local! {
     static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };

@@ -3,7 +3,7 @@
 ``identify`` fits with the Rust plant (semi-implicit Euler, 1 ms substeps, the stick law as a
 per-step clip). Data made by that same code at a finer step would still hand the fit its own
 discretisation and its own reading of Contract 1. So this module writes the model a third time
-(after the Rust plant and ``admittance.sim.simulate_reference``), with another scheme:
+(after the Rust plant and the oracle ``reference.simulate_reference``), with another scheme:
 
 - SciPy's ``solve_ivp`` (DOP853, adaptive, rtol 1e-10) between friction events;
 - Coulomb friction as a *switching* system, not a clip: while sliding, friction is

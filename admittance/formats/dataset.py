@@ -8,7 +8,7 @@ rest of the pipeline sees only numbers per trial.
 
 Trial files are CSV by default. A ``[[trials]]`` entry may carry ``format = "..."`` (an extension
 of the contract) for the recorders' own formats; those are read by
-``admittance.ident.loaders.load_trial``, imported only when needed so a plain CSV dataset never
+``admittance.formats.converters.load_trial``, imported only when needed so a plain CSV dataset never
 pays for the loaders.
 """
 
@@ -16,62 +16,24 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.ident.paramfile import read_toml
+from admittance.formats.paramfile import read_toml
+from admittance.formats.trial import (  # noqa: F401  (a dataset's types, read with it)
+    GRAVITY, MIN_SAMPLES, Dataset, TrialArrays, TrialData, check_series, load_geometry,
+)
 
-GRAVITY = 9.80665  # m/s², standard gravity
-MIN_SAMPLES = 10  # fewer cannot pin an initial state and three parameters
 MANIFEST = "manifest.toml"
 
-TrialArrays = tuple[np.ndarray, np.ndarray, np.ndarray | None]  # t, theta, tau (None: free swing)
-
-
-@dataclass(frozen=True)
-class TrialData:
-    """One trial: time (s), angle (rad, 0 = hanging down), optional applied torque (N·m)."""
-
-    name: str
-    t: np.ndarray
-    theta: np.ndarray
-    tau: np.ndarray | None
-    load_inertia: float
-    gravity_torque: float
-    meta: dict = field(default_factory=dict)
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.t.size)
-
-
-@dataclass(frozen=True)
-class Dataset:
-    """A validated dataset. ``mode`` is "geometry" when [rod] or [bob] is given, else "lumped"."""
-
-    mode: str
-    trials: tuple[TrialData, ...]
-    motor: str = ""
-    folder: Path | None = None
-    geometry: dict = field(default_factory=dict)
-    # Ticks per revolution of the angle encoder (manifest key ``encoder_ticks``, an extension of
-    # the contract); None: not declared (identify then looks for a grid in the data).
-    encoder_ticks: int | None = None
-
-    @property
-    def has_torque(self) -> bool:
-        return any(tr.tau is not None for tr in self.trials)
-
-
 def load_dataset(folder: str | Path) -> Dataset:
-    """Read ``folder/manifest.toml`` and every trial it lists (or a session.mcap: loaders.load_recording)."""
+    """Read ``folder/manifest.toml`` and every trial it lists (or a session.mcap: recording.load_recording)."""
     folder = Path(folder)
     if folder.suffix == ".mcap" and folder.is_file():
-        from admittance.ident.loaders import load_recording
+        from admittance.formats.recording import load_recording
 
         return load_recording(folder)
     if not folder.is_dir():
@@ -113,20 +75,6 @@ def _encoder_ticks(value: Any, path: Path) -> int | None:
         raise DataError(f"{path}: encoder_ticks must be a whole number of ticks per revolution "
                         f"(2 to {MAX_ENCODER_TICKS}), got {value!r}")
     return value
-
-
-def load_geometry(rod: dict | None, bob: dict | None, bob_distance: float | None) -> tuple[float, float]:
-    """(inertia about the axis, gravity torque amplitude m·g·l) of a rod pivoted at its end and a
-    point bob at ``bob_distance``."""
-    inertia = 0.0
-    gravity = 0.0
-    if rod:
-        inertia += rod["mass"] * rod["length"] ** 2 / 3.0
-        gravity += rod["mass"] * GRAVITY * rod["length"] / 2.0
-    if bob:
-        inertia += bob["mass"] * bob_distance**2
-        gravity += bob["mass"] * GRAVITY * bob_distance
-    return inertia, gravity
 
 
 def _geometry_table(manifest: dict, name: str, keys: tuple[str, ...], path: Path) -> dict | None:
@@ -177,13 +125,9 @@ def _load_entry(folder: Path, manifest_path: Path, index: int, entry: Any, rod, 
 def _read_series(path: Path, fmt: str) -> TrialArrays:
     if fmt == "csv":
         return read_csv_trial(path)
-    from admittance.ident import loaders  # only datasets in recorder formats need it
+    from admittance.formats import converters  # only datasets in recorder formats need it
 
-    return loaders.load_trial(path, fmt)
-
-
-def _floats(values) -> np.ndarray | None:
-    return None if values is None else np.asarray(values, dtype=float)
+    return converters.load_trial(path, fmt)
 
 
 def read_csv_trial(path: Path) -> TrialArrays:
@@ -224,23 +168,3 @@ def _cell(path: Path, line_no: int, name: str, row: list[str], col: int) -> floa
         raise DataError(f"{path}: line {line_no}: column {name!r}: not a number: {text!r}") from None
 
 
-def check_series(path: Path, t, theta, tau=None, min_samples: int = MIN_SAMPLES) -> TrialArrays:
-    """Validate a trial's series (same lengths, enough samples, finite, time strictly
-    increasing) and return them as float arrays. Shared with the recorder-format loaders."""
-    t, theta, tau = _floats(t), _floats(theta), _floats(tau)
-    if t.ndim != 1 or theta.shape != t.shape or (tau is not None and tau.shape != t.shape):
-        raise DataError(f"{path}: columns have different lengths")
-    if t.size == 0:
-        raise DataError(f"{path}: empty trial (no usable samples)")
-    if t.size < min_samples:
-        raise DataError(f"{path}: only {t.size} samples; at least {min_samples} usable samples are needed")
-    for name, values in (("t", t), ("theta", theta), ("tau", tau)):
-        if values is not None and not np.all(np.isfinite(values)):
-            bad = int(np.flatnonzero(~np.isfinite(values))[0])
-            raise DataError(f"{path}: column {name!r}: NaN or infinite value at sample {bad}")
-    steps = np.diff(t)
-    if np.any(steps <= 0):
-        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise DataError(f"{path}: time is not strictly increasing at sample {bad} "
-                        f"(t = {t[bad]:.9g} after {t[bad - 1]:.9g})")
-    return t, theta, tau

@@ -6,7 +6,7 @@ Modelled on python-can's driver abstraction (shared style-anchors.md §2):
   (acquire the device, raise DeviceError if it is missing), ``_poll`` (wait a bounded time for
   data and hand any samples to ``_emit_all``) and ``_close``. The base owns the thread, the
   idempotent start/stop, the context manager, the bias, tare and the statistics.
-- The registry is data with lazy import (``SENSOR_KINDS``): importing ``admittance.drivers``
+- The registry is data with lazy import (``READER_CLASSES``): importing ``admittance.drivers``
   never loads pyserial or python-can, and a kind whose import fails names itself.
 - Readers never import the daemon or the RT loop: they get a *sink* (Contract 5), any object
   with ``push(t_ns, forces) -> bool``. The reader thread only converts and pushes; a sink
@@ -459,19 +459,19 @@ def require_key(section: Mapping[str, Any], key: str) -> Any:
 # ---------------------------------------------------------------------------------------------
 # The registry of kinds
 
-SENSOR_KINDS: dict[str, tuple[str, str]] = {
+READER_CLASSES: dict[str, tuple[str, str]] = {
     "optoforce": ("admittance.drivers.optoforce", "OptoForceSerialReader"),
     "can": ("admittance.drivers.can_sensor", "CanForceReader"),
-    "mock": ("admittance.mockbench.sensor", "ScriptedForceSensor"),  # lives with the other simulations
+    "mock": ("admittance.mockbench.simulated_sensor", "ScriptedForceSensor"),  # lives with the other simulations
 }
 
 
 def sensor_class(kind: str) -> type[ForceSensor]:
     """The reader class of a kind, imported on first use."""
     try:
-        module_name, class_name = SENSOR_KINDS[kind]
+        module_name, class_name = READER_CLASSES[kind]
     except KeyError:
-        raise ConfigError(f"unknown sensor kind '{kind}' (known: {', '.join(SENSOR_KINDS)})") from None
+        raise ConfigError(f"unknown sensor kind '{kind}' (known: {', '.join(READER_CLASSES)})") from None
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -53,7 +53,7 @@ from typing import Any
 
 from admittance.drivers import optoforce as of
 from admittance.drivers.can_sensor import split_into_can_payloads
-from admittance.drivers.sensor import AXES, ForceSensor, Sink, counts_per_unit
+from admittance.drivers.force_reader import AXES, ForceSensor, Sink, counts_per_unit
 from admittance.errors import ConfigError, DeviceError
 from admittance.mockbench import slcan
 from admittance.mockbench.hand import Profile, make_profile

@@ -15,7 +15,7 @@ time"); reproducing its numbers needs its procedure, including this choice.
 Design choices:
 - The scheme (:func:`alternating_fit`) takes a *batch simulator* (rows of (I, B, F) → angle
   series), so the same code drives our Rust simulator here and the pure-NumPy ode3 of
-  :mod:`admittance.ident.baseline_thesis`; only the simulator differs in the bench.
+  the test oracle ``tests/oracles/thesis_ode3.py``; only the simulator differs in the bench.
 - With the Rust batch simulator the forward-difference Jacobian is one call: the base row and
   its perturbations run in parallel without the GIL.
 - The trial is simulated with ``load_inertia = 0`` and ``motor_inertia = I`` (the total), since
@@ -139,7 +139,7 @@ def rust_simulator(trial, x0: tuple[float, float], tanh_k: float = TANH_K,
 
 
 def _default_vector(names: Sequence[str], tanh_k: float) -> np.ndarray:
-    from admittance.ident.paramfile import PARAM_DEFAULTS
+    from admittance.formats.paramfile import PARAM_DEFAULTS
 
     vec = np.array([PARAM_DEFAULTS.get(n) or 0.0 for n in names], dtype=float)
     vec[names.index("tanh_k")] = tanh_k

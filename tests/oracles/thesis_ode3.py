@@ -1,10 +1,10 @@
-"""The thesis method in plain Python and SciPy, with no Rust: the bench's baseline.
+"""TEST ORACLE: the thesis method in plain Python and SciPy, with no Rust: the bench's baseline.
 
 This is what a straightforward port of the thesis's MATLAB/Simulink pipeline looks like:
 a fixed-step Bogacki–Shampine integrator (Simulink's ``ode3``) written as a Python loop, and
 ``scipy.optimize.least_squares(method="lm")`` with SciPy's own forward-difference Jacobian
 (one simulation per probe, one after the other), in the same alternating (I, B) / F scheme as
-:mod:`admittance.ident.thesis`. The scheme is shared so the bench compares only what differs:
+:mod:`admittance.thesis.alternating`. The scheme is shared so the bench compares only what differs:
 the simulator and how the Jacobian's simulations are run.
 
 Why a hand-written ode3 rather than ``scipy.integrate.solve_ivp``: the thesis used a fixed
@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from admittance.ident import thesis
+from admittance.thesis import alternating as thesis
 
 STEP = thesis.MAX_STEP
 

@@ -64,7 +64,7 @@ class TrialPrediction:
 
 def load_params(path: str | Path) -> tuple[dict[str, float], str]:
     """(parameters with defaults filled in, friction law) of a geometry-mode Contract 2 file."""
-    from admittance.ident import paramfile
+    from admittance.formats import paramfile
 
     doc = paramfile.load(path)
     if doc["model"].get("mode", "geometry") != "geometry":
@@ -88,8 +88,7 @@ def _torque_check(prediction: TrialPrediction, trial, params, friction, tanh_k_t
     """(b): calculated torques from the filtered motion, against the measured torque."""
     k = params["tanh_k"] if tanh_k_thesis is None else tanh_k_thesis
     grid, vel, acc, theta_f = filtered_derivatives(trial.t, trial.theta)
-    inertia = params["motor_inertia"] + trial.load_inertia
-    thesis_grid = inertia * acc + params["damping"] * vel + np.tanh(k * vel) * params["coulomb"]
+    thesis_grid = thesis_torque(params, k, trial.load_inertia, vel, acc)
     model_grid = model_torque(params, trial.load_inertia, trial.gravity_torque, theta_f, vel, acc, friction)
     prediction.tau = trial.tau
     prediction.tau_thesis = np.interp(trial.t, grid, thesis_grid)
@@ -110,7 +109,7 @@ def predict_position(trial, params: dict[str, float], friction: str, max_step: f
     ``identify``'s held-out trials; ``"data"`` takes them from the first 50 ms of the record.
     """
     from admittance import sim
-    from admittance.ident.thesis import initial_state
+    from admittance.thesis.alternating import initial_state
 
     start = initial_state(trial, "data")
     if x0 == "fit":
@@ -140,6 +139,13 @@ def filtered_derivatives(t: np.ndarray, theta: np.ndarray, cutoff: float = CUTOF
     vel = np.gradient(theta_f, dt)
     acc = np.gradient(vel, dt)
     return grid, vel, acc, theta_f
+
+
+def thesis_torque(p: dict[str, float], tanh_k: float, load_inertia: float, vel, acc) -> np.ndarray:
+    """The thesis's formula ``I·acc + D·vel + tanh(k·vel)·F`` (appendix C.4): Contract 1's inverse
+    (the Rust plant's) with only I, D and F, tanh friction of slope k, and no gravity."""
+    thesis = {"motor_inertia": p["motor_inertia"], "damping": p["damping"], "coulomb": p["coulomb"], "tanh_k": tanh_k}
+    return model_torque(thesis, load_inertia, 0.0, np.zeros_like(vel), vel, acc, "tanh")
 
 
 def model_torque(p: dict[str, float], load_inertia: float, gravity: float, theta, vel, acc, friction: str) -> np.ndarray:

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from admittance.drivers import sensor as fs
+from admittance.drivers import force_reader as fs
 from admittance.errors import ConfigError, DataError, DeviceError
 from admittance.mockbench.hand import make_profile
-from admittance.mockbench.sensor import ForceModel, ScriptedForceSensor
+from admittance.mockbench.simulated_sensor import ForceModel, ScriptedForceSensor
 
 from helpers import wait_until
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from admittance.errors import DataError
-from admittance.ident.dataset import load_dataset
-from admittance.ident.sensor import Sensor, infer_quantum, noise_verdict, rest_noise, sensor_for
+from admittance.formats.dataset import load_dataset
+from admittance.ident.angle_sensor import Sensor, infer_quantum, noise_verdict, rest_noise, sensor_for
 
 TICK = 2 * math.pi / 4096
 
