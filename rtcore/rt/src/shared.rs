@@ -5,6 +5,7 @@
 //! block on. The warnings list is a `Mutex<Vec>` because only setup and shutdown (outside the
 //! cycle) write to it.
 use crate::fault::ExternalFaults;
+use crate::passivity::PassivityShared;
 use crate::recovery::{Phase, ServoCounts, ServoView, StopRequest};
 use crate::telemetry::LoopStats;
 use crate::trigger::TriggerStats;
@@ -30,6 +31,8 @@ pub struct Shared {
     pub stop_request: AtomicU64,
     /// Faults raised from outside (the sensor's), marked in the records.
     pub external_faults: ExternalFaults,
+    /// Each joint's passivity guard (`Shared::for_joints`; empty otherwise).
+    pub passivity: Box<[PassivityShared]>,
 }
 
 /// The bus's port as the loop and its reopen helper see it.
@@ -111,7 +114,11 @@ impl ServoShared {
 impl Shared {
     /// Shared state with room for `joints` servos' recovery.
     pub fn for_joints(joints: usize) -> Shared {
-        Shared { servos: (0..joints).map(|_| ServoShared::default()).collect(), ..Default::default() }
+        Shared {
+            servos: (0..joints).map(|_| ServoShared::default()).collect(),
+            passivity: (0..joints).map(|_| PassivityShared::default()).collect(),
+            ..Default::default()
+        }
     }
 
     pub fn stop_request(&self) -> Option<StopRequest> {
