@@ -15,7 +15,7 @@
 //!   differences, not of a differentiated velocity: the encoder's quantization telescopes
 //!   instead of accumulating.
 //! - `stored`: ½·I·ω² of the virtual model, the energy a passive joint may give back.
-//! - `balance`: Δport − Δstored summed with a forgetting time of `WINDOW_S`, the energy the
+//! - `balance`: Δport − Δstored from read to read, summed with a forgetting time of `WINDOW_S`, the energy the
 //!   joint has dissipated lately. A passive joint keeps it ≥ 0 (the model says it dissipates
 //!   B·ω² + F·|ω| ≥ 0, `model_dissipated`); a joint that gives the hand more than it took has
 //!   it < 0. The window is the usual remedy for an observer that banks a long passive stretch
@@ -75,7 +75,7 @@ pub struct PassivityGuard {
     port: f64,
     /// J: what the model says it has dissipated since the start.
     model_dissipated: f64,
-    /// J: ½·I·ω² at the last cycle.
+    /// J: ½·I·ω² of the model at the last horn read.
     stored: f64,
     /// J: the windowed balance the guard acts on (see the module doc).
     balance: f64,
@@ -109,28 +109,27 @@ impl PassivityGuard {
     /// are skipped (the state guard handles them); nothing here can panic.
     pub fn observe(&mut self, horn: Option<f64>, tau: f64, model: &State, gains: &JointGains, hold: bool, h: f64) {
         let before = self.balance;
-        if hold || !tau.is_finite() {
+        let stored = 0.5 * gains.inertia * model.omega * model.omega;
+        if hold || !tau.is_finite() || !stored.is_finite() {
             self.horn = None;
             self.torque_sum = 0.0;
             self.torque_n = 0;
         } else {
             if let Some(theta) = horn.filter(|t| t.is_finite()) {
+                // Both energies from one read to the next: with no read (none configured, a
+                // silent servo) the port is not observed, and nothing is judged.
                 if let (Some(last), true) = (self.horn, self.torque_n > 0) {
                     let work = self.torque_sum / self.torque_n as f64 * (theta - last);
                     self.port += work;
-                    self.balance += work;
+                    self.balance += work - (stored - self.stored);
                 }
                 self.horn = Some(theta);
+                self.stored = stored;
                 self.torque_sum = 0.0;
                 self.torque_n = 0;
             }
             self.torque_sum += tau;
             self.torque_n += 1;
-        }
-        let stored = 0.5 * gains.inertia * model.omega * model.omega;
-        if stored.is_finite() {
-            self.balance -= stored - self.stored;
-            self.stored = stored;
             self.model_dissipated += (gains.damping * model.omega * model.omega + gains.coulomb * model.omega.abs()) * h;
         }
         let fallen = before - self.balance;

@@ -134,3 +134,13 @@ fn the_shared_view_round_trips() {
     s.publish(&v);
     assert_eq!(s.snapshot(), v);
 }
+
+#[test]
+fn without_horn_reads_nothing_is_judged() {
+    let mut g = guard(true);
+    for k in 0..2000 {
+        let model = State { theta: 0.0, omega: 0.01 * k as f64 }; // the model speeds up, its energy grows
+        g.observe(None, 1.0, &model, &gains(0.0), false, H);
+    }
+    assert_eq!((g.view().balance, g.view().damping), (0.0, 0.0));
+}
