@@ -80,6 +80,9 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> dict[str, Any]:
         "lever_arm": joint.lever_arm,
         "servo": joint.plant.get("servo"),
         "servo_compensation": joint.servo_compensation,
+        "passivity_guard": joint.passivity_guard,
+        "passivity_margin": joint.passivity_margin,
+        "passivity_damping_max": joint.passivity_damping_max,
         "limits": {
             # Within what the tick range reaches: the configuration checked (or clipped) them.
             "position_min": limits.position_min,

@@ -54,6 +54,9 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "cycle": rows["cycle"].astype(float),
             "fault": rows["fault"].astype(float),
             "mode": rows["mode"].astype(float),  # the recorder's "held" (recording.held_cycles)
+            # The passivity guard: its energy balance (J) and the damping it adds (N·m·s/rad).
+            "passivity_energy": rows["passivity_energy"].astype(float),
+            "passivity_damping": rows["passivity_damping"].astype(float),
         }
     return out
 
@@ -125,6 +128,7 @@ def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = No
             wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
             position=None if present is None else float(tick_to_rad(present, joint)),
             rendering_rms=rendering.rms(joint.id) if rendering is not None else None,
+            passivity_energy=float(row["passivity_energy"]), passivity_damping=float(row["passivity_damping"]),
         ))
     return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
 

@@ -48,7 +48,7 @@ pub const RELEASE_S: f64 = 0.5;
 /// The added damping starts at this fraction of `passivity_damping_max`.
 pub const START_FRACTION: f64 = 1e-3;
 /// s: the time constant of the generated power's low-pass (is the joint still generating?).
-const POWER_S: f64 = 0.05;
+const POWER_S: f64 = 0.2;
 
 /// A joint's guard settings (`passivity_guard`, `passivity_margin`, `passivity_damping_max`).
 #[derive(Debug, Clone, Copy, PartialEq)]
