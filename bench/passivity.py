@@ -87,16 +87,17 @@ def passive(work: Path, servo: str, lag: float, params: Path, seconds: float) ->
                 ("multi-sine 0.3–3 Hz", str(fb.multisine(work / "multisine.csv", seconds, fb.LINEAR)))]
     for label, profile in profiles:
         row = {"servo": servo, "hand": label}
-        for guard in (0, 1):
-            name = f"{fb.slug(servo)}-passive-{fb.slug(label)}-{guard}"
+        # Off, on, and off again: the repeat shows how much two identical sessions differ here.
+        for key, guard in (("off", 0), ("on", 1), ("off_again", 0)):
+            name = f"{fb.slug(servo)}-passive-{fb.slug(label)}-{key}"
             folder, stats = fb.session(work, name, params=params, profile=profile, seconds=seconds,
                                        joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
                                        bench={"servo_lag_s": lag})
-            row["on" if guard else "off"] = {"rendering_rmse": fb.analyse(folder)["rendering_rmse"],
-                                            **energy_figures(folder, stats)}
-        off, on = row["off"]["rendering_rmse"], row["on"]["rendering_rmse"]
+            row[key] = {"rendering_rmse": fb.analyse(folder)["rendering_rmse"], **energy_figures(folder, stats)}
+        off, on, again = (row[k]["rendering_rmse"] for k in ("off", "on", "off_again"))
         print(f"| {servo} | {label} | {1e3 * off:.3f} | {1e3 * on:.3f} | {100 * (on / off - 1):+.1f} % | "
-              f"{row['on']['episodes']} |", flush=True)
+              f"{1e3 * again:.3f} ({100 * (again / off - 1):+.1f} %) | {row['on']['episodes']} | "
+              f"{1e3 * row['on']['generated_j']:.2f} |", flush=True)
         rows.append(row)
     return rows
 
@@ -140,8 +141,9 @@ def main() -> int:
                           f"{1e3 * r['generated_j']:.1f} | {1e3 * r['port_energy_j']:+.1f} | {r['episodes']} | "
                           f"{r['damping_max']:.3g} |", flush=True)
         if not args.skip_fidelity:
-            print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | guard episodes |")
-            print("|---|---|---|---|---|---|")
+            print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | guard off again "
+                  "(mrad) | guard episodes | lowest balance (mJ below 0) |")
+            print("|---|---|---|---|---|---|---|---|")
             for servo in args.servos:
                 params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], 2 * 12.0, None)
                 results["passive"] += passive(work, servo, fb.SERVOS[servo], params, 12.0)

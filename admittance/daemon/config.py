@@ -96,7 +96,7 @@ class JointConfig:
                                            doc="weight of the servo compensation: 1 = on, 0 = off; "
                                                "default 1 when `params` has a [servo] model, else 0")
     # The passivity guard (docs/fidelity.md, "The passivity guard"; rtcore/rt/src/passivity.rs).
-    passivity_guard: int = key("int", 1, choices=(0, 1), live=True,
+    passivity_guard: float = key("float", 1.0, choices=(0.0, 1.0), live=True,
                                doc="passivity guard: 1 = on (a damping added while the joint generates energy "
                                    "beyond passivity_margin), 0 = off (observed only)")
     passivity_margin: float = key("float", 0.002, unit="J", lo=1e-5, hi=10.0, live=True,

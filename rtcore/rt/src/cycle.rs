@@ -485,6 +485,8 @@ impl Controller {
             } else {
                 for _ in 0..steps {
                     alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, h);
+                    // Added to α: the compensation's inertial lead must see the damped model's
+                    // acceleration, not the τ/I of the undamped one that makes a light joint oscillate.
                     alpha += slot.passivity.damp(&mut slot.state, slot.gains.inertia, h);
                 }
             }

@@ -23,7 +23,7 @@
 //!   Hannaford, IEEE TRA 2004 discuss the same delay of a pure integral).
 //!
 //! The controller: while `balance < −margin` and the joint is still generating (the balance
-//! falling), a damping `damping` is added to the model and grows by e every `RISE_S` from
+//! falling faster than margin / `WINDOW_S`, the power that would hold it at the margin), a damping `damping` is added to the model and grows by e every `RISE_S` from
 //! `damping_max`·`START_FRACTION`; while the balance stays below the margin without falling it
 //! is kept; once the balance is back within the margin it decays by e every `RELEASE_S` and
 //! is dropped below `START_FRACTION`/10 of the maximum (a step far below a tick's worth of
@@ -147,7 +147,9 @@ impl PassivityGuard {
         let p = &self.params;
         let floor = p.damping_max * START_FRACTION;
         let beyond = p.guard > 0.0 && self.balance < -p.margin;
-        if beyond && self.generating > 0.0 {
+        // Still generating: faster than the power that holds the windowed balance at the margin
+        // (a slower fall is the noise of the reads, and the window brings it back by itself).
+        if beyond && self.generating > p.margin / WINDOW_S {
             if self.damping == 0.0 {
                 self.episodes += 1;
             }
