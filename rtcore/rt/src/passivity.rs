@@ -30,9 +30,11 @@
 //! motion). It is applied implicitly, ω ← ω / (1 + h·D/I), after the model's step: a velocity
 //! only ever brought towards rest, stable for any D (an explicit D would need h·(B + D)/I < 1,
 //! which caps it too low for the lightest inertias it is needed at). This is the admittance
-//! form of the passivity controller: the model's velocity output is reduced, which a damper in
-//! series with the model's own does (Ryu, Kim and Hannaford; Keemink, van der Kooij and Stienen,
-//! IJRR 2018, §4 on admittance control with post-sensor inertia). Growing and decaying
+//! form of the passivity controller (Hannaford and Ryu 2002: for a port of admittance causality,
+//! force in and velocity out, the controller takes velocity away in proportion to the force;
+//! here through a damper added to the model's own), which leaves the model's position continuous
+//! (Keemink, van der Kooij and Stienen, IJRR 2018, on admittance control and the inertia beyond
+//! the sensor that makes a light virtual joint oscillate). Growing and decaying
 //! continuously, not the per-sample TDPA law D = −E/(h·ω²) that steps with every sample, keeps
 //! the goal free of jumps.
 use crate::params::JointGains;
