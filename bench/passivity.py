@@ -111,6 +111,8 @@ def main() -> int:
     parser.add_argument("--skip-fidelity", action="store_true", help="only the gripped sessions")
     parser.add_argument("--skip-stiff", action="store_true", help="no stiff-hand sessions")
     parser.add_argument("--skip-gripped", action="store_true", help="only the passive sessions")
+    parser.add_argument("--identify-seconds", type=float, default=24.0,
+                        help="the servo identification's session (bench/fidelity.py's: 24 s)")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     args = parser.parse_args()
     own = own_inertia()
@@ -124,7 +126,7 @@ def main() -> int:
         for servo in args.servos if not args.skip_gripped else ():
             lag = fb.SERVOS[servo]
             hand = fb.HANDS[servo]
-            params, _ = fb.identify_servo(work, servo, lag, 2 * 12.0, hand)
+            params, _ = fb.identify_servo(work, servo, lag, args.identify_seconds, hand)
             cases = [("gripping", hand, f) for f in args.factors]
             if not args.skip_stiff:
                 stiff = {**hand, "hand_stiffness": STIFF * hand["hand_stiffness"]}
@@ -145,7 +147,7 @@ def main() -> int:
                   "(mrad) | guard episodes | lowest balance (mJ below 0) |")
             print("|---|---|---|---|---|---|---|---|")
             for servo in args.servos:
-                params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], 2 * 12.0, None)
+                params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], args.identify_seconds, None)
                 results["passive"] += passive(work, servo, fb.SERVOS[servo], params, 12.0)
     print(f"load after: {os.getloadavg()}", flush=True)
     on = [r for r in results["gripped"] if r["guard"]]
