@@ -131,7 +131,7 @@ impl PassivityGuard {
                 self.torque_n = 0;
             }
             self.torque_sum += tau;
-            self.torque_n += 1;
+            self.torque_n = self.torque_n.saturating_add(1);
             self.model_dissipated += (gains.damping * model.omega * model.omega + gains.coulomb * model.omega.abs()) * h;
         }
         let fallen = before - self.balance;
@@ -167,7 +167,7 @@ impl PassivityGuard {
     /// Applies the added damping to the model's state after its step (implicitly: the velocity
     /// is only brought towards rest); returns the acceleration it added, rad/s².
     pub fn damp(&self, state: &mut State, inertia: f64, h: f64) -> f64 {
-        if self.damping <= 0.0 || !(inertia > 0.0) {
+        if self.damping <= 0.0 || inertia.is_nan() || inertia <= 0.0 {
             return 0.0;
         }
         let omega = state.omega / (1.0 + h * self.damping / inertia);
