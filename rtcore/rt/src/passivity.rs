@@ -14,13 +14,18 @@
 //!   reads (τ̄ the mean of the hand torques the model took between them). A sum of position
 //!   differences, not of a differentiated velocity: the encoder's quantization telescopes
 //!   instead of accumulating.
-//! - `stored`: ½·I·ω² of the virtual model, the energy a passive joint may give back.
-//! - `balance`: Δport − Δstored from read to read, summed with a forgetting time of `WINDOW_S`, the energy the
-//!   joint has dissipated lately. A passive joint keeps it ≥ 0 (the model says it dissipates
-//!   B·ω² + F·|ω| ≥ 0, `model_dissipated`); a joint that gives the hand more than it took has
-//!   it < 0. The window is the usual remedy for an observer that banks a long passive stretch
-//!   and lets the oscillation that follows run until the bank is spent (Ryu, Kwon and
-//!   Hannaford, IEEE TRA 2004 discuss the same delay of a pure integral).
+//! - `stored`: ½·I·ω² of the virtual model at the last read, the energy a passive joint may
+//!   give back.
+//! - `balance`: the port's energy, with what the joint dissipated (the part of it beyond
+//!   `stored`) and any deficit below 0 forgotten over `WINDOW_S`. A passive joint keeps it ≥ 0: it can give back only
+//!   what the hand put in (the model says it dissipates B·ω² + F·|ω| ≥ 0 of it,
+//!   `model_dissipated`); a joint that gives the hand more than it took has it < 0. The window is
+//!   the usual remedy for an observer that banks a long passive stretch and lets the oscillation
+//!   that follows run until the bank is spent (Ryu, Kwon and Hannaford, IEEE TRA 2004, discuss
+//!   the same delay of a pure integral); what the model stores is kept, so a joint that coasted
+//!   for a while may still give its energy back. The port's energy and not port − stored itself:
+//!   a servo that follows late shows the port's energy late, and port − stored then dips below
+//!   zero whenever the hand speeds the joint up (a false alarm on any uncompensated servo).
 //!
 //! The controller: while `balance < −margin` and the joint is still generating (the balance
 //! falling faster than margin / `WINDOW_S`, the power that would hold it at the margin), a damping `damping` is added to the model and grows by e every `RISE_S` from
@@ -123,7 +128,7 @@ impl PassivityGuard {
                 if let (Some(last), true) = (self.horn, self.torque_n > 0) {
                     let work = self.torque_sum / self.torque_n as f64 * (theta - last);
                     self.port += work;
-                    self.balance += work - (stored - self.stored);
+                    self.balance += work;
                 }
                 self.horn = Some(theta);
                 self.stored = stored;
@@ -136,7 +141,11 @@ impl PassivityGuard {
         }
         let fallen = before - self.balance;
         self.generating += (fallen / h - self.generating) * h / (POWER_S + h);
-        self.balance -= self.balance * h / (WINDOW_S + h);
+        // Forget what the joint dissipated (the balance beyond what the model stores), not what
+        // it holds: a joint the hand sped up may give that energy back however long it coasted.
+        // A deficit is forgotten too, so that an episode ends once the joint stops generating.
+        let forget = (self.balance - self.stored).max(0.0) + self.balance.min(0.0);
+        self.balance -= forget * h / (WINDOW_S + h);
         if !(self.balance.is_finite() && self.generating.is_finite()) {
             self.balance = 0.0; // a NaN would keep the guard from ever acting again
             self.generating = 0.0;

@@ -144,3 +144,24 @@ fn without_horn_reads_nothing_is_judged() {
     }
     assert_eq!((g.view().balance, g.view().damping), (0.0, 0.0));
 }
+
+/// A servo that follows late under a hand that speeds the joint up: the port's energy arrives
+/// late, but it is the hand's, and nothing is generated (port − stored would dip below the
+/// margin here: the false alarm an uncompensated servo raised).
+#[test]
+fn a_lagging_horn_under_an_accelerating_push_is_no_alarm() {
+    let mut g = guard(true);
+    let (g_inertia, tau, lag) = (0.01, 0.3, 30);
+    let mut history = vec![0.0; lag];
+    let mut model = State::default();
+    for _ in 0..1000 {
+        g.observe(Some(history[history.len() - lag]), tau, &model, &gains(0.0), false, H);
+        model.omega += H * tau / g_inertia;
+        model.theta += H * model.omega;
+        history.push(model.theta);
+    }
+    let v = g.view();
+    assert!(model.omega > 20.0 && v.port > 0.0, "{model:?} {v:?}");
+    assert_eq!((v.damping, v.episodes), (0.0, 0));
+    assert!(v.balance >= 0.0, "{v:?}");
+}
