@@ -100,7 +100,7 @@ class JointConfig:
                                doc="passivity guard: 1 = on (a damping added while the joint generates energy "
                                    "beyond passivity_margin), 0 = off (observed only)")
     passivity_margin: float = key("float", 0.002, unit="J", lo=1e-5, hi=10.0, live=True,
-                                  doc="energy the joint may give the hand beyond what its model stores before "
+                                  doc="energy the joint may give the hand beyond what the hand put in before "
                                       "the guard acts")
     passivity_damping_max: float = key("float", 1.0, unit="N·m·s/rad", lo=0.0, lo_open=True, hi=100.0, live=True,
                                        doc="the most damping the passivity guard adds")

@@ -143,7 +143,7 @@ class FaultWatch:
             jid = guard["id"]
             if guard.get("episodes", 0) > before.get(jid, {}).get("episodes", 0):
                 self.events(f"passivity{jid}", f"joint {jid}: passivity guard acting: the joint gave the hand "
-                            f"{-guard.get('energy', 0.0):.3g} J more than its model stores (margin "
+                            f"{-guard.get('energy', 0.0):.3g} J more than the hand put in (margin "
                             f"{margins.get(jid, float('nan')):g} J, [joints] passivity_margin), an oscillation or a "
                             "virtual inertia too light for the hand; it adds damping (now "
                             f"{guard.get('damping', 0.0):.3g} N·m·s/rad) until the joint is passive again")

@@ -18,7 +18,7 @@
 //!    with the goal it already has and raise `FaultKind::ModelStateInvalid` (see `fault`), so
 //!    nothing but a valid state ever becomes a goal.
 //!    4b. The passivity guard (`passivity`): each joint's port energy (the hand's torque times
-//!    the horn's motion between reads) against what its model stores; while the joint generates
+//!    the horn's motion between reads, what it dissipated forgotten over 1 s); while the joint generates
 //!    energy beyond the margin, a damping added to the model after each step.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.

@@ -62,7 +62,7 @@ const POWER_S: f64 = 0.2;
 pub struct PassivityParams {
     /// 1 = on, 0 = off (turning it off lets an added damping decay, never drops it at once).
     pub guard: f64,
-    /// J: the energy the joint may generate (beyond what its model stores) before the guard acts.
+    /// J: the energy the joint may give the hand beyond what the hand put in before the guard acts.
     pub margin: f64,
     /// N·m·s/rad: the most damping the guard adds.
     pub damping_max: f64,
