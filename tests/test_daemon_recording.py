@@ -4,6 +4,7 @@ test at the end)."""
 
 from __future__ import annotations
 
+import errno
 import json
 import tomllib
 from pathlib import Path
@@ -317,3 +318,40 @@ def test_a_fault_that_stops_the_reads_is_a_listed_gap_that_splits_the_trials(tmp
         rows = fh.read().splitlines()
     header = rows[0].split(",")
     assert int(float(rows[1].split(",")[header.index("fault")])) & lost, "the first row after the gap is marked"
+
+
+class FillingDisk:
+    """A recording file on a disk with ``room`` bytes left: a write past it writes what fits and
+    fails with ENOSPC, as a full file system does."""
+
+    def __init__(self, fh, room: int) -> None:
+        self.fh, self.room = fh, room
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        written = self.fh.write(bytes(data[:self.room]))
+        self.room -= written
+        return written
+
+    def __getattr__(self, name):
+        return getattr(self.fh, name)
+
+
+def test_a_full_disk_cuts_the_csv_at_its_last_whole_row_and_the_dataset_stays_readable(tmp_path):
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=100.0)
+    rec.append(1, batch(100.0, 200))
+    rec._files[1] = FillingDisk(rec._files[1], room=3000)  # the disk fills during the next batches
+    with pytest.raises(OSError) as err:
+        for k in range(1, 50):
+            rec.append(1, batch(100.0 + k * 0.2, 200))
+    assert err.value.errno == errno.ENOSPC
+    rec.abort()
+    assert rec.stopped and rec.append(1, batch(200.0, 50)) == 0, "nothing more is written"
+    rec.close()  # the supervisor's exit path: a no-op now
+    text = (tmp_path / "joint1_000.csv").read_text()
+    assert text.endswith("\n") and all(len(line.split(",")) == len(COLUMNS) for line in text.splitlines())
+    trial = load_dataset(tmp_path).trials[0]
+    # The first batch's rows (its last cycle waits for the next); the batch that did not fit is cut
+    # back whole, not left half a row long.
+    assert trial.n_samples == len(text.splitlines()) - 1 == 199

@@ -17,6 +17,7 @@ import pytest
 import tomli_w
 
 from admittance.daemon import config
+from admittance.daemon import supervisor as supervisor_module
 from admittance.daemon.messages import STATS_KEYS
 from admittance.daemon.supervisor import Backends, GatedSink, RunOptions, Supervisor
 from admittance.errors import DeviceError
@@ -154,6 +155,9 @@ class FakeNotifier:
         return True
 
 
+HARNESS_LIMIT_S = 20.0
+
+
 class Harness:
     def __init__(self, tmp_path, *, fail_at=None, tare_ok=True, policy="hold", record=None, stop_after=None,
                  zenoh=None):
@@ -216,7 +220,9 @@ class Harness:
                                  make_sensor=make_sensor, make_loop=make_loop, make_interface=make_interface,
                                  claim_devices=claim)
         self.stats_path = tmp_path / "stats.json"
-        options = RunOptions(duration=stop_after, stats_json=self.stats_path)
+        # Always bounded: a run meant to end on a fault ends after HARNESS_LIMIT_S anyway (and the
+        # test's assertions then fail) instead of hanging when the fault's stop does not come.
+        options = RunOptions(duration=HARNESS_LIMIT_S if stop_after is None else stop_after, stats_json=self.stats_path)
         self.supervisor = Supervisor(self.cfg, self.backends, options, FakeNotifier(self.events))
 
     def _maybe_fail(self, step):
@@ -661,3 +667,13 @@ def test_the_watchdog_stops_pinging_a_loop_that_cycles_on_a_lost_bus(tmp_path):
     assert "WATCHDOG=1" not in sent
     watchdog = json.loads(h.stats_path.read_text())["daemon"]["watchdog"]
     assert watchdog["pings"] == 0 and watchdog["unhealthy"] >= 3
+
+
+def test_a_flood_of_sets_is_counted_in_the_log_not_written_line_by_line(tmp_path, caplog):
+    h = Harness(tmp_path, stop_after=0.05)
+    h.supervisor.run()
+    with caplog.at_level(logging.INFO, logger="admittance.daemon.supervisor"):
+        for k in range(200):
+            assert h.supervisor.set_params({"virtual_damping": 0.1 + k * 1e-4})[0]
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("params set")]
+    assert len(lines) == supervisor_module.PARAMS_LOG_BURST, "the rest of the flood held back"

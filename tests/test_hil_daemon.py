@@ -406,3 +406,51 @@ def test_an_unexpected_signal_is_a_clean_stop_told_and_restartable(tmp_path, sig
     with (record / "session.mcap").open("rb") as fh:
         summary = make_reader(fh).get_summary()
     assert summary is not None and summary.statistics.message_count > 0, "the MCAP was finished"
+
+
+def test_a_full_disk_stops_the_recording_with_a_line_and_the_loop_runs_on(tmp_path):
+    """Every file the daemon writes may grow to 400 kB (RLIMIT_FSIZE: past it a write fails with
+    EFBIG, as on a full disk it fails with ENOSPC). The CSV and then session.mcap hit it while
+    recording: each stops with one line, the loop runs on, the run ends cleanly, and what was
+    written is read by the project's own loaders (the CSV cut at a whole row, the MCAP read up
+    to its cut)."""
+    import resource
+    import threading
+
+    from admittance.ident.dataset import load_dataset
+    from admittance.ident.loaders import read_recording
+
+    limit = 400 * 1024
+
+    def small_disk() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    config, endpoint = daemon_config(tmp_path)
+    doc = tomllib.loads(config.read_text())
+    doc["record"] = {"path": str(tmp_path / "rec"), "segment_s": 600.0}
+    config.write_text(tomli_w.dumps(doc))
+    proc = subprocess.Popen([str(ADMITTANCE), "run", "--config", str(config)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=small_disk)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    try:
+        told = wait_until(lambda: any("recording stopped" in line for line in lines)
+                          and any("session.mcap stopped" in line for line in lines), timeout=60.0)
+        wait_alive(endpoint, PREFIX)  # still serving after both
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+        reader.join(timeout=10)
+    stderr = "".join(lines)
+    assert told, stderr
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr
+    assert sum("recording stopped" in line for line in lines) == 1, "one line"
+    folder = tmp_path / "rec"
+    csv_text = (folder / "joint1_000.csv").read_text()
+    assert csv_text.endswith("\n") and len(csv_text.encode()) <= limit
+    assert load_dataset(folder).trials[0].n_samples > 1000
+    recording = read_recording(folder / "session.mcap")
+    assert recording.truncated and len(recording.joints[1]["t"]) > 1000

@@ -199,3 +199,37 @@ def test_a_fault_the_policy_gives_up_on_stops_cleanly_with_its_exit_status(tmp_p
     final = json.loads((tmp_path / "stats.json").read_text())
     assert final["exit_status"] == status and final["fault_stop"]["cause"] == cause
     check_recording(tmp_path, final, [])
+
+
+def test_glitched_position_reads_never_move_the_joint(tmp_path, bench):
+    """Every third read of the servo's Present Position is 2000 ticks off (176°), from before the
+    daemon starts: the start's anchor, the running reads, and the re-anchors after a torque
+    found off and a brown-out all see glitches. No goal ever steps by more than the joint could
+    move, no glitched value reaches the recording's θ, and the glitches are marked and told."""
+    inject(bench, "servo 1 glitch 2000 3")
+    config, endpoint = fault_config(tmp_path, bench)
+    from admittance.daemon.zenoh_iface import Client
+
+    with running_daemon(config, *run_args(tmp_path)) as daemon:
+        wait_alive(endpoint, PREFIX)
+        with Client([endpoint]) as client:
+            wait_for_stats(client, lambda s: s["faults"]["position_glitch"] >= 3, "running glitches marked")
+            inject(bench, "servo 1 torque-off")
+            wait_for_stats(client, lambda s: servo(s)["torque_offs"] >= 1 and servo(s)["phase"] == "ok",
+                           "the re-enable through glitched re-anchor reads")
+            inject(bench, "servo 1 brown-out 0.2")
+            wait_for_stats(client, lambda s: servo(s)["recoveries"] >= 2 and servo(s)["phase"] == "ok",
+                           "the recovery after the brown-out")
+            inject(bench, "servo 1 glitch 0")
+    assert daemon.returncode == 0, daemon.stderr
+    assert told(daemon.stderr, "fault: position_glitch") >= 1
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    rec = read_recording(tmp_path / "rec")
+    goal_steps = np.abs(np.diff(rec["theta_goal"]))
+    # The glitch is 3.07 rad; the joint moves under a light push and a re-anchor takes the horn's
+    # sag while it was limp: a few hundredths of a radian at most.
+    assert goal_steps.max() < 0.1, f"a goal stepped {goal_steps.max():.3f} rad"
+    theta_steps = np.abs(np.diff(rec["theta"]))
+    assert theta_steps.max() < 0.1, f"a recorded θ jumped {theta_steps.max():.3f} rad: a glitch reached it"
+    assert np.any(rec["fault"].astype(np.int64) & bit("position_glitch")), "glitched rows are marked"
+    assert stats["faults"]["position_glitch"] >= 3

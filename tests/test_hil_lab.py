@@ -15,7 +15,7 @@ import tomli_w
 
 from admittance import data
 from admittance.daemon import config
-from admittance.daemon.zenoh_iface import Client, security_of
+from admittance.daemon.zenoh_iface import Client, make_config, open_session, security_of
 
 from daemon_process import ADMITTANCE, EXIT_TIMEOUT_S, START_TIMEOUT_S
 from helpers import free_endpoint
@@ -90,6 +90,34 @@ def lab(files: dict[str, Path]):
             proc.communicate(timeout=EXIT_TIMEOUT_S)
 
 
+def client_session(path: Path):
+    """A login's raw Zenoh session in client mode, as any Zenoh tool would open it (the router
+    relays a client's publications; a peer's it leaves to the peers' own mesh)."""
+    zen = config.load_zenoh_table(path)
+    security = {k: v for k, v in security_of(zen).items() if k != "access_control"}
+    return open_session(make_config(mode="client", connect=zen.connect, security=security), "forger")
+
+
+def forged_state_arrives(forger, reader: Client, key: str) -> bool:
+    """Whether a state message ``forger`` (a raw session) puts on a daemon's key reaches ``reader``
+    (the daemon's own states arrive too: the forged ones are told by their marker)."""
+    forged, genuine = [], []
+    sub = reader._session.declare_subscriber(
+        key, lambda sample: (forged if b"FORGED" in sample.payload.to_bytes() else genuine).append(1))
+    try:
+        deadline = time.monotonic() + 5.0
+        while not genuine and time.monotonic() < deadline:  # the subscription is in place
+            time.sleep(0.05)
+        assert genuine, "the daemon's own states never arrived"
+        for _ in range(5):
+            forger.put(key, b'{"cycle": -1, "joints": [], "note": "FORGED"}')
+            time.sleep(0.1)
+        time.sleep(0.5)
+        return bool(forged)
+    finally:
+        sub.undeclare()
+
+
 def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
     router = free_endpoint()
     files = lab_files(tmp_path, router)
@@ -115,6 +143,9 @@ def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
         tare = admittance("tare", "--prefix", "lab/arm1", "--timeout", "2", "--zenoh-config", str(files["visitor"]))
         assert tare.returncode == 3
         assert json.loads(admittance("get", "--json", "--prefix", "lab/arm1", *as_alice).stdout)["1.virtual_damping"] != 0.5
+
+        with contextlib.closing(client_session(files["visitor"])) as visitor, login(files["alice"]) as alice:
+            assert not forged_state_arrives(visitor, alice, "lab/arm1/state"), "a visitor published a bench's state"
 
         with login(files["visitor"]) as visitor:  # ROS 2 graph of bench 1, through the router
             tokens = [str(r.ok.key_expr) for r in visitor._session.liveliness().get("@ros2_lv/0/**", timeout=2.0)

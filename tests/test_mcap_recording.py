@@ -9,12 +9,16 @@ import signal
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from admittance.daemon.mcap_recording import McapRecorder
 from admittance.daemon.recording import Recorder
 from admittance.errors import DataError
 from admittance.ident.dataset import load_dataset
 from admittance.ident.loaders import load_recording, read_recording
+
+from helpers import examples
 
 mcap_reader = pytest.importorskip("mcap.reader")
 
@@ -160,3 +164,22 @@ def test_a_sigkilled_daemon_leaves_a_readable_mcap(tmp_path):
     assert all(c % 5 == 0 or (c % 5 == 1 and c - 1 not in read_cycles) for c in read_cycles)
     assert read.sum() > 0.5 * np.sum(cycles % 5 == 0)
     assert load_recording(tmp_path / "rec").trials[0].n_samples > 50
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(st.floats(0.0, 1.0))
+def test_a_file_cut_anywhere_is_read_up_to_the_cut_or_refused_in_one_line(tmp_path_factory, fraction):
+    """A full disk (or a pulled stick) cuts session.mcap at any byte: the project's reader reads
+    what is before the cut, or says in one DataError that it cannot; it never raises anything else."""
+    folder = tmp_path_factory.mktemp("cut")
+    record_both(folder, batches=8)
+    whole = (folder / "session.mcap").read_bytes()
+    cut = folder / "cut.mcap"
+    cut.write_bytes(whole[:int(fraction * len(whole))])
+    try:
+        rec = read_recording(cut)
+    except DataError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert len(rec.joints.get(1, {"t": []})["t"]) <= 8 * 50
+    assert rec.truncated or fraction == 1.0

@@ -41,6 +41,7 @@ def test_the_bench_offers_stable_links_to_its_ptys(bench):
     ("servo 1 hardware-error 0", lambda b: b.bus.servo_state(1)["hardware_error"] == 0),
     ("servo 1 torque-off", lambda b: not b.bus.servo_state(1)["torque_enabled"]),
     ("servo 1 brown-out 0", lambda b: b.bus.register(1, "Torque Enable") == 0),
+    ("servo 1 glitch 2000 3", lambda b: True),  # what a read then answers: dxlsim's own test
     ("sensor saturate on", lambda b: b.sensor.saturated),
     ("sensor saturate off", lambda b: not b.sensor.saturated),
     ("sensor silence on", lambda b: b.sensor.silent),
@@ -63,6 +64,8 @@ def test_each_command_reaches_the_bench(bench, command, check):
     ("servo 9 torque-off", "no servo with ID 9"),
     ("servo 1 hardware-error 0x100", "within 0..255"),
     ("servo 1 brown-out 1e9", "within 0..60"),
+    ("servo 1 glitch 1e3", "must be an integer"),
+    ("servo 1 glitch 5 2000", "within 0..1000"),
     ("sensor saturate maybe", "sensor takes"),
     ("bus reboot", "unplug or replug"),
     ("launch missiles", "unknown command 'launch'"),

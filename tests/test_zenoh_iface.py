@@ -234,6 +234,37 @@ def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on(caplog):
     assert len(lines) == 1 and "could not be sent" in lines[0]
 
 
+def test_a_flood_of_queries_is_answered_a_few_per_tick(monkeypatch):
+    """A poll answers at most MAX_QUERIES_PER_POLL queries per key; the rest wait for the next
+    tick, so the state still goes out between them."""
+    from admittance.daemon import zenoh_iface
+
+    class Query:
+        payload, key_expr = None, "k/params"
+
+        def reply(self, *args, **kwargs):
+            pass
+
+        def drop(self):
+            pass
+
+    class Channel:
+        def __init__(self):
+            self.queue = [Query() for _ in range(3 * zenoh_iface.MAX_QUERIES_PER_POLL + 1)]
+
+        def try_recv(self):
+            return self.queue.pop() if self.queue else None
+
+    iface = DaemonInterface.__new__(DaemonInterface)
+    iface._log = RateLimitedLog(logging.getLogger("test.flood"))
+    iface._codec, iface._handler = Codec("json"), FakeHandler()
+    iface._queryables = {"k/params": (Channel(), iface._answer_params)}
+    iface.queries = iface.query_errors = 0
+    iface.prefix = "k"
+    polls = [iface.poll() for _ in range(5)]
+    assert polls == [zenoh_iface.MAX_QUERIES_PER_POLL] * 3 + [1, 0]
+
+
 def test_router_with_a_malformed_endpoint_is_one_line(capsys):
     """Zenoh refuses the endpoint while the configuration is built; that is a one-line error too."""
     from admittance.cli import main

@@ -189,8 +189,11 @@ def test_the_acl_denies_everything_but_reads_and_operator_commands():
     rules = {r["id"]: r for r in acl["rules"]}
     assert "query" in rules["command"]["messages"] and rules["command"]["key_exprs"] == ["lab/**"]
     assert "query" not in rules["read"]["messages"] and "@ros2_lv/**" in rules["read"]["key_exprs"]
+    assert "put" not in rules["read"]["messages"] and rules["receive"]["flows"] == ["egress"]
+    assert rules["publish"]["flows"] == ["ingress"] and "put" in rules["publish"]["messages"]
     policies = {tuple(p["rules"]): p["subjects"] for p in acl["policies"]}
-    assert policies[("command",)] == ["operator-users", "operator-certificates"]
+    assert policies[("command", "publish")] == ["operator-users", "operator-certificates"]
+    assert "publish" not in policies[("read", "receive", "ros2-graph")]
 
 
 @pytest.mark.parametrize("keys, message", [

@@ -103,7 +103,9 @@ class Ecosystem:
             if view is not None:
                 self.views.remove(view)
             elif what == "session.mcap":
-                self.mcap = None
+                failed, self.mcap = self.mcap, None
+                with contextlib.suppress(Exception):
+                    failed.close()  # the summary if it still fits; the file closed either way
 
     def _close_mcap(self) -> None:
         if self.mcap is not None:

@@ -196,6 +196,10 @@ class McapRecorder:
         self._fh.flush()
 
     def close(self) -> None:
-        """The summary and index at the end: a seeking reader can then open it too."""
-        self._writer.finish()
-        self._fh.close()
+        """The summary and index at the end: a seeking reader can then open it too. The file is
+        closed even when the summary cannot be written (a full disk): what reached it is still
+        read back by a streaming reader (admittance.ident.loaders.read_recording)."""
+        try:
+            self._writer.finish()
+        finally:
+            self._fh.close()

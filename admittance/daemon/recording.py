@@ -51,8 +51,12 @@ therefore declares a negligible point mass (1 mg at 1 mm: 1e-12 kg·m², 1e-8 N�
 `identify` fits in SI units and its output can be loaded back as a joint's ``params``:
 record → identify → reload.
 
-Rows are appended as they are drained from the loop and flushed each batch, so a session cut
-short (power loss, SIGKILL) still leaves a readable dataset.
+Rows are appended as they are drained from the loop and written through each batch (an
+unbuffered file: a batch's bytes reach the OS in one write), so a session cut short (power
+loss, SIGKILL) still leaves a readable dataset. A write that fails (a full disk, a quota, a
+pulled USB stick) cuts the file back to its last whole row and raises ``OSError``: the
+supervisor then stops the recording with one line (:meth:`Recorder.abort`) and the loop runs on;
+what was written stays a readable dataset.
 
 Faults: a row needs the servo's measured angle, so while a fault keeps the servo from being
 read (the bus unplugged, a servo rebooting or browned out) there are no rows. Such a *gap*
@@ -68,9 +72,11 @@ row), and ``session.mcap`` holds every cycle of the gap, marked. A trial shorter
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, BinaryIO
 
 import numpy as np
 import tomli_w
@@ -125,8 +131,8 @@ class Recorder:
         self._segment_rows: dict[int, int] = {}
         self._segment_start: dict[int, float] = {}
         self._segment_faults: dict[int, int] = {}
-        self._files: dict[int, TextIO] = {}
-        self._writers: dict[int, Any] = {}
+        self._files: dict[int, BinaryIO] = {}
+        self.stopped = False  # by abort(): a write failed; nothing more is written
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -137,18 +143,31 @@ class Recorder:
     def _open_segment(self, joint_id: int, t: float) -> None:
         name = f"joint{joint_id}_{len(self._segments[joint_id]):03d}.csv"
         try:
-            fh = (self.folder / name).open("w", newline="")
+            fh = (self.folder / name).open("wb", buffering=0)
         except OSError as exc:
             raise ConfigError(f"record: cannot write into {self.folder} ({exc.strerror})") from None
         self._files[joint_id] = fh
-        self._writers[joint_id] = csv.writer(fh)
-        self._writers[joint_id].writerow(COLUMNS)
         self._segments[joint_id].append(name)
         self._entries[joint_id].append(dict(self._targets[joint_id]))
         self._segment_rows[joint_id] = 0
         self._segment_start[joint_id] = t
         self._segment_faults[joint_id] = 0
+        self._append_bytes(joint_id, csv_text([COLUMNS]))
         self._write_manifest()
+
+    def _append_bytes(self, joint_id: int, data: bytes) -> None:
+        """All of ``data`` at the end of the joint's file, or none of it: a failed write (ENOSPC)
+        cuts the file back to where it was, so it ends at a whole row, and raises."""
+        fh = self._files[joint_id]
+        start = fh.tell()
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[fh.write(view):]
+        except OSError:
+            with contextlib.suppress(OSError):
+                fh.truncate(start)
+            raise
 
     def _write_manifest(self) -> None:
         trials = [{"file": name, "bob_distance": NEGLIGIBLE_BOB_DISTANCE, "joint_id": jid, "motor": self.models[jid],
@@ -168,12 +187,18 @@ class Recorder:
         if self.dropped:
             doc["dropped"] = self.dropped
         tmp = self.folder / "manifest.toml.tmp"
-        tmp.write_text(tomli_w.dumps(doc))
+        try:
+            tmp.write_text(tomli_w.dumps(doc))
+        except OSError:
+            tmp.unlink(missing_ok=True)  # the last whole manifest stays
+            raise
         tmp.replace(self.folder / "manifest.toml")  # readers never see half a manifest
 
     def set_targets(self, params: dict[str, float]) -> None:
         """The loop's parameters (its flat ``params()``), recorded with each segment: a segment
         opened after this carries them, one open now is marked ``params_changed``."""
+        if self.stopped:
+            return
         for joint_id in self.models:
             values = {key: float(params[f"{joint_id}.{key}"]) for key in TARGET_KEYS if f"{joint_id}.{key}" in params}
             if values == self._targets[joint_id]:
@@ -194,6 +219,8 @@ class Recorder:
         joint's fault bits), both 0 when absent. The batch's last cycle waits for the next batch
         (see the module doc).
         """
+        if self.stopped:
+            return 0
         columns = self._with_next_tau(joint_id, columns)
         return self._write(joint_id, columns) if columns is not None else 0
 
@@ -240,8 +267,7 @@ class Recorder:
 
     def _write_rows(self, joint_id: int, rows: dict[str, np.ndarray]) -> int:
         table = np.column_stack([rows[c] for c in COLUMNS])
-        self._writers[joint_id].writerows(table.tolist())
-        self._files[joint_id].flush()
+        self._append_bytes(joint_id, csv_text(table.tolist()))
         self.rows[joint_id] += len(table)
         self._segment_faults[joint_id] |= int(np.bitwise_or.reduce(rows["fault"].astype(np.int64)))
         self._segment_rows[joint_id] += len(table)
@@ -274,6 +300,8 @@ class Recorder:
         """Write the held-back cycles (with their own torque: nothing follows them), close the
         files; a last segment too short to fit on is dropped (file and manifest entry). A run
         that ended inside a gap lists it up to its last cycle."""
+        if self.stopped:
+            return
         for joint_id, pending in list(self._pending.items()):
             self._write(joint_id, pending)
         self._pending.clear()
@@ -288,6 +316,24 @@ class Recorder:
             if self._segment_rows[joint_id] < MIN_ROWS and len(self._segments[joint_id]) > 1:
                 self._drop_segment(joint_id)
         self._write_manifest()
+
+    def abort(self) -> None:
+        """Stop after a write failed: close the files (each ends at a whole row) and write what the
+        manifest can still say; never raises (the disk may still be full)."""
+        self.stopped = True
+        self._pending.clear()
+        for fh in self._files.values():
+            with contextlib.suppress(OSError):
+                fh.close()
+        with contextlib.suppress(OSError):
+            self._write_manifest()
+
+
+def csv_text(rows: list) -> bytes:
+    """Rows as CSV bytes (the csv module's quoting, "\\r\\n" line ends as before)."""
+    buffer = io.StringIO(newline="")
+    csv.writer(buffer).writerows(rows)
+    return buffer.getvalue().encode()
 
 
 def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

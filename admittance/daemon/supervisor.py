@@ -72,6 +72,7 @@ STATS_PERIOD_S = 1.0
 FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
 TARE_MIN_RATE_HZ = 30.0
 WARNING_BURST = 5  # distinct warnings from one source (the loop, the bench) per 10 s, then held back
+PARAMS_LOG_BURST = 10  # "params set" lines per 10 s; a flood of sets is then counted, not logged each
 STALL_MS = 0.25  # the simulated bus thread's stall threshold (rtcore/dxlsim/src/server.rs, STALL)
 
 log = logging.getLogger(__name__)
@@ -147,6 +148,7 @@ class Supervisor:
         self._t0 = 0.0
         self._warned: set[str] = set()
         self._warn_limit = RateLimitedLog(log, burst=WARNING_BURST)
+        self._params_log = RateLimitedLog(log, burst=PARAMS_LOG_BURST)
         self.watchdog: Watchdog | None = None
         self.faults = FaultWatch(cfg, self._event)
         self.fault_stop: FaultStop | None = None
@@ -245,7 +247,7 @@ class Supervisor:
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         if self.recorder is not None:
             self.recorder.t0 = self._t0
-            self.recorder.set_targets(self.loop.params())  # what the first segment runs
+            self._record(lambda recorder: recorder.set_targets(self.loop.params()))  # what the first segment runs
         try:
             if self._simulated_bus is not None:
                 self.loop.start(simulated_bus=self._simulated_bus)
@@ -276,7 +278,19 @@ class Supervisor:
         self.recorder = Recorder(folder, joints, measured_theta=lp.sync_read_divisor > 0, t0=0.0,
                                  segment_s=self.cfg.record.segment_s, joint_info=self.joint_info(),
                                  gap_s=gap_seconds(lp.rate_hz, lp.sync_read_divisor), period_s=1.0 / lp.rate_hz)
-        stack.callback(self.recorder.close)
+        stack.callback(self._record, lambda recorder: recorder.close())
+
+    def _record(self, write: Callable[[Recorder], Any]) -> None:
+        """One write to the CSV recording. A write that fails (a full disk) stops the recording
+        with one line; what was written stays readable, and the loop runs on."""
+        if self.recorder is None or self.recorder.stopped:
+            return
+        try:
+            write(self.recorder)
+        except OSError as exc:
+            self.recorder.abort()
+            self._event(f"recording stopped: cannot write into {self.recorder.folder} ({exc.strerror or exc}); "
+                        "what was written stays readable (each CSV ends at its last whole row); the loop runs on")
 
     def joint_info(self) -> dict[int, dict]:
         """What a recording needs to be judged later (`admittance fidelity`): each joint's plant
@@ -401,9 +415,8 @@ class Supervisor:
         self.rendering.update(records)
         if self.recorder is not None:
             by_joint = telemetry.columns_by_joint(records, self.cfg)
-            for joint_id, columns in by_joint.items():
-                self.recorder.append(joint_id, columns)
-            self.ecosystem.record_cycles(by_joint)
+            self._record(lambda recorder: [recorder.append(jid, columns) for jid, columns in by_joint.items()])
+            self.ecosystem.record_cycles(by_joint)  # on, whatever became of the CSVs
         return telemetry.latest_state(records, self.cfg, self.rendering)
 
     def _publish_stats(self) -> None:
@@ -454,9 +467,8 @@ class Supervisor:
             return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            log.info("params set: %s", clip(json.dumps(request, sort_keys=True), 400))
-            if self.recorder is not None:
-                self.recorder.set_targets(self.loop.params())
+            self._params_log("params", f"params set: {clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
+            self._record(lambda recorder: recorder.set_targets(self.loop.params()))
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 

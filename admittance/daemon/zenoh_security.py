@@ -10,9 +10,12 @@ into the Zenoh configuration entries they stand for (docs/zenoh.md, docs/lab-net
   certificate too (mutual TLS), whose common name then identifies them.
 - ``operators``: access control. Two roles: *operators* (the listed user names or certificate
   common names) may send commands, i.e. queries on ``<prefix>/**`` (params, tare and any later
-  command key), and serve them; *everyone* authenticated may read: publications, subscriptions
-  and liveliness (state, stats, alive, the ROS 2 topics and ``@ros2_lv`` tokens). Anything else
-  is denied. A command is a query, so a reader cannot even see the queryables.
+  command key), serve them, and publish (state, stats, the ``alive`` token: a daemon's own
+  login is an operator); *everyone* authenticated may read: subscribe, and receive what is
+  published (state, stats, alive, the ROS 2 topics and ``@ros2_lv`` tokens), and announce its
+  own ROS 2 node (``@ros2_lv`` tokens). Anything else is denied: a reader can neither see the
+  queryables (a command is a query) nor publish a forged state that other readers would take for
+  the daemon's.
 
 The check is made where the link ends: a daemon enforces it on sessions that connect to it
 directly; behind a router, the router holds the ACL (its operators include the daemons' own
@@ -28,12 +31,15 @@ from typing import Any
 
 from admittance.errors import ConfigError
 
-READ_MESSAGES = ("put", "delete", "declare_subscriber", "liveliness_token", "declare_liveliness_subscriber",
-                 "liveliness_query")
+# What a reader may send (ingress) and receive (egress): subscriptions and liveliness queries.
+SUBSCRIBE_MESSAGES = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
+# What is published: a reader receives it (egress only), an operator (a daemon) sends it too.
+PUBLISH_MESSAGES = ("put", "delete", "liveliness_token")
 COMMAND_MESSAGES = ("query", "declare_queryable", "reply")
 # `**` never matches a chunk that starts with `@` (Zenoh's verbatim chunks), so the ROS 2 graph's
 # liveliness tokens are named explicitly.
 READ_KEYS = ("**", "@ros2_lv/**")
+ROS2_GRAPH_KEYS = ("@ros2_lv/**",)
 MAX_PASSWORD_BYTES = 4096
 
 
@@ -73,14 +79,20 @@ def _tls_entries(zen: Any, base: Path) -> dict[str, Any]:
 
 
 def access_control(prefixes: list[str], operators: list[str]) -> dict[str, Any]:
-    """The ACL: operators may query (command) under each prefix; everyone may read."""
+    """The ACL: operators may query (command) under each prefix and publish; everyone may read."""
     command_keys = [f"{p}/**" for p in prefixes]
     return {
         "enabled": True,
         "default_permission": "deny",
         "rules": [
             {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
-             "messages": list(READ_MESSAGES), "key_exprs": list(READ_KEYS)},
+             "messages": list(SUBSCRIBE_MESSAGES), "key_exprs": list(READ_KEYS)},
+            {"id": "receive", "permission": "allow", "flows": ["egress"],
+             "messages": list(PUBLISH_MESSAGES), "key_exprs": list(READ_KEYS)},
+            {"id": "ros2-graph", "permission": "allow", "flows": ["ingress"],
+             "messages": ["liveliness_token"], "key_exprs": list(ROS2_GRAPH_KEYS)},
+            {"id": "publish", "permission": "allow", "flows": ["ingress"],
+             "messages": list(PUBLISH_MESSAGES), "key_exprs": list(READ_KEYS)},
             {"id": "command", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": list(COMMAND_MESSAGES), "key_exprs": command_keys},
         ],
@@ -92,8 +104,8 @@ def access_control(prefixes: list[str], operators: list[str]) -> dict[str, Any]:
             {"id": "anyone"},
         ],
         "policies": [
-            {"rules": ["command"], "subjects": ["operator-users", "operator-certificates"]},
-            {"rules": ["read"], "subjects": ["anyone"]},
+            {"rules": ["command", "publish"], "subjects": ["operator-users", "operator-certificates"]},
+            {"rules": ["read", "receive", "ros2-graph"], "subjects": ["anyone"]},
         ],
     }
 

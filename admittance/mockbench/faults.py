@@ -4,7 +4,7 @@ A command is one line of words (docs/mock-bench.md has the table)::
 
     bus unplug | bus replug
     servo ID hardware-error BITS      (P2 Hardware Error Status layout; 0 clears)
-    servo ID torque-off | servo ID brown-out SECONDS | servo ID state
+    servo ID torque-off | servo ID brown-out SECONDS | servo ID glitch TICKS [EVERY] | servo ID state
     sensor unplug | sensor replug
     sensor silence on|off | sensor saturate on|off | sensor status BITS
     sensor garbage N_BYTES | sensor corrupt N_FRAMES
@@ -73,7 +73,8 @@ def _bus(args: list[str]) -> Action:
 
 def _servo(args: list[str]) -> Action:
     if not args:
-        raise ConfigError("servo takes an ID, then hardware-error BITS, torque-off, brown-out SECONDS or state")
+        raise ConfigError("servo takes an ID, then hardware-error BITS, torque-off, brown-out SECONDS, glitch TICKS [EVERY] "
+                          "or state")
     servo_id, rest = _int(args[0], "servo ID", 0, 252), args[1:]
     match rest:
         case ["hardware-error", bits]:
@@ -84,9 +85,14 @@ def _servo(args: list[str]) -> Action:
         case ["brown-out", seconds]:
             value = _seconds(seconds)
             return lambda bench: bench.bus.brown_out(servo_id, value)
+        case ["glitch", ticks, *every] if len(every) <= 1:
+            offset = _int(ticks, "glitch ticks", -(1 << 20), 1 << 20)
+            period = _int(every[0], "glitch every (reads)", 0, 1000) if every else 0
+            return lambda bench: bench.bus.glitch_position(servo_id, offset, period)
         case ["state"]:
             return lambda bench: {"state": bench.bus.servo_state(servo_id)}
-    raise ConfigError(f"servo {servo_id}: expected hardware-error BITS, torque-off, brown-out SECONDS or state, got {' '.join(rest)!r}")
+    raise ConfigError(f"servo {servo_id}: expected hardware-error BITS, torque-off, brown-out SECONDS, "
+                      f"glitch TICKS [EVERY] or state, got {' '.join(rest)!r}")
 
 
 def _sensor(args: list[str]) -> Action:

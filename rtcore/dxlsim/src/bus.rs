@@ -268,7 +268,7 @@ impl Bus {
     }
 
     fn read(&mut self, index: usize, address: u16, length: u16) -> Result<Vec<u8>, Fault> {
-        let result = self.servos[index].table.read(address, length).map(<[u8]>::to_vec);
+        let result = self.servos[index].read_table(address, length);
         self.count(result.map_err(Fault::from))
     }
 

@@ -87,6 +87,14 @@ pub struct Snapshot {
     pub silent: bool,
 }
 
+/// An injected encoder glitch (`Servo::glitch_position`).
+#[derive(Debug, Clone, Copy)]
+struct Glitch {
+    offset: i64,
+    every: u32,
+    since: u32,
+}
+
 pub struct Servo {
     pub spec: ServoSpec,
     pub table: ControlTable,
@@ -116,6 +124,9 @@ pub struct Servo {
     silent_until: f64,
     /// Seconds the motor has stalled at its duty limit (the overload detector).
     stalled_s: f64,
+    /// An injected encoder glitch: ticks added, every how many reads of Present Position (0:
+    /// the next one only), and the reads since the last glitched one.
+    glitch: Option<Glitch>,
 }
 
 impl Servo {
@@ -149,6 +160,7 @@ impl Servo {
             hand: None,
             silent_until: 0.0,
             stalled_s: 0.0,
+            glitch: None,
         };
         servo.publish();
         servo.hold_present_position();
@@ -290,6 +302,41 @@ impl Servo {
         self.tick_offset -= 4096 * tick.div_euclid(4096);
         self.reset_ram();
         self.silent_until = self.time + seconds.max(0.0);
+    }
+
+    /// An encoder glitch: a read of Present Position reports `offset` ticks more than the horn
+    /// is at (a loose encoder, noise that passed the CRC): the next read only (`every` 0), or
+    /// the next and then every `every`-th read until cleared (offset 0). The horn itself is
+    /// untouched.
+    pub fn glitch_position(&mut self, offset: i64, every: u32) {
+        self.glitch = (offset != 0).then_some(Glitch { offset, every, since: every.saturating_sub(1) });
+    }
+
+    /// The control table's `len` bytes at `address`, as a READ or SYNC_READ answers them: a
+    /// pending encoder glitch is added to Present Position when the read covers it.
+    pub fn read_table(&mut self, address: u16, len: u16) -> Result<Vec<u8>, TableError> {
+        let mut bytes = self.table.read(address, len)?.to_vec();
+        let item = self.reg.present_position.map(|k| &self.table.items()[k]);
+        let (Some(item), Some(glitch)) = (item, self.glitch.as_mut()) else { return Ok(bytes) };
+        let start = usize::from(item.address.wrapping_sub(address));
+        if item.address < address || start + usize::from(item.size) > bytes.len() {
+            return Ok(bytes);
+        }
+        glitch.since += 1;
+        if glitch.since < glitch.every.max(1) {
+            return Ok(bytes);
+        }
+        glitch.since = 0;
+        let offset = glitch.offset;
+        if glitch.every == 0 {
+            self.glitch = None;
+        }
+        let field = &mut bytes[start..start + usize::from(item.size)];
+        let mut value = [0u8; 8];
+        value[..field.len()].copy_from_slice(field);
+        let glitched = (i64::from_le_bytes(value) + offset).to_le_bytes();
+        field.copy_from_slice(&glitched[..field.len()]);
+        Ok(bytes)
     }
 
     /// Torque Enable cleared with no error bit: torque found off (another client's write, a
@@ -622,6 +669,27 @@ mod tests {
 
     fn servo(bus: &mut Bus) -> &mut Servo {
         bus.servo_mut(1).unwrap()
+    }
+
+    #[test]
+    fn a_glitch_offsets_the_reads_of_present_position_it_is_armed_for_and_no_other() {
+        let mut bus = bus_with(Protocol::V2, "MX-64", Load::default(), 0.0);
+        let s = servo(&mut bus);
+        let item = s.table.item("Present Position").unwrap().clone();
+        let (address, size) = (item.address, u16::from(item.size));
+        let read = |s: &mut Servo| i32::from_le_bytes(s.read_table(address, size).unwrap().try_into().unwrap());
+        let truth = read(s);
+        s.glitch_position(2000, 0);
+        assert_eq!(read(s), truth + 2000, "the next read only");
+        assert_eq!(read(s), truth);
+        s.glitch_position(-700, 3);
+        let reads: Vec<i32> = (0..6).map(|_| read(s)).collect();
+        assert_eq!(reads, [truth - 700, truth, truth, truth - 700, truth, truth], "the next, then every third");
+        s.glitch_position(0, 0);
+        assert!((0..4).all(|_| read(s) == truth), "cleared");
+        // A read that does not cover Present Position is never touched.
+        s.glitch_position(2000, 1);
+        assert_eq!(s.read_table(address - 4, 4).unwrap(), s.table.read(address - 4, 4).unwrap());
     }
 
     fn run(servo: &mut Servo, seconds: f64) {

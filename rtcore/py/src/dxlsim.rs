@@ -293,6 +293,16 @@ impl PyMockBus {
         self.with_servo(py, id, |s| s.brown_out(seconds))
     }
 
+    /// An encoder glitch: a read of Present Position reports `offset` ticks more, the next one
+    /// only (`every` 0) or every `every`-th read until cleared (`offset` 0).
+    #[pyo3(signature = (id, offset, every=0))]
+    fn glitch_position(&self, py: Python<'_>, id: u8, offset: i64, every: u32) -> PyResult<()> {
+        if offset.abs() > 1 << 20 || every > 1000 {
+            return Err(config_error(py, format!("a glitch is at most ±{} ticks, every 0..=1000 reads", 1 << 20)));
+        }
+        self.with_servo(py, id, |s| s.glitch_position(offset, every))
+    }
+
     /// Torque Enable cleared with no error bit (torque found off).
     fn torque_off(&self, py: Python<'_>, id: u8) -> PyResult<()> {
         self.with_servo(py, id, |s| s.torque_off())

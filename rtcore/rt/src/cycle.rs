@@ -177,6 +177,7 @@ impl Controller {
         let mut lowpass = LowPass::default();
         lowpass.configure(p.sensor.lowpass_hz, h);
         parts.shared.publish_bias(&p.bias);
+        joints.iter().enumerate().for_each(|(k, slot)| parts.shared.publish_limits(k, &slot.limits));
         let recovery = Recovery::new(joints.len(), FaultPolicy::default(), parts.bus.protocol() == dxl::Protocol::V2, true);
         Controller {
             h,
@@ -390,10 +391,11 @@ impl Controller {
             return;
         }
         let p = self.params.read();
-        for (slot, jp) in self.joints.iter_mut().zip(&p.joints) {
+        for (k, (slot, jp)) in self.joints.iter_mut().zip(&p.joints).enumerate() {
             slot.ramp_from = slot.gains;
             slot.ramp_to = jp.gains;
             slot.limits = jp.limits;
+            self.shared.publish_limits(k, &slot.limits);
             slot.compensation.retarget(jp.servo, jp.compensation);
             slot.passivity.retarget(jp.passivity);
         }

@@ -175,6 +175,55 @@ fn a_parameter_set_ramps_without_a_jump() {
     assert_eq!(*inertias.last().unwrap(), 0.2);
 }
 
+/// A live set's limits, narrowed and widened, position and velocity: the loop adopts them at
+/// the next cycle (the goal never leaves the adopted range; the speed never exceeds the adopted
+/// maximum), and what it adopted is what `Shared` (so `params()`) reports.
+#[test]
+fn live_limits_are_adopted_narrowed_and_widened_and_reported() {
+    let tick = |theta: f64| 2048 + (theta * 4096.0 / std::f64::consts::TAU).round() as i64;
+    let mut start = free_joint();
+    start.ramp_time_s = 0.0;
+    let mut r = started(start.clone(), &[(1, 2048)]);
+    let push = 4.0; // N: 0.4 N·m on 0.02 kg·m², 20 rad/s²
+    let mut run = |r: &mut Rig, set: Option<LoopParams>, cycles: usize| {
+        if let Some(set) = set {
+            r.params.write(set);
+        }
+        (0..cycles).map(|_| r.cycle_with(Some(push))).collect::<Vec<Record>>()
+    };
+    run(&mut r, None, 100); // moving: ω ≈ 2 rad/s, θ ≈ 0.1
+    let mut narrow = start.clone();
+    narrow.joints[0].limits.position_max = 0.3;
+    narrow.joints[0].limits.velocity_max = 0.5;
+    let narrowed = run(&mut r, Some(narrow.clone()), 1_000);
+    assert_eq!(r.shared.adopted_limits(0), Some(narrow.joints[0].limits), "reported as adopted");
+    assert!(narrowed.iter().all(|rec| rec.omega <= 0.5 + 1e-12), "speed above the narrowed velocity_max");
+    assert!(narrowed.iter().all(|rec| rec.goal_tick <= tick(0.3) && rec.theta <= 0.3 + 1e-12));
+    assert_eq!(narrowed.last().unwrap().goal_tick, tick(0.3), "the hand pushes the joint to the narrowed limit");
+
+    let mut wide = narrow.clone();
+    wide.joints[0].limits.position_max = 0.6;
+    wide.joints[0].limits.velocity_max = 1e3;
+    let widened = run(&mut r, Some(wide.clone()), 1_000);
+    assert_eq!(r.shared.adopted_limits(0), Some(wide.joints[0].limits));
+    assert!(widened.iter().any(|rec| rec.omega > 0.5), "the widened velocity_max is used");
+    assert!(widened.iter().all(|rec| rec.goal_tick <= tick(0.6)));
+    assert_eq!(widened.last().unwrap().goal_tick, tick(0.6), "and the widened position_max");
+
+    // Narrowed below where the joint is: it stays where it is (no jump), never moves further out,
+    // and once pushed back inside it stays inside.
+    let mut below = wide.clone();
+    below.joints[0].limits.position_max = 0.4;
+    r.params.write(below.clone());
+    let held = (0..200).map(|_| r.cycle_with(Some(push))).collect::<Vec<Record>>();
+    assert!(held.iter().all(|rec| rec.goal_tick <= tick(0.6)), "never further out");
+    assert_eq!(r.shared.adopted_limits(0), Some(below.joints[0].limits));
+    let back = (0..1_000).map(|_| r.cycle_with(Some(-push))).collect::<Vec<Record>>();
+    let inside = back.iter().position(|rec| rec.theta <= 0.4).expect("pushed back inside");
+    let again = (0..1_000).map(|_| r.cycle_with(Some(push))).collect::<Vec<Record>>();
+    assert!(back[inside..].iter().chain(&again).all(|rec| rec.goal_tick <= tick(0.4)));
+}
+
 #[test]
 fn a_tare_removes_the_bias_it_measured() {
     let mut r = rig(free_joint(), &[(1, 2048)]);

@@ -281,9 +281,21 @@ impl LoopHandle {
     }
 
     /// The accepted parameters (the gains' ramp targets), with the bias the loop uses now.
+    /// The parameters as the loop runs them: the last accepted set, with the bias the loop
+    /// subtracts and, while it runs, each joint's limits as the loop adopted them (a set
+    /// accepted but not yet adopted shows its old limits). A loop not started runs nothing yet:
+    /// it adopts the accepted set as it starts.
     pub fn params(&self) -> LoopParams {
         let mut p = self.params.lock().map(|w| w.current.clone()).unwrap_or_else(|e| e.into_inner().current.clone());
         p.bias = self.shared.bias();
+        if !self.running() {
+            return p;
+        }
+        for (k, joint) in p.joints.iter_mut().enumerate() {
+            if let Some(limits) = self.shared.adopted_limits(k) {
+                joint.limits = limits;
+            }
+        }
         p
     }
 
@@ -501,6 +513,23 @@ mod tests {
         assert_eq!(records.len() as u64, stats.cycles);
         let last = bus.written().pop().unwrap();
         assert_eq!(&last[8..12], &[64, 0, 1, 0], "SyncWrite of Torque Enable (address 64, 1 byte)");
+    }
+
+    #[test]
+    fn params_report_the_limits_a_running_loop_adopted() {
+        let h = handle(&[1]);
+        h.start_with(Box::new(MemoryTransport::new(true, &[(1, 2048)]))).unwrap();
+        let narrowed = [("1.limits.position_max".to_string(), ParamValue::Scalar(0.5))];
+        h.set_params(&narrowed).unwrap();
+        let sink = h.force_sink();
+        let adopted_by = h.heartbeat() + 5; // the loop adopts a set at its next cycle
+        let give_up = std::time::Instant::now() + Duration::from_secs(10);
+        while h.heartbeat() < adopted_by && std::time::Instant::now() < give_up {
+            sink.push(ForceSample { t_ns: monotonic_ns(), forces: [0.0; 6] });
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(h.params().joints[0].limits.position_max, 0.5, "what the loop adopted");
+        h.stop(StopPolicy::Hold).unwrap();
     }
 
     #[test]

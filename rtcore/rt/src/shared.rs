@@ -5,6 +5,7 @@
 //! block on. The warnings list is a `Mutex<Vec>` because only setup and shutdown (outside the
 //! cycle) write to it.
 use crate::fault::ExternalFaults;
+use crate::params::Limits;
 use crate::passivity::PassivityShared;
 use crate::recovery::{Phase, ServoCounts, ServoView, StopRequest};
 use crate::telemetry::LoopStats;
@@ -31,6 +32,9 @@ pub struct Shared {
     pub stop_request: AtomicU64,
     /// Faults raised from outside (the sensor's), marked in the records.
     pub external_faults: ExternalFaults,
+    /// Each joint's limits as the loop adopted them (`Limits` fields as f64 bits): what
+    /// `params()` reports, so a get shows what the loop enforces, not only what was accepted.
+    adopted_limits: Box<[[AtomicU64; 4]]>,
     /// Each joint's passivity guard (`Shared::for_joints`; empty otherwise).
     pub passivity: Box<[PassivityShared]>,
 }
@@ -116,9 +120,26 @@ impl Shared {
     pub fn for_joints(joints: usize) -> Shared {
         Shared {
             servos: (0..joints).map(|_| ServoShared::default()).collect(),
+            adopted_limits: (0..joints).map(|_| Default::default()).collect(),
             passivity: (0..joints).map(|_| PassivityShared::default()).collect(),
             ..Default::default()
         }
+    }
+
+    /// The loop adopted `limits` for joint `k` (a few relaxed stores; any thread reads them).
+    pub fn publish_limits(&self, k: usize, limits: &Limits) {
+        if let Some(slots) = self.adopted_limits.get(k) {
+            let values = [limits.position_min, limits.position_max, limits.velocity_max, limits.acceleration_max];
+            for (slot, v) in slots.iter().zip(values) {
+                slot.store(v.to_bits(), Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// Joint `k`'s limits as the loop adopted them, if it has published any.
+    pub fn adopted_limits(&self, k: usize) -> Option<Limits> {
+        let v = self.adopted_limits.get(k)?.each_ref().map(|slot| f64::from_bits(slot.load(Ordering::Relaxed)));
+        Some(Limits { position_min: v[0], position_max: v[1], velocity_max: v[2], acceleration_max: v[3] })
     }
 
     pub fn stop_request(&self) -> Option<StopRequest> {
