@@ -42,6 +42,9 @@ CASES = [
     # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.
     ("soak.py", ["--seconds", "6", "--fault-every", "1"], r"^fault_events\s+[1-9]"),
     ("syncwrite_cycle.py", [], r"^\s+12\s+4M \|"),
+    # One servo, one inertia, guard off and on (after a short identification of the servo model).
+    ("passivity.py", ["--servos", "lag 25 ms", "--factors", "1", "--seconds", "4", "--identify-seconds", "8",
+                      "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),
     ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3",
                         "--no-phase-lock-section"], r"^median Python/Rust at SCHED_OTHER: p99 period error"),
 ]

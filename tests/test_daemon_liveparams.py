@@ -72,6 +72,12 @@ OUT_OF_RANGE = [
     ({"servo_compensation": 1.01}, "servo_compensation"),
     ({"servo_compensation": -0.01}, "servo_compensation"),
     ({"1.servo_compensation": 0.5}, "servo_compensation"),  # in [0, 1], but the file has no [servo] model
+    ({"passivity_guard": 2}, "passivity_guard"),  # 0 or 1; the loop's envelope takes only those too
+    ({"2.passivity_guard": -1}, "passivity_guard"),
+    ({"passivity_margin": 0.5e-5}, "passivity_margin"),  # the schema's floor (1e-5 J); the loop's is 1e-9
+    ({"passivity_margin": 10.5}, "passivity_margin"),
+    ({"passivity_damping_max": 0.0}, "passivity_damping_max"),
+    ({"1.passivity_damping_max": 101.0}, "passivity_damping_max"),
 ]
 SCALAR_KEYS = sorted(set(config.JOINT_LIVE) | set(config.LOOP_LIVE) - {"bias"})
 NOT_FINITE = [({key: value}, key) for key in SCALAR_KEYS for value in (NAN, INF, -INF)] + [

@@ -103,7 +103,8 @@ def test_a_servo_model_turns_compensation_on_and_a_live_set_may_turn_it_off():
 def test_telemetry_dtype_is_the_documented_record():
     names = _rtcore.AdmittanceLoop.telemetry_dtype().names
     assert names == ("cycle", "t_ns", "deadline_ns", "id", "force", "torque", "theta", "omega", "goal_tick",
-                     "present_tick", "period_error_ns", "latency_ns", "fault", "mode")
+                     "present_tick", "period_error_ns", "latency_ns", "fault", "mode", "passivity_energy",
+                     "passivity_damping")
     assert len(_rtcore.AdmittanceLoop(config()).drain_telemetry()) == 0
 
 

@@ -99,6 +99,15 @@ class JointConfig:
     servo_compensation: float | None = key("float", None, lo=0.0, hi=1.0, live=True,
                                            doc="weight of the servo compensation: 1 = on, 0 = off; "
                                                "default 1 when `params` has a [servo] model, else 0")
+    # The passivity guard (docs/fidelity.md, "The passivity guard"; rtcore/rt/src/passivity.rs).
+    passivity_guard: float = key("float", 1.0, choices=(0.0, 1.0), live=True,
+                               doc="passivity guard: 1 = on (a damping added while the joint generates energy "
+                                   "beyond passivity_margin), 0 = off (observed only)")
+    passivity_margin: float = key("float", 0.002, unit="J", lo=1e-5, hi=10.0, live=True,
+                                  doc="energy the joint may give the hand beyond what the hand put in before "
+                                      "the guard acts")
+    passivity_damping_max: float = key("float", 1.0, unit="N·m·s/rad", lo=0.0, lo_open=True, hi=100.0, live=True,
+                                       doc="the most damping the passivity guard adds")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
     # Filled by resolve(): the parsed limits and the loaded parameter file.
     resolved_limits: LimitsConfig | None = dataclasses.field(default=None, metadata={"internal": True})

@@ -95,9 +95,10 @@ class FaultWatch:
         self._tell_servos(stats.get("servos", []))
         self._tell_bus(stats.get("bus", {}))
         self._tell_kinds(stats.get("faults", {}))
+        self._tell_passivity(stats.get("passivity", []))
         loop.set_sensor_faults(self._sensor_faults(sensor))
         self._last = {"servos": stats.get("servos", []), "bus": stats.get("bus", {}),
-                      "faults": stats.get("faults", {})}
+                      "faults": stats.get("faults", {}), "passivity": stats.get("passivity", [])}
         if self.stop is None:
             self.stop = self._loop_stop(loop) or self._sensor_stop(sensor)
             return self.stop
@@ -132,6 +133,20 @@ class FaultWatch:
             self.events("position_glitch", "fault: position_glitch (a servo's position read jumped farther than a "
                                            "horn can turn, or an anchoring read was not confirmed); the read is kept "
                                            "out of the model, the goal and the recording")
+
+    def _tell_passivity(self, guards: list[dict[str, Any]]) -> None:
+        """Once per episode of a joint's passivity guard (its ``episodes`` count grew): the joint
+        generated energy beyond its margin and the guard adds damping until it is passive again."""
+        before = {g["id"]: g for g in self._last.get("passivity", [])}
+        margins = {j.id: j.passivity_margin for j in self.cfg.joints}
+        for guard in guards:
+            jid = guard["id"]
+            if guard.get("episodes", 0) > before.get(jid, {}).get("episodes", 0):
+                self.events(f"passivity{jid}", f"joint {jid}: passivity guard acting: the joint gave the hand "
+                            f"{-guard.get('energy', 0.0):.3g} J more than the hand put in (margin "
+                            f"{margins.get(jid, float('nan')):g} J, [joints] passivity_margin), an oscillation or a "
+                            "virtual inertia too light for the hand; it adds damping (now "
+                            f"{guard.get('damping', 0.0):.3g} N·m·s/rad) until the joint is passive again")
 
     def _sensor_faults(self, sensor: dict[str, Any]) -> list[str]:
         now = self.clock()

@@ -82,6 +82,9 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> JointDict:
         "lever_arm": _resolved(joint, "lever_arm"),
         "servo": plant.get("servo"),
         "servo_compensation": _resolved(joint, "servo_compensation"),
+        "passivity_guard": joint.passivity_guard,
+        "passivity_margin": joint.passivity_margin,
+        "passivity_damping_max": joint.passivity_damping_max,
         "limits": {
             # Within what the tick range reaches: the configuration checked (or clipped) them.
             "position_min": _resolved(limits, "position_min", joint.id),

@@ -7,7 +7,7 @@ any MCAP reader open without our code:
 | channel | one message per | content |
 |---|---|---|
 | ``/session`` | session (first message) | joints (id, name, model), t0 (s, CLOCK_MONOTONIC of t = 0), segment_s, measured_theta, rate_hz, prefix |
-| ``/joint<ID>/cycle`` | loop cycle | t (s, monotonic: the cycle's deadline, the model's time), t_wake (s, monotonic: when the cycle woke, wrote the goal and read the servo), wall (s, Unix, of t), cycle, force (N), tau (N·m, the torque this cycle integrated), theta_model (rad), omega_model (rad/s), theta_goal (rad), theta_present (rad, null where not read), rendering_error (theta_present − theta_model, rad, null where not read), fault (the joint's fault bits), mode (the loop's mode code: 0 running, 1 holding, 2 faulted) |
+| ``/joint<ID>/cycle`` | loop cycle | t (s, monotonic: the cycle's deadline, the model's time), t_wake (s, monotonic: when the cycle woke, wrote the goal and read the servo), wall (s, Unix, of t), cycle, force (N), tau (N·m, the torque this cycle integrated), theta_model (rad), omega_model (rad/s), theta_goal (rad), theta_present (rad, null where not read), rendering_error (theta_present − theta_model, rad, null where not read), fault (the joint's fault bits), mode (the loop's mode code: 0 running, 1 holding, 2 faulted), passivity_energy (J, the passivity guard's balance), passivity_damping (N·m·s/rad, the damping it adds) |
 | ``/params`` | start and each accepted change | source ("start", "set"), request, params (every live value) |
 | ``/stats`` | about a second | the ``--stats-json`` object so far |
 | ``/events`` | tare, warning | text |
@@ -153,14 +153,17 @@ class McapRecorder:
                    columns["force"].tolist(), columns["tau"].tolist(), columns["theta_model"].tolist(),
                    columns["omega_model"].tolist(), columns["theta_goal"].tolist(), _nan_to_none(present),
                    _nan_to_none(error), columns["fault"].astype(np.int64).tolist(),
-                   columns["mode"].astype(np.int64).tolist())
+                   columns["mode"].astype(np.int64).tolist(), columns["passivity_energy"].tolist(),
+                   columns["passivity_damping"].tolist())
         topic = f"/joint{joint_id}/cycle"
-        for mono, t_wake, cycle, force, tau, theta, omega, goal, theta_present, rendering_error, fault, mode in rows:
+        for (mono, t_wake, cycle, force, tau, theta, omega, goal, theta_present, rendering_error, fault, mode, energy,
+             damping) in rows:
             wall = mono + wall_offset_ns
             self._log(topic, CYCLE_SCHEMA, {
                 "t": mono * 1e-9, "t_wake": t_wake, "wall": wall * 1e-9, "cycle": cycle, "force": force, "tau": tau,
                 "theta_model": theta, "omega_model": omega, "theta_goal": goal, "theta_present": theta_present,
-                "rendering_error": rendering_error, "fault": fault, "mode": mode}, mono, wall)
+                "rendering_error": rendering_error, "fault": fault, "mode": mode, "passivity_energy": energy,
+                "passivity_damping": damping}, mono, wall)
 
     def params(self, source: str, params: dict[str, Any], request: dict[str, Any] | None = None) -> None:
         self._log("/params", PARAMS_SCHEMA, {"source": source, "request": request or {}, "params": params},

@@ -41,6 +41,8 @@ class JointState(msgspec.Struct, omit_defaults=True):
     wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
     position: float | None = None  # rad, the measured angle of present_tick
     rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
+    passivity_energy: float | None = None  # J: the passivity guard's energy balance (< −margin: it acts)
+    passivity_damping: float | None = None  # N·m·s/rad: the damping the passivity guard adds now
 
 
 class State(msgspec.Struct):

@@ -46,7 +46,7 @@ STATE_STALE_S = 1.0  # the state comes at ≥ 50 Hz: a second without one is a s
 STATS_STALE_S = 3.0  # the stats come about once a second
 CLEAR = "\x1b[H\x1b[2J"
 # The parameters the monitor shows (the loop's gains and the compensation's weight); `get` has all.
-SHOWN_PARAMS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
+SHOWN_PARAMS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation", "passivity_guard")
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,8 @@ def joint_line(joint: dict[str, Any], units: Units = Units()) -> str:
             f"goal {joint['goal_tick']:>5}  present {present if present is not None else '-':>5}")
     if joint.get("rendering_rms") is not None:
         line += f"  {NAMES['rendering_rms']} {units.small_angle(joint['rendering_rms'])}"
+    if joint.get("passivity_damping"):
+        line += f"  PASSIVITY GUARD +{joint['passivity_damping']:.3g} N·m·s/rad"
     if joint.get("fault"):
         line += f"  FAULT {', '.join(fault_names(joint['fault']))}"
     return line
@@ -125,7 +127,19 @@ def stats_lines(stats: dict[str, Any], units: Units = Units()) -> list[str]:
         f"memory locked {'yes' if rt.get('memory_locked') else 'no'}",
         *rendering_line(stats, units),
         *fault_line(stats),
+        *passivity_line(stats),
     ]
+
+
+def passivity_line(stats: dict[str, Any]) -> list[str]:
+    """Each joint's passivity guard (docs/fidelity.md): its energy balance, the damping it adds
+    now and how often it acted, once there is anything to say."""
+    guards = [g for g in stats.get("passivity") or [] if g.get("episodes") or g.get("damping")]
+    if not guards:
+        return []
+    return ["passivity  " + "  ".join(f"joint {g['id']} {1e3 * g.get('energy', 0.0):+.1f} mJ "
+                                     f"+{g.get('damping', 0.0):.3g} N·m·s/rad {g.get('episodes', 0)}×"
+                                     for g in guards)]
 
 
 def params_lines(params: dict[str, Any]) -> list[str]:

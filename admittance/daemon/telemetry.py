@@ -53,6 +53,9 @@ def columns_by_joint(records: np.ndarray, cfg) -> dict[int, dict[str, np.ndarray
             "cycle": rows["cycle"].astype(float),
             "fault": rows["fault"].astype(float),
             "mode": rows["mode"].astype(float),  # the recorder's "held" (recording.held_cycles)
+            # The passivity guard: its energy balance (J) and the damping it adds (N·m·s/rad).
+            "passivity_energy": guard_column(rows, "passivity_energy"),
+            "passivity_damping": guard_column(rows, "passivity_damping"),
         }
     return out
 
@@ -96,6 +99,13 @@ class RenderingError:
         return {str(jid): math.sqrt(ms) for jid, ms in self._mean_square.items()}
 
 
+def guard_column(rows: np.ndarray, name: str) -> np.ndarray:
+    """A passivity guard column of the rows, zeros for rows from a loop without one (a test's fake)."""
+    if name in (rows.dtype.names or ()):
+        return rows[name].astype(float)
+    return np.zeros(len(rows))
+
+
 def joint_name(joint) -> str:
     return getattr(joint, "name", "") or f"joint{joint.id}"
 
@@ -124,6 +134,8 @@ def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = No
             wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
             position=None if present is None else float(tick_to_rad(present, joint)),
             rendering_rms=rendering.rms(joint.id) if rendering is not None else None,
+            passivity_energy=float(guard_column(rows[-1:], "passivity_energy")[0]),
+            passivity_damping=float(guard_column(rows[-1:], "passivity_damping")[0]),
         ))
     return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
 

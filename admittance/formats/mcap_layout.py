@@ -16,7 +16,7 @@ CYCLE_SCHEMA = {
     "properties": {"t": NUMBER, "t_wake": NUMBER, "wall": NUMBER, "cycle": {"type": "integer"}, "force": NUMBER,
                    "tau": NUMBER, "theta_model": NUMBER, "omega_model": NUMBER, "theta_goal": NUMBER,
                    "theta_present": NULLABLE, "rendering_error": NULLABLE, "fault": {"type": "integer"},
-                   "mode": {"type": "integer"}},
+                   "mode": {"type": "integer"}, "passivity_energy": NUMBER, "passivity_damping": NUMBER},
 }
 OBJECT = {"type": "object"}
 SESSION_SCHEMA = {"title": "admittance.Session", "type": "object",

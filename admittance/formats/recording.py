@@ -25,7 +25,7 @@ from admittance.formats.mcap_layout import MCAP_CYCLE_COLUMNS, MCAP_NAME
 from admittance.formats.trial import MIN_SAMPLES, Dataset, TrialData, check_series, load_geometry
 
 COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
-           "fault")
+           "fault", "passivity_energy", "passivity_damping")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
@@ -38,7 +38,8 @@ def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A batch's columns with the optional ones filled: ``t_wake`` = ``t``, ``mode`` and ``fault``
     0, none ``superseded``."""
     zeros = np.zeros(len(columns["t"]))
-    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, "superseded": zeros, **columns}
+    return {"t_wake": columns["t"], "mode": zeros, "fault": zeros, "superseded": zeros, "passivity_energy": zeros,
+            "passivity_damping": zeros, **columns}
 
 
 def with_next_cycle(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -131,7 +132,8 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
             "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
             "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
-            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float)}
+            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float),
+            "passivity_energy": columns["passivity_energy"], "passivity_damping": columns["passivity_damping"]}
     return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)
 
 

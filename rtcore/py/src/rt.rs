@@ -58,7 +58,7 @@ const FAULT_KEYS: [&str; 8] = [
     "horn_speed_max",
 ];
 
-const JOINT_KEYS: [&str; 20] = [
+const JOINT_KEYS: [&str; 23] = [
     "id",
     "model",
     "goal_address",
@@ -79,6 +79,9 @@ const JOINT_KEYS: [&str; 20] = [
     "limits",
     "servo",
     "servo_compensation",
+    "passivity_guard",
+    "passivity_margin",
+    "passivity_damping_max",
 ];
 
 const LIMIT_KEYS: [&str; 4] = ["position_min", "position_max", "velocity_max", "acceleration_max"];
@@ -151,6 +154,9 @@ fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult
     // On by default when the joint has a servo model.
     j.compensation = if j.servo.is_some() { 1.0 } else { 0.0 };
     set(d, "servo_compensation", &where_, &mut j.compensation)?;
+    set(d, "passivity_guard", &where_, &mut j.passivity.guard)?;
+    set(d, "passivity_margin", &where_, &mut j.passivity.margin)?;
+    set(d, "passivity_damping_max", &where_, &mut j.passivity.damping_max)?;
     Ok(j)
 }
 
@@ -434,7 +440,7 @@ impl PyAdmittanceLoop {
 
     /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads,
     /// bus_error_kinds: bus_errors by where they came from, faults: events per fault kind, and
-    /// mode: "running", "holding" or "faulted").
+    /// mode: "running", "holding" or "faulted", passivity: each joint's passivity guard).
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.stats();
         let d = PyDict::new(py);
@@ -467,6 +473,7 @@ impl PyAdmittanceLoop {
         rt.set_item("cpu", s.rt.cpu)?;
         d.set_item("rt", rt)?;
         d.set_item("servos", self.servos_list(py)?)?;
+        d.set_item("passivity", self.passivity_list(py)?)?;
         d.set_item("bus", self.link_dict(py)?)?;
         d.set_item("trigger", trigger_dict(py, &self.inner)?)?;
         Ok(d)
@@ -545,6 +552,23 @@ impl PyAdmittanceLoop {
             ] {
                 d.set_item(name, n)?;
             }
+            list.append(d)?;
+        }
+        Ok(list)
+    }
+
+    /// Per joint: its passivity guard's energy balance (J), the port's energy and the model's
+    /// dissipation since the start (J), the damping it adds now (N·m·s/rad) and its episodes.
+    fn passivity_list<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for (id, g) in self.inner.ids().iter().zip(self.inner.passivity()) {
+            let d = PyDict::new(py);
+            d.set_item("id", id)?;
+            d.set_item("energy", g.balance)?;
+            d.set_item("port_energy", g.port)?;
+            d.set_item("model_dissipated", g.model_dissipated)?;
+            d.set_item("damping", g.damping)?;
+            d.set_item("episodes", g.episodes)?;
             list.append(d)?;
         }
         Ok(list)

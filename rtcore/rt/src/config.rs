@@ -8,6 +8,7 @@
 use crate::bus::Registers;
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
+use crate::passivity::PassivityParams;
 use crate::params::{JointGains, JointParams, Limits, LoopParams, Reach, SensorParams};
 use crate::recovery::FaultPolicy;
 use crate::sched::RtRequest;
@@ -29,6 +30,8 @@ pub struct JointConfig {
     pub servo: Option<plant::servo::ServoModel>,
     /// Weight of the servo compensation in [0, 1]; needs `servo`.
     pub compensation: f64,
+    /// The passivity guard's settings (`passivity`).
+    pub passivity: PassivityParams,
 }
 
 impl JointConfig {
@@ -50,6 +53,7 @@ impl JointConfig {
             limits: Limits { position_min, position_max, velocity_max: 6.0, acceleration_max: 200.0 },
             servo: None,
             compensation: 0.0,
+            passivity: PassivityParams::default(),
         }
     }
 }
@@ -126,7 +130,13 @@ impl LoopConfig {
             joints: self
                 .joints
                 .iter()
-                .map(|j| JointParams { gains: j.gains, limits: j.limits, servo: j.servo, compensation: j.compensation })
+                .map(|j| JointParams {
+                    gains: j.gains,
+                    limits: j.limits,
+                    servo: j.servo,
+                    compensation: j.compensation,
+                    passivity: j.passivity,
+                })
                 .collect(),
             sensor: self.sensor,
             ramp_time_s: self.ramp_time_s,

@@ -17,6 +17,9 @@
 //!    envelope, or a compensated goal that is not finite, hold the joint at its last good state
 //!    with the goal it already has and raise `FaultKind::ModelStateInvalid` (see `fault`), so
 //!    nothing but a valid state ever becomes a goal.
+//!    4b. The passivity guard (`passivity`): each joint's port energy (the hand's torque times
+//!    the horn's motion between reads, what it dissipated forgotten over 1 s); while the joint generates
+//!    energy beyond the margin, a damping added to the model after each step.
 //! 5. `write_goals`: one SyncWrite of every goal tick; the latency of a new sample is measured
 //!    to the end of this write.
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
@@ -36,6 +39,7 @@ use crate::anchor::{AnchorRefusal, ReadCheck};
 use crate::bus::{BusError, BusErrorKind, JointBus, Transport};
 use crate::clock::Clock;
 use crate::compensation::Compensation;
+use crate::passivity::PassivityGuard;
 use crate::fault::{FaultKind, Faults, LoopMode};
 use crate::recovery::{Action, FaultPolicy, Recovery, StopRequest};
 use crate::filter::{deadband, LowPass, TareAverager};
@@ -76,6 +80,7 @@ struct JointSlot {
     /// Its position reads, each checked against what the horn could have done (`anchor`).
     reads: ReadCheck,
     compensation: Compensation,
+    passivity: PassivityGuard,
 }
 
 /// Reads the start takes to confirm every joint's position (two agreeing ones suffice).
@@ -166,6 +171,7 @@ impl Controller {
                 read_now: false,
                 reads: ReadCheck::default(),
                 compensation: Compensation::new(jp.servo, jp.compensation),
+                passivity: PassivityGuard::new(jp.passivity),
             })
             .collect::<Vec<_>>();
         let mut lowpass = LowPass::default();
@@ -391,6 +397,7 @@ impl Controller {
             slot.limits = jp.limits;
             self.shared.publish_limits(k, &slot.limits);
             slot.compensation.retarget(jp.servo, jp.compensation);
+            slot.passivity.retarget(jp.passivity);
         }
         self.ramp_progress = 0.0;
         self.ramp_time_s = p.ramp_time_s;
@@ -471,12 +478,18 @@ impl Controller {
             slot.faults = Faults::NONE;
             // The force is stale, the bus is gone, or the servo is being recovered: hold.
             let hold = stale || link_lost || self.recovery.holds(k);
+            // 4b. The passivity guard sees the last read of the horn and this cycle's torque.
+            let horn = slot.read_now.then(|| slot.wiring.ticks.theta_of(slot.present));
+            slot.passivity.observe(horn, slot.torque, &slot.state, &slot.gains, hold, h);
             let mut alpha = 0.0;
             if hold {
                 slot.state.omega = 0.0;
             } else {
                 for _ in 0..steps {
                     alpha = integrate(&mut slot.state, &slot.gains, &slot.limits, slot.torque, h);
+                    // Added to α: the compensation's inertial lead must see the damped model's
+                    // acceleration, not the τ/I of the undamped one that makes a light joint oscillate.
+                    alpha += slot.passivity.damp(&mut slot.state, slot.gains.inertia, h);
                 }
             }
             slot.compensation.advance(h, self.ramp_time_s);
@@ -578,6 +591,9 @@ impl Controller {
             if let (Some(view), Some(shared)) = (self.recovery.view(k), self.shared.servos.get(k)) {
                 shared.publish(&view);
             }
+            if let Some(shared) = self.shared.passivity.get(k) {
+                shared.publish(&slot.passivity.view());
+            }
         }
         self.shared.stop_request.store(StopRequest::encode(self.recovery.stop_request()), Ordering::Relaxed);
         let stats = &self.shared.stats;
@@ -585,6 +601,7 @@ impl Controller {
         let mode = LoopMode::of(active, self.holding);
         stats.faults.record(active, mode);
         for (slot, &goal) in self.joints.iter().zip(&self.goals) {
+            let guard = slot.passivity.view();
             let record = Record {
                 cycle: self.cycle,
                 t_ns: wake_ns,
@@ -600,6 +617,8 @@ impl Controller {
                 latency_ns,
                 fault: slot.faults.union(self.loop_faults).bits(),
                 mode: mode as i64,
+                passivity_energy: guard.balance,
+                passivity_damping: guard.damping,
             };
             if self.telemetry.push(record).is_err() {
                 LoopStats::add(&stats.telemetry_drops, 1);
@@ -683,3 +702,7 @@ pub(crate) mod tests;
 #[cfg(test)]
 #[path = "cycle_fault_tests.rs"]
 mod fault_tests;
+
+#[cfg(test)]
+#[path = "cycle_passivity_tests.rs"]
+mod passivity_tests;

@@ -350,6 +350,11 @@ impl LoopHandle {
         self.shared.servos.iter().map(|s| s.snapshot()).collect()
     }
 
+    /// Per joint: its passivity guard (`passivity`).
+    pub fn passivity(&self) -> Vec<crate::passivity::PassivityView> {
+        self.shared.passivity.iter().map(|s| s.snapshot()).collect()
+    }
+
     /// The bus link: (lost for how long in ns or None, losses, reconnects, reopen attempts,
     /// reopen failures, the last error).
     pub fn link(&self) -> LinkSnapshot {

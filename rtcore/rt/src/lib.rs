@@ -22,6 +22,7 @@
 //! - [`fault`]: the fault kinds, their bits and counters, and the loop's mode.
 //! - [`joint`]: one joint's torque, limited integration and goal tick.
 //! - [`compensation`]: the servo model inverted: the goal that makes the horn follow the model.
+//! - [`passivity`]: the passivity guard: the port's energy, and a damping while the joint generates.
 //! - [`bus`]: SyncWrite / SyncRead against a `Transport`.
 //! - [`telemetry`]: the per-cycle record and the shared statistics.
 //! - [`cycle`]: one cycle; [`runner`]: the paced loop; [`config`], [`handle`]: building,
@@ -36,6 +37,7 @@ pub mod filter;
 pub mod histogram;
 pub mod joint;
 pub mod params;
+pub mod passivity;
 pub mod sched;
 pub mod sensor;
 pub mod telemetry;

@@ -8,7 +8,8 @@
 //!
 //! Names are the configuration's keys: per joint `virtual_inertia`, `virtual_damping`,
 //! `virtual_coulomb`, `lever_arm`, `position_min`, `position_max`, `velocity_max`,
-//! `acceleration_max`, `servo_compensation` (bare = every joint, `"<id>.name"` = one joint, an
+//! `acceleration_max`, `servo_compensation`, `passivity_guard`, `passivity_margin`,
+//! `passivity_damping_max` (bare = every joint, `"<id>.name"` = one joint, an
 //! optional `limits.` before the limit names); loop-wide `deadband`, `lowpass_hz`,
 //! `stale_timeout_ms`, `ramp_time_s` and `bias` (6 numbers).
 //!
@@ -19,6 +20,7 @@
 //! makes it panic (`clamp` with a NaN or crossed bounds), divide by zero, or wind a goal past
 //! the servo's range.
 use plant::admittance::{check_stable, AdmittanceParams};
+use crate::passivity::PassivityParams;
 use plant::servo::ServoModel;
 
 /// The loop's own bounds on every parameter: numerical safety, not taste (see the module doc).
@@ -41,6 +43,8 @@ pub mod envelope {
     pub const STALE_TIMEOUT_MS_MAX: f64 = 10_000.0;
     /// s
     pub const RAMP_TIME_S_MAX: f64 = 60.0;
+    /// J: the passivity guard's margin.
+    pub const PASSIVITY_MARGIN: (f64, f64) = (1e-9, 1e3);
     /// N and N·m, per component
     pub const BIAS_MAX: f64 = 1e5;
 }
@@ -131,6 +135,8 @@ pub struct JointParams {
     pub servo: Option<ServoModel>,
     /// Weight of the servo compensation in [0, 1] (`servo_compensation`; needs `servo`).
     pub compensation: f64,
+    /// The passivity guard (`passivity_guard`, `passivity_margin`, `passivity_damping_max`).
+    pub passivity: PassivityParams,
 }
 
 /// Force conditioning shared by all joints.
@@ -163,7 +169,7 @@ pub enum ParamValue {
     Vector([f64; 6]),
 }
 
-const JOINT_KEYS: [&str; 9] = [
+const JOINT_KEYS: [&str; 12] = [
     "virtual_inertia",
     "virtual_damping",
     "virtual_coulomb",
@@ -173,6 +179,9 @@ const JOINT_KEYS: [&str; 9] = [
     "velocity_max",
     "acceleration_max",
     "servo_compensation",
+    "passivity_guard",
+    "passivity_margin",
+    "passivity_damping_max",
 ];
 const LOOP_KEYS: [&str; 5] = ["deadband", "lowpass_hz", "stale_timeout_ms", "ramp_time_s", "bias"];
 
@@ -192,6 +201,9 @@ fn joint_field<'a>(j: &'a mut JointParams, key: &str) -> Option<&'a mut f64> {
         "velocity_max" => &mut j.limits.velocity_max,
         "acceleration_max" => &mut j.limits.acceleration_max,
         "servo_compensation" => &mut j.compensation,
+        "passivity_guard" => &mut j.passivity.guard,
+        "passivity_margin" => &mut j.passivity.margin,
+        "passivity_damping_max" => &mut j.passivity.damping_max,
         _ => return None,
     })
 }
@@ -359,7 +371,15 @@ fn validate_joint(j: &JointParams, reach: &Reach, h: f64) -> Result<(), String> 
     }
     positive_up_to("velocity_max", l.velocity_max, VELOCITY_MAX)?;
     positive_up_to("acceleration_max", l.acceleration_max, ACCELERATION_MAX)?;
+    validate_passivity(&j.passivity)?;
     validate_compensation(j)
+}
+
+fn validate_passivity(p: &PassivityParams) -> Result<(), String> {
+    use envelope::*;
+    require(p.guard == 0.0 || p.guard == 1.0, "passivity_guard", p.guard, "0 (off) or 1 (on)")?;
+    within("passivity_margin", p.margin, PASSIVITY_MARGIN.0, PASSIVITY_MARGIN.1)?;
+    positive_up_to("passivity_damping_max", p.damping_max, DAMPING_MAX)
 }
 
 fn validate_compensation(j: &JointParams) -> Result<(), String> {
@@ -387,6 +407,7 @@ pub(crate) mod tests {
             limits: Limits { position_min: -3.0, position_max: 3.0, velocity_max: 10.0, acceleration_max: 1e3 },
             servo: None,
             compensation: 0.0,
+            passivity: PassivityParams::default(),
         }
     }
 
@@ -458,7 +479,12 @@ pub(crate) mod tests {
     #[test]
     fn the_envelope_bounds_every_value() {
         type Mutation = fn(&mut LoopParams);
-        let cases: [(&str, Mutation); 16] = [
+        let cases: [(&str, Mutation); 21] = [
+            ("passivity_guard", |p| p.joints[0].passivity.guard = 0.5),
+            ("passivity_guard", |p| p.joints[0].passivity.guard = f64::NAN),
+            ("passivity_margin", |p| p.joints[0].passivity.margin = 0.0),
+            ("passivity_margin", |p| p.joints[0].passivity.margin = f64::INFINITY),
+            ("passivity_damping_max", |p| p.joints[0].passivity.damping_max = -1.0),
             ("virtual_inertia", |p| p.joints[0].gains.inertia = 1e-20),
             ("virtual_inertia", |p| p.joints[0].gains.inertia = 1e300),
             ("virtual_damping", |p| p.joints[0].gains.damping = f64::INFINITY),

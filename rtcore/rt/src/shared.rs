@@ -6,6 +6,7 @@
 //! cycle) write to it.
 use crate::fault::ExternalFaults;
 use crate::params::Limits;
+use crate::passivity::PassivityShared;
 use crate::recovery::{Phase, ServoCounts, ServoView, StopRequest};
 use crate::telemetry::LoopStats;
 use crate::trigger::TriggerStats;
@@ -34,6 +35,8 @@ pub struct Shared {
     /// Each joint's limits as the loop adopted them (`Limits` fields as f64 bits): what
     /// `params()` reports, so a get shows what the loop enforces, not only what was accepted.
     adopted_limits: Box<[[AtomicU64; 4]]>,
+    /// Each joint's passivity guard (`Shared::for_joints`; empty otherwise).
+    pub passivity: Box<[PassivityShared]>,
 }
 
 /// The bus's port as the loop and its reopen helper see it.
@@ -118,6 +121,7 @@ impl Shared {
         Shared {
             servos: (0..joints).map(|_| ServoShared::default()).collect(),
             adopted_limits: (0..joints).map(|_| Default::default()).collect(),
+            passivity: (0..joints).map(|_| PassivityShared::default()).collect(),
             ..Default::default()
         }
     }

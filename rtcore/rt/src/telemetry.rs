@@ -44,10 +44,15 @@ pub struct Record {
     pub fault: u64,
     /// The loop's mode this cycle: `LoopMode` as a number (0 running, 1 holding, 2 faulted).
     pub mode: i64,
+    /// J: the passivity guard's windowed energy balance (`passivity`; < −margin: the joint
+    /// generated energy and the guard acts).
+    pub passivity_energy: f64,
+    /// N·m·s/rad: the damping the passivity guard adds to the model this cycle (0: none).
+    pub passivity_damping: f64,
 }
 
 /// The field names in layout order, each 8 bytes: (name, numpy type code).
-pub const RECORD_FIELDS: [(&str, &str); 14] = [
+pub const RECORD_FIELDS: [(&str, &str); 16] = [
     ("cycle", "<u8"),
     ("t_ns", "<u8"),
     ("deadline_ns", "<u8"),
@@ -62,6 +67,8 @@ pub const RECORD_FIELDS: [(&str, &str); 14] = [
     ("latency_ns", "<i8"),
     ("fault", "<u8"),
     ("mode", "<i8"),
+    ("passivity_energy", "<f8"),
+    ("passivity_damping", "<f8"),
 ];
 
 impl Record {
@@ -79,6 +86,8 @@ impl Record {
         }
         out.extend_from_slice(&self.fault.to_le_bytes());
         out.extend_from_slice(&self.mode.to_le_bytes());
+        out.extend_from_slice(&self.passivity_energy.to_le_bytes());
+        out.extend_from_slice(&self.passivity_damping.to_le_bytes());
     }
 }
 
@@ -164,7 +173,17 @@ mod tests {
 
     #[test]
     fn the_byte_layout_matches_the_field_table() {
-        let r = Record { cycle: 1, deadline_ns: 7, id: -2, theta: 0.5, latency_ns: -1, fault: 1, mode: 2, ..Default::default() };
+        let r = Record {
+            cycle: 1,
+            deadline_ns: 7,
+            id: -2,
+            theta: 0.5,
+            latency_ns: -1,
+            fault: 1,
+            mode: 2,
+            passivity_damping: 0.25,
+            ..Default::default()
+        };
         let mut out = Vec::new();
         r.write_le(&mut out);
         assert_eq!(out.len(), 8 * RECORD_FIELDS.len());
@@ -179,5 +198,6 @@ mod tests {
         assert_eq!(i64::from_le_bytes(field("latency_ns")), -1);
         assert_eq!(u64::from_le_bytes(field("fault")), 1);
         assert_eq!(i64::from_le_bytes(field("mode")), 2);
+        assert_eq!(f64::from_le_bytes(field("passivity_damping")), 0.25);
     }
 }

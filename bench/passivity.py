@@ -1,0 +1,162 @@
+"""The passivity guard on the simulated bench: a gripping hand, virtual inertias down to a quarter
+of the smallest stable one, guard off and on, side by side.
+
+For each servo the bench simulates (the embedded BAM-style MX-64, and a first-order lag of 25 ms),
+through the real daemon (`admittance run --record`, one process per session), with the servo
+compensation on (a servo model identified from a session with the same gripping hand, as
+bench/fidelity.py does: the compensation is what makes light virtual joints oscillate):
+
+1. **under a gripping hand** (bench/fidelity.py's: its inertia rides on the horn, its arm's
+   damping and stiffness pull it back; on the lag servo, a position source, without inertia)
+   that pushes 0.3 N·m for 0.3 s and lets go every 3 s, at virtual inertias of 2, 1, 1/2 and 1/4
+   of the smallest stable one (docs/fidelity.md: 0.063 of the servo's own inertia on the MX-64,
+   0.017 on the lag servo; never below the daemon's floor of 1e-4 kg·m², 0.0068 of it), and with a stiff hand (10× the arm's stiffness) at 1 and 1/4 of it,
+   guard off and on: the horn's wobble (angle minus its 0.25 s moving mean, RMS) 1–1.75 s and
+   2–2.75 s after each push (sustained: the later over half the earlier and over a tick), the
+   energy the joint gave the hand (the guard's balance at its lowest; it is recorded with the
+   guard off too), the port's net energy over the session, the guard's episodes and its largest
+   damping;
+2. **in passive use**: the rendering error (RMS horn − model) of bench/fidelity.py's linear joint
+   (the MX-64's own inertia) under a 1 Hz sine and the 0.3–3 Hz multi-sine, guard off and on
+   (target: within 5 %).
+
+All data are synthetic (the simulated bench on a shared 2-core machine; the load is printed).
+Usage::
+
+    .venv/bin/python bench/passivity.py [--servos "BAM MX-64" "lag 25 ms"] [--factors 2 1 0.5 0.25]
+                                        [--seconds 10.5] [--skip-fidelity] [--json FILE]
+
+takes about 12 minutes with every part.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fidelity as fb  # noqa: E402  (the sessions, the hands, the wobble: one source with that bench)
+
+# The smallest stable virtual inertia with compensation, over the servo's own (docs/fidelity.md).
+SMALLEST_STABLE = {"BAM MX-64": 0.063, "lag 25 ms": 0.017}
+# kg·m²: the daemon's floor on virtual_inertia ([joints] schema); a quarter of the lag servo's
+# smallest stable inertia is below it, so that servo goes down to the floor (0.40 of it).
+INERTIA_FLOOR = 1e-4
+STIFF = 10.0  # the stiff hand's arm stiffness, × the gripping hand's
+PUSHES = f"push-release:amplitude=0.3,period={fb.PERIOD_S},rise=0.05,hold=0.3,fall=0.02"
+
+
+def own_inertia() -> float:
+    return float(tomllib.loads(fb.MX64.read_text())["params"]["motor_inertia"])
+
+
+def energy_figures(folder: Path, stats: dict) -> dict:
+    """The guard's balance at its lowest and its largest damping (the recorded rows), the port's net
+    energy and the guard's episodes (the session's stats)."""
+    parts = [np.genfromtxt(path, delimiter=",", names=True) for path in sorted(folder.glob("joint1_*.csv"))]
+    balance = np.concatenate([np.atleast_1d(p["passivity_energy"]) for p in parts])
+    damping = np.concatenate([np.atleast_1d(p["passivity_damping"]) for p in parts])
+    guard = stats["passivity"][0]
+    return {"generated_j": float(max(-balance.min(), 0.0)), "port_energy_j": guard["port_energy"],
+            "episodes": guard["episodes"], "damping_max": float(damping.max())}
+
+
+def gripped(work: Path, servo: str, lag: float, params: Path, inertia: float, guard: int, hand: dict,
+            seconds: float, label: str) -> dict:
+    name = f"{fb.slug(servo)}-{label}-{'on' if guard else 'off'}"
+    folder, stats = fb.session(work, name, params=params, profile=PUSHES, seconds=seconds,
+                               joint={"virtual_inertia": inertia, "virtual_damping": 0.0347, "virtual_coulomb": 0.0,
+                                      "servo_compensation": 1.0, "passivity_guard": guard},
+                               bench={"servo_lag_s": lag, **hand})
+    early, late = fb.wobble(folder)
+    return {"early_mrad": 1e3 * early, "late_mrad": 1e3 * late, "sustained": fb.sustained(early, late),
+            **energy_figures(folder, stats), "overruns": stats["overruns"], "bus_errors": stats["bus_errors"]}
+
+
+def passive(work: Path, servo: str, lag: float, params: Path, seconds: float) -> list[dict]:
+    """The rendering error of the linear joint, guard off and on."""
+    rows = []
+    profiles = [("sine 1 Hz", f"sine:amplitude={fb.sine_amplitude(1.0, fb.LINEAR):.5f},frequency=1.0"),
+                ("multi-sine 0.3–3 Hz", str(fb.multisine(work / "multisine.csv", seconds, fb.LINEAR)))]
+    for label, profile in profiles:
+        row = {"servo": servo, "hand": label}
+        # Off, on, and off again: the repeat shows how much two identical sessions differ here.
+        for key, guard in (("off", 0), ("on", 1), ("off_again", 0)):
+            name = f"{fb.slug(servo)}-passive-{fb.slug(label)}-{key}"
+            folder, stats = fb.session(work, name, params=params, profile=profile, seconds=seconds,
+                                       joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
+                                       bench={"servo_lag_s": lag})
+            row[key] = {"rendering_rmse": fb.analyse(folder)["rendering_rmse"], **energy_figures(folder, stats)}
+        off, on, again = (row[k]["rendering_rmse"] for k in ("off", "on", "off_again"))
+        print(f"| {servo} | {label} | {1e3 * off:.3f} | {1e3 * on:.3f} | {100 * (on / off - 1):+.1f} % | "
+              f"{1e3 * again:.3f} ({100 * (again / off - 1):+.1f} %) | {row['on']['episodes']} | "
+              f"{1e3 * row['on']['generated_j']:.2f} |", flush=True)
+        rows.append(row)
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--servos", nargs="+", default=list(fb.SERVOS), choices=list(fb.SERVOS))
+    parser.add_argument("--factors", nargs="+", type=float, default=[2.0, 1.0, 0.5, 0.25],
+                        help="virtual inertias, × the servo's smallest stable one")
+    parser.add_argument("--seconds", type=float, default=3 * fb.PERIOD_S + 1.5, help="each gripped session")
+    parser.add_argument("--skip-fidelity", action="store_true", help="only the gripped sessions")
+    parser.add_argument("--skip-stiff", action="store_true", help="no stiff-hand sessions")
+    parser.add_argument("--skip-gripped", action="store_true", help="only the passive sessions")
+    parser.add_argument("--identify-seconds", type=float, default=24.0,
+                        help="the servo identification's session (bench/fidelity.py's: 24 s)")
+    parser.add_argument("--json", type=Path, help="also write every figure here")
+    args = parser.parse_args()
+    own = own_inertia()
+    print(f"load before: {os.getloadavg()}", flush=True)
+    results: dict = {"gripped": [], "passive": []}
+    with tempfile.TemporaryDirectory(prefix="passivity-bench-") as tmp:
+        work = Path(tmp)
+        print("| servo | hand | I / servo's | guard | wobble 1–1.75 s (mrad) | wobble 2–2.75 s (mrad) | sustained | "
+              "energy given the hand (mJ) | port net (mJ) | episodes | damping max |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for servo in args.servos if not args.skip_gripped else ():
+            lag = fb.SERVOS[servo]
+            hand = fb.HANDS[servo]
+            params, _ = fb.identify_servo(work, servo, lag, args.identify_seconds, hand)
+            cases = [("gripping", hand, f) for f in args.factors]
+            if not args.skip_stiff:
+                stiff = {**hand, "hand_stiffness": STIFF * hand["hand_stiffness"]}
+                cases += [("stiff", stiff, f) for f in (1.0, 0.25)]
+            for label, hand_used, factor in cases:
+                ratio = max(factor * SMALLEST_STABLE[servo], INERTIA_FLOOR / own)
+                for guard in (0, 1):
+                    r = gripped(work, servo, lag, params, ratio * own, guard, hand_used, args.seconds,
+                                f"{label}-{factor:g}")
+                    r.update(servo=servo, hand=label, ratio=ratio, guard=guard)
+                    results["gripped"].append(r)
+                    print(f"| {servo} | {label} | {ratio:.4f} | {'on' if guard else 'off'} | {r['early_mrad']:.2f} | "
+                          f"{r['late_mrad']:.2f} | {'YES' if r['sustained'] else 'no'} | "
+                          f"{1e3 * r['generated_j']:.1f} | {1e3 * r['port_energy_j']:+.1f} | {r['episodes']} | "
+                          f"{r['damping_max']:.3g} |", flush=True)
+        if not args.skip_fidelity:
+            print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | guard off again "
+                  "(mrad) | guard episodes | lowest balance (mJ below 0) |")
+            print("|---|---|---|---|---|---|---|---|")
+            for servo in args.servos:
+                params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], args.identify_seconds, None)
+                results["passive"] += passive(work, servo, fb.SERVOS[servo], params, 12.0)
+    print(f"load after: {os.getloadavg()}", flush=True)
+    on = [r for r in results["gripped"] if r["guard"]]
+    print(f"guard on: {sum(r['sustained'] for r in on)} of {len(on)} gripped sessions with a sustained oscillation; "
+          f"guard off: {sum(r['sustained'] for r in results['gripped'] if not r['guard'])} of {len(on)}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

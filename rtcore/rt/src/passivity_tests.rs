@@ -1,0 +1,167 @@
+//! The guard alone: its energy accounting, when it acts, how its damping rises and falls.
+use super::*;
+
+const H: f64 = 1e-3;
+
+fn gains(damping: f64) -> JointGains {
+    JointGains { inertia: 0.01, damping, coulomb: 0.0, lever_arm: 0.1 }
+}
+
+fn guard(on: bool) -> PassivityGuard {
+    PassivityGuard::new(PassivityParams { guard: if on { 1.0 } else { 0.0 }, margin: 0.01, damping_max: 1.0 })
+}
+
+/// A horn that moves against the hand's 0.1 N·m (the joint feeding the hand 1 mJ a cycle), read
+/// at cycles `from..to`.
+fn generate(g: &mut PassivityGuard, from: usize, to: usize) {
+    let rest = State::default();
+    for k in from..to {
+        g.observe(Some(-0.01 * k as f64), 0.1, &rest, &gains(0.0), false, H);
+    }
+}
+
+#[test]
+fn the_port_energy_is_the_torque_times_the_horn_motion_between_reads() {
+    let mut g = guard(true);
+    let rest = State::default();
+    g.observe(Some(0.0), 2.0, &rest, &gains(0.0), false, H); // the first read only starts the record
+    g.observe(None, 4.0, &rest, &gains(0.0), false, H);
+    g.observe(Some(0.01), 0.0, &rest, &gains(0.0), false, H); // the mean torque since: 3 N·m over 0.01 rad
+    assert!((g.view().port - 0.03).abs() < 1e-15, "{}", g.view().port);
+    let moving = State { theta: 0.0, omega: 2.0 };
+    g.observe(None, 0.0, &moving, &gains(0.5), false, H);
+    assert!((g.view().model_dissipated - 0.5 * 4.0 * H).abs() < 1e-15, "B·ω²·h");
+}
+
+#[test]
+fn a_hold_breaks_the_record_so_a_jump_across_it_is_no_work() {
+    let mut g = guard(true);
+    let rest = State::default();
+    g.observe(Some(0.0), 1.0, &rest, &gains(0.0), false, H);
+    g.observe(None, 1.0, &rest, &gains(0.0), true, H);
+    g.observe(Some(-1.0), 1.0, &rest, &gains(0.0), false, H);
+    assert_eq!(g.view().port, 0.0);
+}
+
+#[test]
+fn the_guard_acts_only_beyond_the_margin_and_grows_its_damping_smoothly() {
+    let mut g = guard(true);
+    generate(&mut g, 0, 10); // 0.1 N·m against 0.09 rad: 0.009 J, within the margin
+    assert_eq!(g.view().damping, 0.0);
+    generate(&mut g, 10, 13);
+    let v = g.view();
+    assert!(v.balance < -0.01 && v.damping > 0.0 && v.episodes == 1, "{v:?}");
+    assert!(v.damping <= 1e-3 * (3.0 * H / RISE_S).exp(), "it starts small: {}", v.damping);
+    let mut last = v.damping;
+    for k in 13..400 {
+        generate(&mut g, k, k + 1);
+        let d = g.view().damping;
+        assert!(d >= last && d <= last * (H / RISE_S).exp() * 1.0001 && d <= 1.0, "{last} → {d}");
+        last = d;
+    }
+    assert_eq!(last, 1.0, "up to its maximum while the joint keeps generating");
+}
+
+#[test]
+fn once_the_joint_is_passive_again_the_damping_decays_to_zero_without_a_step() {
+    let mut g = guard(true);
+    generate(&mut g, 0, 300);
+    let start = g.view().damping;
+    let rest = State::default();
+    let mut last = start;
+    let mut cycles = 0;
+    while g.view().damping > 0.0 {
+        // The horn at rest: nothing generated, the window forgets, the balance comes back.
+        g.observe(Some(-2.99), 0.0, &rest, &gains(0.0), false, H);
+        let d = g.view().damping;
+        assert!(d <= last, "never grows while nothing is generated");
+        assert!(last - d <= 1e-4 + last * H / RELEASE_S, "no step: {last} → {d}");
+        last = d;
+        cycles += 1;
+        assert!(cycles < 20_000, "and it does go");
+    }
+    assert!(cycles as f64 * H > RELEASE_S, "it decays over its release time, not at once: {cycles} cycles");
+    assert_eq!(g.view().episodes, 1);
+}
+
+#[test]
+fn turning_the_guard_off_lets_its_damping_decay_rather_than_drop() {
+    let mut g = guard(true);
+    generate(&mut g, 0, 300);
+    let before = g.view().damping;
+    g.retarget(PassivityParams { guard: 0.0, ..PassivityParams::default() });
+    g.observe(Some(-2.99), 0.1, &State::default(), &gains(0.0), false, H);
+    let after = g.view().damping;
+    assert!(after > 0.99 * before && after < before, "{before} → {after}");
+}
+
+#[test]
+fn with_the_guard_off_it_observes_but_never_damps() {
+    let mut g = guard(false);
+    generate(&mut g, 0, 500);
+    assert!(g.view().balance < -0.1);
+    assert_eq!(g.view().damping, 0.0);
+    let mut s = State { theta: 0.0, omega: 1.0 };
+    assert_eq!(g.damp(&mut s, 0.01, H), 0.0);
+    assert_eq!(s.omega, 1.0);
+}
+
+#[test]
+fn the_damping_only_brings_the_velocity_towards_rest_however_large() {
+    let mut g = guard(true);
+    g.damping = 1e6;
+    let mut s = State { theta: 0.3, omega: -2.0 };
+    let alpha = g.damp(&mut s, 1e-4, H);
+    assert!(s.omega < 0.0 && s.omega > -2.0 && s.theta == 0.3, "{s:?}");
+    assert!((alpha - (s.omega + 2.0) / H).abs() < 1e-9);
+}
+
+#[test]
+fn non_finite_inputs_leave_the_guard_usable() {
+    let mut g = guard(true);
+    g.observe(Some(f64::NAN), f64::NAN, &State { theta: 0.0, omega: f64::INFINITY }, &gains(0.0), false, H);
+    g.observe(Some(0.0), 1.0, &State::default(), &gains(0.0), false, H);
+    let v = g.view();
+    assert!(v.balance.is_finite() && v.port.is_finite() && v.damping.is_finite(), "{v:?}");
+    generate(&mut g, 0, 300);
+    assert!(g.view().damping > 0.0, "and it still acts");
+}
+
+#[test]
+fn the_shared_view_round_trips() {
+    let s = PassivityShared::default();
+    let v = PassivityView { balance: -0.5, port: 1.25, model_dissipated: 2.0, damping: 0.125, episodes: 3 };
+    s.publish(&v);
+    assert_eq!(s.snapshot(), v);
+}
+
+#[test]
+fn without_horn_reads_nothing_is_judged() {
+    let mut g = guard(true);
+    for k in 0..2000 {
+        let model = State { theta: 0.0, omega: 0.01 * k as f64 }; // the model speeds up, its energy grows
+        g.observe(None, 1.0, &model, &gains(0.0), false, H);
+    }
+    assert_eq!((g.view().balance, g.view().damping), (0.0, 0.0));
+}
+
+/// A servo that follows late under a hand that speeds the joint up: the port's energy arrives
+/// late, but it is the hand's, and nothing is generated (port − stored would dip below the
+/// margin here: the false alarm an uncompensated servo raised).
+#[test]
+fn a_lagging_horn_under_an_accelerating_push_is_no_alarm() {
+    let mut g = guard(true);
+    let (g_inertia, tau, lag) = (0.01, 0.3, 30);
+    let mut history = vec![0.0; lag];
+    let mut model = State::default();
+    for _ in 0..1000 {
+        g.observe(Some(history[history.len() - lag]), tau, &model, &gains(0.0), false, H);
+        model.omega += H * tau / g_inertia;
+        model.theta += H * model.omega;
+        history.push(model.theta);
+    }
+    let v = g.view();
+    assert!(model.omega > 20.0 && v.port > 0.0, "{model:?} {v:?}");
+    assert_eq!((v.damping, v.episodes), (0.0, 0));
+    assert!(v.balance >= 0.0, "{v:?}");
+}
