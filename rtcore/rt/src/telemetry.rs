@@ -94,6 +94,8 @@ pub struct LoopStats {
     pub sensor_stale_events: AtomicU64,
     pub telemetry_drops: AtomicU64,
     pub sync_reads: AtomicU64,
+    /// Times a joint's servo compensation made its horn worse than none and was turned off.
+    pub compensation_fallbacks: AtomicU64,
     pub period: Histogram,
     pub latency: Histogram,
     /// Wake-up → end of the cycle's bus traffic: what a cycle costs.
@@ -120,6 +122,7 @@ pub struct StatsSnapshot {
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
     pub sync_reads: u64,
+    pub compensation_fallbacks: u64,
     /// (kind name, events), every kind.
     pub faults: Vec<(&'static str, u64)>,
     pub mode: LoopMode,
@@ -151,6 +154,7 @@ impl LoopStats {
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
             sync_reads: self.sync_reads.load(Relaxed),
+            compensation_fallbacks: self.compensation_fallbacks.load(Relaxed),
             faults: self.faults.snapshot(),
             mode: self.faults.mode(),
             rt: self.rt.lock().map(|r| r.clone()).unwrap_or_default(),
