@@ -72,9 +72,9 @@ def test_the_last_cycles_before_a_fault_stop_reach_the_csv_and_the_mcap(tmp_path
     last = h.loop.cycle
     mcap = read_recording(tmp_path / "rec" / "session.mcap").joints[1]["cycle"]
     assert mcap[-1] == last, f"the MCAP ends at cycle {mcap[-1]}, the loop at {last}"
-    # The CSV keeps each row until the next cycle's torque is known; the very last cycle has none.
+    # The CSV holds each row back until the next cycle's torque is known, the last one until the close.
     csv_cycles = read_csv(tmp_path / "rec")["cycle"]
-    assert csv_cycles[-1] == last - 1, f"the CSV ends at cycle {csv_cycles[-1]}, the loop at {last}"
+    assert csv_cycles[-1] == last, f"the CSV ends at cycle {csv_cycles[-1]}, the loop at {last}"
     assert np.all(read_csv(tmp_path / "rec")["fault"][-FINAL_CYCLES + 1:] == 2), "with their fault bits"
 
 

@@ -9,7 +9,10 @@ velocity, the goal angle, the cycle's wake-up time, the cycle number, ``held`` =
 model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, plots and replay
 checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
 on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
-own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
+own. ``tau_mean`` keeps the torque's impulse between rows: the mean of the torques the model
+stepped with from the previous row's time to this row's (``tau`` is one cycle's sample, and a
+step in the hand's torque between two rows would otherwise move the refit's impulse by up to a
+whole row interval of it); the first row of a recording has its own ``tau``. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
 because the force was stale, or a fault held a joint. After a stall longer than the loop
 catches up (``MAX_CATCH_UP_STEPS`` steps) the model restarted its time at the late deadline and
 never integrated the torque over the rest of the stall: a *lapse*, which leaves no column but
@@ -86,7 +89,7 @@ from admittance.daemon.telemetry import MODE_RUNNING, fault_names
 from admittance.errors import ConfigError
 
 COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
-           "fault")
+           "fault", "tau_mean")
 # The per-joint values written into each trial's manifest entry: what the loop ran.
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
@@ -123,8 +126,9 @@ class Recorder:
         self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
         self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
         self._pending: dict[int, dict[str, np.ndarray]] = {}
-        # Per joint: (held, fault) of the cycles after its last written row (see recorded_rows).
-        self._carry: dict[int, tuple[int, int]] = {}
+        # Per joint: (held, fault, torque sum, cycles) of the cycles after its last written row
+        # (see recorded_rows).
+        self._carry: dict[int, tuple] = {}
         self._last_rows_held: dict[int, tuple[float, float]] = {}  # held of the last two rows, newest first
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}
@@ -379,6 +383,25 @@ def since_previous_row(flags: np.ndarray, keep: np.ndarray, carry: int = 0) -> t
     return acc[group], int(acc[-1]) if len(keep) and not keep[-1] else 0
 
 
+def mean_since_previous_row(values: np.ndarray, weight: np.ndarray, keep: np.ndarray,
+                            carry: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, tuple[float, float]]:
+    """Per cycle, the weighted mean of ``values`` over the cycles from the previous kept row
+    (inclusive) to its own kept row (exclusive): on a row, the mean over the interval that ends
+    at it (``carry``: (sum, weight) of the cycles after the last batch's last row). NaN where no
+    cycle counts (the recording's first row). And the carry for the next batch."""
+    group = np.cumsum(keep).astype(np.int64)  # cycle j counts for the first kept row after it
+    total = np.zeros(int(group[-1]) + 1 if len(group) else 1)
+    count = np.zeros_like(total)
+    np.add.at(total, group, values * weight)
+    np.add.at(count, group, weight)
+    total[0] += carry[0]
+    count[0] += carry[1]
+    ends = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count[ends] > 0, total[ends] / np.where(count[ends] > 0, count[ends], 1.0), np.nan)
+    return mean, (float(total[-1]), float(count[-1]))
+
+
 def gap_seconds(rate_hz: float, sync_read_divisor: int) -> float:
     """Rows further apart than this are a gap: the servo unread for ten read periods (a retried
     read is never that late), at least ``DEFAULT_GAP_S``."""
@@ -411,12 +434,13 @@ def model_lapses(t: np.ndarray, period_s: float | None, previous_t: float | None
 
 
 def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
-                  carry: tuple[int, int] = (0, 0), period_s: float | None = None,
-                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+                  carry: tuple = (0, 0), period_s: float | None = None,
+                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple]:
     """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
     cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
     reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
-    previous row. Also the (held, fault) carry. With the loop's ``period_s``, a cycle where the
+    previous row, ``tau_mean`` the mean torque since it. Also the (held, fault, torque sum, cycles)
+    carry. With the loop's ``period_s``, a cycle where the
     model lost time counts as held (``previous_t``: the absolute deadline before ``columns``')."""
     columns = with_defaults(columns)
     n = len(columns["t"])
@@ -429,9 +453,12 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
     fault, fault_carry = since_previous_row(faults, keep, carry[1])
+    steps = (columns["superseded"] == 0).astype(float)  # a superseded cycle's torque was never integrated
+    tau_mean, tau_carry = mean_since_previous_row(columns["tau"], steps, keep, tuple(carry[2:4]) or (0.0, 0.0))
+    tau_mean = np.where(np.isfinite(tau_mean), tau_mean, columns["tau"])
     theta = columns["theta_present"] if measured_theta else columns["theta_model"]
     rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
             "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
             "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
-            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float)}
-    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)
+            "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float), "tau_mean": tau_mean}
+    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry, *tau_carry)
