@@ -45,8 +45,9 @@ def _fault_stopping(h: Harness) -> None:
     h.backends.make_loop = loop_of
 
 
-def _cycles(loop, n: int) -> np.ndarray:
-    """``n`` more cycles of every joint, each with a present read and the servo-error bit."""
+def _cycles(loop, n: int, read_every: int = 1) -> np.ndarray:
+    """``n`` more cycles of every joint, with a present read every ``read_every`` and the
+    servo-error bit."""
     rec = np.zeros(n * len(loop.ids), RECORD_DTYPE)
     for k in range(n):
         loop.cycle += 1
@@ -54,7 +55,8 @@ def _cycles(loop, n: int) -> np.ndarray:
             r = rec[k * len(loop.ids) + j]
             r["cycle"], r["deadline_ns"], r["id"] = loop.cycle, 10**9 + loop.cycle * 10**6, jid
             r["t_ns"] = r["deadline_ns"] + 30_000
-            r["torque"], r["theta"], r["goal_tick"], r["present_tick"] = 0.1, 0.001 * loop.cycle, 2048, 2048
+            r["torque"], r["theta"], r["goal_tick"] = 0.1, 0.001 * loop.cycle, 2048
+            r["present_tick"] = 2048 if loop.cycle % read_every == 0 else -1
             r["fault"] = 1 << 1  # servo_error
     return rec
 
@@ -78,11 +80,24 @@ def test_the_last_cycles_before_a_fault_stop_reach_the_csv_and_the_mcap(tmp_path
     assert np.all(read_csv(tmp_path / "rec")["fault"][-FINAL_CYCLES + 1:] == 2), "with their fault bits"
 
 
-def test_every_drained_batch_is_on_disk_when_the_tick_ends(tmp_path):
+def test_every_drained_batch_is_on_disk_when_the_tick_ends(tmp_path, monkeypatch):
     """What a SIGKILL leaves is what reached the OS: after each tick's drain the CSVs and the
     session.mcap on disk hold every byte written so far (the MCAP's open chunk is the writer's,
-    not yet written), and a copy of them reads back every row and every completed chunk."""
+    not yet written), and a copy of them reads back every row and every completed chunk. Files
+    opened with the default buffering get a 1 MiB buffer here, so that what is on disk depends
+    on the flushes, not on whether a write happened to exceed Python's 8 KiB buffer."""
+    import pathlib
+
     from admittance.ident.loaders import read_recording
+
+    plain_open = pathlib.Path.open
+
+    def big_buffers(self, mode="r", buffering=-1, *args, **kwargs):
+        if buffering == -1 and "b" in mode and ("w" in mode or "a" in mode):
+            buffering = 1 << 20
+        return plain_open(self, mode, buffering, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "open", big_buffers)
 
     h = Harness(tmp_path, record=str(tmp_path / "rec"), stop_after=30.0)
     sizes = []
@@ -99,7 +114,7 @@ def test_every_drained_batch_is_on_disk_when_the_tick_ends(tmp_path):
 
     def busy_loop(cfg, port):  # 200 cycles a tick: the MCAP completes chunks within a few ticks
         loop = make_loop(cfg, port)
-        loop.drain_telemetry = lambda: _cycles(loop, 200)
+        loop.drain_telemetry = lambda: _cycles(loop, 200, read_every=10)
         return loop
 
     h.backends.make_loop = busy_loop
