@@ -48,30 +48,43 @@ def test_the_mean_torque_since_the_previous_row_keeps_the_impulse_wherever_the_s
     assert abs(by_points - impulse) > 1e-4 or step_at % READ_EVERY == 1, "the point samples miss part of the step"
 
 
-def test_the_session_mcap_gives_the_same_means_and_the_refit_integrates_the_impulse(tmp_path):
+def record_both(folder: Path, step_at: int, n: int = 3000) -> None:
+    """A CSV folder and its session.mcap of ``n`` cycles, the step at ``step_at``, a moving hand."""
     from admittance.daemon.mcap_recording import McapRecorder
-    from admittance.fidelity.recording import load_recording
 
-    n = 3000
-    cycles = stepped(0.0, n, 1505)
+    cycles = stepped(0.0, n, step_at)
     cycles["tau"] = cycles["tau"] + 0.05 * np.sin(np.arange(n) * 2e-3)  # the hand moves the model
-    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, segment_s=100.0)
+    rec = Recorder(folder, [(1, "MX-64")], measured_theta=True, t0=0.0, segment_s=100.0)
     info = {"model": "MX-64", "rate_hz": 1000.0, "plant": {"motor_inertia": 0.0147}}
-    mcap = McapRecorder(tmp_path / "session.mcap", {"joints": [{**info, "id": 1}], "t0": 0.0, "segment_s": 100.0,
-                                                     "measured_theta": True, "rate_hz": 1000.0})
+    mcap = McapRecorder(folder / "session.mcap", {"joints": [{**info, "id": 1}], "t0": 0.0, "segment_s": 100.0,
+                                                   "measured_theta": True, "rate_hz": 1000.0})
     for start in range(0, n, 97):
         part = {k: v[start:start + 97] for k, v in cycles.items()}
         rec.append(1, part)
         mcap.append(1, part, wall_offset_ns=0)
     rec.close()
     mcap.close()
+
+
+def test_the_session_mcap_gives_the_same_means(tmp_path):
     from admittance.ident.loaders import read_recording, recording_segments
 
-    csv_segment = rows(tmp_path)
+    record_both(tmp_path, 1505)
     from_mcap = recording_segments(read_recording(tmp_path / "session.mcap"))[1]
-    np.testing.assert_allclose(np.concatenate([s["tau_mean"] for s in from_mcap]), csv_segment["tau_mean"], atol=1e-12)
-    segment = load_recording(tmp_path).of_joint(1)[0]
-    t, refit = segment["t"], segment.impulse_tau
-    trapezoid = float(np.sum(0.5 * (refit[1:] + refit[:-1]) * np.diff(t)))
-    exact = float(np.sum(segment["tau_mean"][1:] * np.diff(t)))
-    assert trapezoid == pytest.approx(exact, abs=0.3 * 1e-3 * READ_EVERY), "within half an interval at the ends"
+    np.testing.assert_allclose(np.concatenate([s["tau_mean"] for s in from_mcap]), rows(tmp_path)["tau_mean"],
+                               atol=1e-12)
+
+
+def test_the_refit_sees_where_a_step_fell_between_two_rows(tmp_path):
+    """A step early or late between the same two rows: the point samples are the same, the
+    impulse is not; `fidelity`'s refit torque (linearly interpolated) integrates the difference."""
+    from admittance.fidelity.recording import load_recording
+
+    impulses = []
+    for step_at in (1501, 1509):
+        folder = tmp_path / str(step_at)
+        record_both(folder, step_at)
+        segment = load_recording(folder).of_joint(1)[0]
+        t, refit = segment["t"], segment.impulse_tau
+        impulses.append(float(np.sum(0.5 * (refit[1:] + refit[:-1]) * np.diff(t))))
+    assert impulses[0] - impulses[1] == pytest.approx(8 * 0.3 * 1e-3, abs=1e-9)
