@@ -229,7 +229,7 @@ def test_a_servo_the_form_does_not_describe_is_refused_and_written_with_compensa
     assert "refused, compensation off" in line and "misses an effect" in line, line
 
 
-@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "sigma"])
+@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "not_white", "sigma"])
 def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
     from admittance.fidelity.judge import MAX_OVER_NOISE, MIN_HELDOUT_GAIN, judge
 
@@ -238,6 +238,7 @@ def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
     assert judge(**good).passed
     bad = {"heldout_gain": dict(rmse_heldout=1.01e-2 / MIN_HELDOUT_GAIN),
            "over_noise": dict(residual={"rmse_over_noise": MAX_OVER_NOISE * 1.01}),
+           "not_white": dict(residual={"rmse_over_noise": 1.3, "white": False, "ljung_box_p": 1e-9}),
            "sigma": dict(sigma={"time_constant": 0.01, "dead_time": 1e-5})}[broken]
     verdict = judge(**{**good, **bad})
     assert not verdict.passed and len(verdict.reasons) == 1, verdict
@@ -299,3 +300,16 @@ def test_the_target_check_fails_when_identify_misses_the_target():
     failed = target_check_verdict({"virtual_inertia": 0.18, "virtual_damping": 0.0, "virtual_coulomb": None}, source)
     assert failed["passed"] is False and "virtual_inertia off by +18.0 %" in failed["reasons"][0]
     assert target_check_verdict({"virtual_inertia": 0.5}, "identify on theta_model")["passed"] is None
+
+
+def test_the_loops_fallback_is_told_once_in_a_line(tmp_path):
+    from admittance.daemon.faults import FaultWatch
+
+    from test_daemon_supervisor import FakeLoop, Harness
+
+    told: list[str] = []
+    watch = FaultWatch(Harness(tmp_path).cfg, told.append)
+    loop = FakeLoop([], [1])
+    for fallbacks in (0, 1, 1):
+        watch.poll({**loop.stats(), "compensation_fallbacks": fallbacks}, {}, loop)
+    assert len(told) == 1 and told[0].startswith("servo compensation turned off"), told
