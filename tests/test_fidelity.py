@@ -229,7 +229,7 @@ def test_a_servo_the_form_does_not_describe_is_refused_and_written_with_compensa
     assert "refused, compensation off" in line and "misses an effect" in line, line
 
 
-@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "not_white", "sigma"])
+@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "sigma"])
 def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
     from admittance.fidelity.judge import MAX_OVER_NOISE, MIN_HELDOUT_GAIN, judge
 
@@ -238,10 +238,19 @@ def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
     assert judge(**good).passed
     bad = {"heldout_gain": dict(rmse_heldout=1.01e-2 / MIN_HELDOUT_GAIN),
            "over_noise": dict(residual={"rmse_over_noise": MAX_OVER_NOISE * 1.01}),
-           "not_white": dict(residual={"rmse_over_noise": 1.3, "white": False, "ljung_box_p": 1e-9}),
            "sigma": dict(sigma={"time_constant": 0.01, "dead_time": 1e-5})}[broken]
     verdict = judge(**{**good, **bad})
     assert not verdict.passed and len(verdict.reasons) == 1, verdict
+
+
+def test_a_coloured_residual_near_the_floor_is_noted_not_refused():
+    from admittance.fidelity.judge import judge, misfit_note
+
+    residual = {"rmse_over_noise": 1.45, "white": False, "ljung_box_p": 1e-40}
+    assert judge(1e-4, {"goal": 1e-2, "model": 1e-2}, residual, {"time_constant": 0.02},
+                 {"time_constant": 1e-4}).passed
+    assert "misses an effect" in misfit_note(residual)
+    assert misfit_note({**residual, "white": True}) is None and misfit_note({**residual, "rmse_over_noise": 1.1}) is None
 
 
 def test_the_held_out_segments_are_scored_and_never_fitted(lag_recording):
