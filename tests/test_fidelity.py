@@ -1,16 +1,13 @@
 """`admittance fidelity`: the servo fit on servos its own simulator did not make, the
-compensation it leads to, the contract's JSON and parameter file, and bad input.
+compensation it leads to, the verdict that decides whether the loop uses it, the contract's
+JSON and parameter file, and bad input.
 
-The sessions here are written by a loop *oracle* (the virtual joint of Contract 1 and two servo
-truths, plain Python written from their physics, not from the project's code) through the
-daemon's own Recorder, so the recording has exactly the daemon's format:
-
-- ``LagOracle``: a horn that lags its goal (exact exponential), read 0.3 ms after the write;
-- ``BamOracle``: BAM's MX model: P-controlled PWM with the duty cap, DC motor with back-EMF,
-  horn inertia, viscous and smooth (tanh) Coulomb friction, and the hand's torque on the horn.
-
-The fit's own model is neither (it has an exact stick law, no duty cap, no tanh), so what it
-recovers is what a recording shows, not what a shared simulator put in.
+The sessions here are written by a loop *oracle* (tests/servo_oracles.py: the virtual joint of
+Contract 1 and servo truths, plain Python written from their physics, not from the project's
+code) through the daemon's own Recorder, so the recording has exactly the daemon's format. The
+fit's own model is none of the truths (it has an exact stick law, no duty cap, no tanh, no
+backlash, no speed limit), so what it recovers is what a recording shows, not what a shared
+simulator put in.
 """
 
 from __future__ import annotations
