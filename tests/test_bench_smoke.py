@@ -31,6 +31,7 @@ CASES = [
      r"^ratio baseline / identify:\s+\d+\.\d+×"),
     ("optoforce_parse.py", [], r"^\s+CAN reader, virtual bus \(CAN frames/s\)\s+[\d,]+"),
     ("sensor_recovery.py", ["--outages", "0.1", "--repeats", "1"], r"^\s+0\.10 \|\s+\d+\.\d+ \|\s+0\.050$"),
+    ("servo_forms.py", ["--forms", "lag", "--seconds", "4"], r"^\| first-order lag 25 ms \| \d+\.\d+ \| "),
     ("servo_scan.py", ["--baud", "1000000"], r"^\s+ServoBus\.scan\(ids\) ping per ID .*found 1\)$"),
     ("sim_step.py", [], r"^\s+rayon \(\d+ cpus\)\s+\d+\.\d+ M substeps/s"),
     # One daemon run, then one mock-bus test under pytest (the bench's two tables).

@@ -1,117 +1,27 @@
 """`admittance fidelity`: the servo fit on servos its own simulator did not make, the
-compensation it leads to, the contract's JSON and parameter file, and bad input.
+compensation it leads to, the verdict that decides whether the loop uses it, the contract's
+JSON and parameter file, and bad input.
 
-The sessions here are written by a loop *oracle* (the virtual joint of Contract 1 and two servo
-truths, plain Python written from their physics, not from the project's code) through the
-daemon's own Recorder, so the recording has exactly the daemon's format:
-
-- ``LagOracle``: a horn that lags its goal (exact exponential), read 0.3 ms after the write;
-- ``BamOracle``: BAM's MX model: P-controlled PWM with the duty cap, DC motor with back-EMF,
-  horn inertia, viscous and smooth (tanh) Coulomb friction, and the hand's torque on the horn.
-
-The fit's own model is neither (it has an exact stick law, no duty cap, no tanh), so what it
-recovers is what a recording shows, not what a shared simulator put in.
+The sessions here are written by a loop *oracle* (tests/oracles/servo.py: the virtual joint of
+Contract 1 and servo truths, plain Python written from their physics, not from the project's
+code) through the daemon's own Recorder, so the recording has exactly the daemon's format. The
+fit's own model is none of the truths (it has an exact stick law, no duty cap, no tanh, no
+backlash, no speed limit), so what it recovers is what a recording shows, not what a shared
+simulator put in.
 """
 
 from __future__ import annotations
 
 import json
-import math
+import shutil
 
 import numpy as np
 import pytest
 import tomli_w
 
-from admittance.daemon.mcap_recording import McapRecorder
-from admittance.daemon.recording import Recorder
+from oracles.servo import TICK, VIRTUAL, BamOracle, LagOracle, multisine, session  # noqa: F401
 from admittance.errors import DataError
 from oracles import virtual_joint
-
-RATE = 1000.0
-H = 1.0 / RATE
-SUBSTEPS = 10  # the truths run at 0.1 ms
-TICK = 2 * math.pi / 4096
-READ_AFTER = 3  # substeps: the present position is read 0.3 ms after the goal is written
-VIRTUAL = (0.02, 0.1, 0.02)  # I, B, F of the joint the loop renders
-
-
-def multisine(t: float) -> float:
-    """A hand from 0.3 to 3 Hz (N·m)."""
-    return 0.06 * math.sin(2 * math.pi * 0.3 * t) + 0.05 * math.sin(2 * math.pi * 0.9 * t + 1.0) \
-        + 0.05 * math.sin(2 * math.pi * 1.7 * t + 2.0) + 0.06 * math.sin(2 * math.pi * 3.0 * t + 0.5)
-
-
-class LagOracle:
-    def __init__(self, time_constant=0.025):
-        self.tc, self.theta = time_constant, 0.0
-
-    def step(self, goal, tau, h):
-        self.theta = goal + (self.theta - goal) * math.exp(-h / self.tc)
-
-
-class BamOracle:
-    """MX-64 at 12 V, P gain 850 (P2), kt 1.62, R 3.95; horn 0.0147 kg·m², B 0.035, F 0.084."""
-
-    def __init__(self):
-        self.theta = self.omega = 0.0
-        self.kp_duty = 0.158 * 850 / 128 * 8
-        self.inertia, self.damping, self.coulomb = 0.0147, 0.035, 0.084
-        self.kt, self.r, self.vin = 1.62, 3.95, 12.0
-
-    def step(self, goal, tau, h):
-        duty = max(-0.9625, min(0.9625, self.kp_duty * (goal - self.theta)))
-        motor = self.kt / self.r * (self.vin * duty - self.kt * self.omega)
-        net = motor + tau - self.damping * self.omega - self.coulomb * math.tanh(self.omega / 0.01)
-        self.omega += h * net / self.inertia
-        self.theta += h * self.omega
-
-    @property
-    def stiffness(self):  # K: N·m per rad of error below the duty cap
-        return self.kt / self.r * self.vin * self.kp_duty
-
-
-def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
-    """Run the loop oracle against ``servo`` and record it with the daemon's Recorder. ``lead``
-    (ω, α, τ) -> rad is the compensation. Returns the rendering error (RMS present − model)."""
-    n = int(seconds * RATE)
-    cols = {k: np.full(n, np.nan) for k in ("t", "t_wake", "tau", "force", "theta_model", "omega_model",
-                                            "theta_goal", "theta_present", "cycle", "mode", "fault")}
-    theta = omega = 0.0
-    h = H / SUBSTEPS
-    for k in range(n):
-        t = k * H
-        tau = hand(t)
-        before = omega
-        theta, omega = virtual_joint.step(theta, omega, tau, *VIRTUAL, H)
-        goal = theta + (lead(omega, (omega - before) / H, tau) if lead else 0.0)
-        goal = round(goal / TICK) * TICK
-        read = None
-        for j in range(SUBSTEPS):
-            servo.step(goal, hand(t + j * h), h)
-            if j == READ_AFTER - 1 and k % divisor == 0:
-                read = round(servo.theta / TICK) * TICK
-        for key, value in (("t", t), ("t_wake", t), ("tau", tau), ("force", tau / 0.1), ("theta_model", theta),
-                           ("omega_model", omega), ("theta_goal", goal), ("cycle", k), ("mode", 0.0), ("fault", 0.0)):
-            cols[key][k] = value
-        cols["theta_present"][k] = np.nan if read is None else read
-    info = {"model": "MX-64", "params_file": "mx64.toml", "rate_hz": RATE, "friction": "stick",
-            "plant": {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}}
-    rec = Recorder(folder, [(1, "MX-64")], measured_theta=True, t0=0.0, segment_s=3.0, joint_info={1: info})
-    params = {"1.virtual_inertia": VIRTUAL[0], "1.virtual_damping": VIRTUAL[1], "1.virtual_coulomb": VIRTUAL[2],
-              "1.servo_compensation": 1.0 if lead else 0.0}
-    rec.set_targets(params)
-    mcap = McapRecorder(folder / "session.mcap", {"joints": [{**info, "id": 1, "name": "joint1"}], "t0": 0.0,
-                                                  "segment_s": 3.0, "measured_theta": True, "rate_hz": RATE})
-    mcap.params("start", params)
-    for start in range(0, n, 97):  # drained in batches, as the supervisor does
-        batch = {k: v[start:start + 97] for k, v in cols.items()}
-        rec.append(1, batch)
-        mcap.append(1, batch, wall_offset_ns=0)
-    rec.close()
-    mcap.close()
-    read = ~np.isnan(cols["theta_present"])
-    return float(np.sqrt(np.mean((cols["theta_present"][read] - cols["theta_model"][read]) ** 2)))
-
 
 def fit_of(folder):
     from admittance.fidelity.recording import load_recording
@@ -270,3 +180,143 @@ def test_a_recording_without_present_columns_is_refused(tmp_path):
     (tmp_path / "a.csv").write_text("t,theta,tau\n" + "".join(f"{i * 0.01},0,0.1\n" for i in range(20)))
     with pytest.raises(DataError, match="no column theta_model"):
         load_recording(tmp_path)
+
+
+# -- the gates between a servo fit and the loop's compensation --------------------------------------
+
+
+@pytest.fixture(scope="module")
+def slew_recording(tmp_path_factory):
+    from servo_oracles import SlewOracle
+
+    folder = tmp_path_factory.mktemp("slew")
+    return folder, session(folder, SlewOracle())
+
+
+def _cli_params(folder, tmp_path):
+    """`fidelity --params-out` on ``folder``: (its JSON, the servo_compensation a joint naming
+    the written file gets by default)."""
+    from admittance.cli import main
+    from admittance.daemon.config import parse_config
+
+    out, params = tmp_path / "f.json", tmp_path / "servo.toml"
+    assert main(["fidelity", str(folder), "--json", str(out), "--params-out", str(params), "--quiet"]) == 0
+    doc = {"bus": {"port": "/dev/null"}, "joints": [{"id": 1, "model": "MX-64", "params": str(params)}],
+           "sensor": {"kind": "optoforce", "port": "/dev/null", "lever_arm": 0.1}}
+    return json.loads(out.read_text()), parse_config(doc, tmp_path / "d.toml").joints[0].servo_compensation
+
+
+def test_a_fit_that_describes_the_servo_passes_and_turns_compensation_on(lag_recording, tmp_path):
+    result, compensation = _cli_params(lag_recording[0], tmp_path)
+    assert result["servo_verdict"]["passed"] is True and result["servo_verdict"]["reasons"] == []
+    assert compensation == 1.0
+    assert result["target_check"]["verdict"]["passed"] is True
+
+
+def test_a_servo_the_form_does_not_describe_is_refused_and_written_with_compensation_off(slew_recording, tmp_path,
+                                                                                       capsys):
+    from admittance.cli import main
+
+    result, compensation = _cli_params(slew_recording[0], tmp_path)
+    verdict = result["servo_verdict"]
+    assert verdict["passed"] is False and verdict["reasons"], verdict
+    assert compensation == 0.0, "a refused fit never turns compensation on by default"
+    assert any("misses an effect" in n for n in result["servo"]["notes"]), result["servo"]["notes"]
+    assert main(["fidelity", str(slew_recording[0]), "--json", str(tmp_path / "g.json")]) == 0
+    line = capsys.readouterr().err
+    assert "refused, compensation off" in line and "misses an effect" in line, line
+
+
+@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "sigma"])
+def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
+    from admittance.fidelity.judge import MAX_OVER_NOISE, MIN_HELDOUT_GAIN, judge
+
+    good = dict(rmse_heldout=1e-4, baseline={"goal": 1e-2, "model": 1e-2}, residual={"rmse_over_noise": 1.0},
+                params={"time_constant": 0.02}, sigma={"time_constant": 1e-4, "dead_time": 1e-5})
+    assert judge(**good).passed
+    bad = {"heldout_gain": dict(rmse_heldout=1.01e-2 / MIN_HELDOUT_GAIN),
+           "over_noise": dict(residual={"rmse_over_noise": MAX_OVER_NOISE * 1.01}),
+           "sigma": dict(sigma={"time_constant": 0.01, "dead_time": 1e-5})}[broken]
+    verdict = judge(**{**good, **bad})
+    assert not verdict.passed and len(verdict.reasons) == 1, verdict
+
+
+def test_a_coloured_residual_near_the_floor_is_noted_not_refused():
+    from admittance.fidelity.judge import judge, misfit_note
+
+    residual = {"rmse_over_noise": 1.45, "white": False, "ljung_box_p": 1e-40}
+    assert judge(1e-4, {"goal": 1e-2, "model": 1e-2}, residual, {"time_constant": 0.02},
+                 {"time_constant": 1e-4}).passed
+    assert "misses an effect" in misfit_note(residual)
+    assert misfit_note({**residual, "white": True}) is None and misfit_note({**residual, "rmse_over_noise": 1.1}) is None
+
+
+def test_the_held_out_segments_are_scored_and_never_fitted(lag_recording):
+    """Corrupting the held-out segments leaves the fitted model as it is and shows in the
+    held-out error only: the split is real, in both directions."""
+    import dataclasses
+
+    from admittance.fidelity.recording import load_recording
+    from admittance.fidelity.servo import fit_servo, split
+
+    segments = load_recording(lag_recording[0]).of_joint(1)
+    held, _ = split(segments)
+    clean = fit_servo(segments)
+    noisy = list(segments)
+    rng = np.random.default_rng(1)
+    for i in held:
+        columns = {**segments[i].columns, "theta": segments[i]["theta"] + rng.normal(0, 0.01, segments[i].n)}
+        noisy[i] = dataclasses.replace(segments[i], columns=columns)
+    corrupted = fit_servo(noisy)
+    np.testing.assert_array_equal(corrupted.params, clean.params)
+    assert corrupted.rmse_training == clean.rmse_training
+    assert corrupted.rmse_heldout > 10 * clean.rmse_heldout
+
+
+def test_a_signed_parameter_the_data_do_not_pin_is_fixed_at_zero(lag_recording):
+    """The lag servo has no give under the hand: its compliance is within 2 σ of 0, fixed there
+    and said so (without the rule the fit trades it against the lag)."""
+    fit = fit_of(lag_recording[0])
+    assert fit.model()["compliance"] == 0.0 and fit.sigma[3] == 0.0
+    assert any(n.startswith("compliance") and "fixed at 0" in n for n in fit.notes), fit.notes
+
+
+def test_segments_with_a_live_change_are_left_out_of_the_analysis(lag_recording, tmp_path):
+    import tomllib
+
+    from admittance.fidelity.recording import load_recording
+    from admittance.fidelity.report import analyse
+
+    folder = tmp_path / "changed"
+    shutil.copytree(lag_recording[0], folder)
+    manifest = tomllib.loads((folder / "manifest.toml").read_text())
+    manifest["trials"][0]["params_changed"] = True
+    (folder / "manifest.toml").write_text(tomli_w.dumps(manifest))
+    result = analyse(load_recording(folder))
+    changed = manifest["trials"][0]["file"]
+    assert any(name.startswith(changed) for name in result["excluded_segments"])
+    assert not any(name.startswith(changed) for name in result["segments"])
+
+
+def test_the_target_check_fails_when_identify_misses_the_target():
+    from admittance.fidelity.report import target_check_verdict
+
+    source = "recording manifest (what the loop ran)"
+    assert target_check_verdict({"virtual_inertia": 0.01, "virtual_damping": -0.02, "virtual_coulomb": 0.04},
+                                source)["passed"] is True
+    failed = target_check_verdict({"virtual_inertia": 0.18, "virtual_damping": 0.0, "virtual_coulomb": None}, source)
+    assert failed["passed"] is False and "virtual_inertia off by +18.0 %" in failed["reasons"][0]
+    assert target_check_verdict({"virtual_inertia": 0.5}, "identify on theta_model")["passed"] is None
+
+
+def test_the_loops_fallback_is_told_once_in_a_line(tmp_path):
+    from admittance.daemon.faults import FaultWatch
+
+    from test_daemon_supervisor import FakeLoop, Harness
+
+    told: list[str] = []
+    watch = FaultWatch(Harness(tmp_path).cfg, told.append)
+    loop = FakeLoop([], [1])
+    for fallbacks in (0, 1, 1):
+        watch.poll({**loop.stats(), "compensation_fallbacks": fallbacks}, {}, loop)
+    assert len(told) == 1 and told[0].startswith("servo compensation turned off"), told

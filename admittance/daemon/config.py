@@ -11,8 +11,9 @@ Two defaults are not constants and are filled after validation:
   among the fits shipped in the package (:mod:`admittance.data`);
 - ``virtual_inertia/damping/coulomb`` default to the fitted plant's ``motor_inertia``,
   ``damping`` and ``coulomb``, so the powered joint feels like the same servo moving passively;
-- ``servo_compensation`` defaults to 1 (on) when the parameter file carries a ``[servo]`` model
-  (``admittance fidelity --params-out``), else 0.
+- ``servo_compensation`` defaults to the parameter file's ``[fit] servo_compensation`` when it
+  carries a ``[servo]`` model (``admittance fidelity --params-out`` writes 1 only when the fit
+  passed its verdict, 0 otherwise; 1 when the file does not say), else 0.
 
 The live keys (``live=True``) obey one more layer, shared with every live change: the rules
 between keys (:func:`check_joint_params`, :func:`check_loop_params`: limits in order and within
@@ -352,7 +353,7 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
     fitted = plant["params"]
     if "motor_inertia" not in fitted:
         raise ConfigError(f"{where}.params: {params_path} has no motor_inertia")
-    compensation = _or(joint.servo_compensation, 1.0 if "servo" in plant else 0.0)  # checked in check_joint_params
+    compensation = _or(joint.servo_compensation, _fitted_compensation(plant, params_path))  # checked in check_joint_params
     return dataclasses.replace(
         joint,
         params=str(params_path),
@@ -364,6 +365,18 @@ def _resolve_joint(joint: JointConfig, path: Path, where: str) -> JointConfig:
         resolved_limits=limits,
         plant=plant,
     )
+
+
+def _fitted_compensation(plant: dict, path: Path) -> float:
+    """The default ``servo_compensation`` of a parameter file: 0 without a ``[servo]`` model, else
+    its ``[fit] servo_compensation`` (what `fidelity` judged its fit worth: 0 when refused), 1 when
+    the file does not say (written by hand or before the verdict existed)."""
+    if "servo" not in plant:
+        return 0.0
+    value = plant["fit"].get("servo_compensation", 1.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
+        raise ConfigError(f"{path}: [fit] servo_compensation: expected a number in [0, 1], got {value!r}")
+    return float(value)
 
 
 def _or(value: float | None, fallback: float) -> float:

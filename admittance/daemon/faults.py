@@ -96,9 +96,13 @@ class FaultWatch:
         self._tell_bus(stats.get("bus", {}))
         self._tell_kinds(stats.get("faults", {}))
         self._tell_passivity(stats.get("passivity", []))
+        self._tell_compensation(stats.get("compensation_fallbacks", 0))
         loop.set_sensor_faults(self._sensor_faults(sensor))
-        self._last = {"servos": stats.get("servos", []), "bus": stats.get("bus", {}),
-                      "faults": stats.get("faults", {}), "passivity": stats.get("passivity", [])}
+        # update, not replace: _sensor_faults keeps the saturation count here too (replaced, every
+        # later tick saw the old count as new and the mark never ended).
+        self._last.update({"servos": stats.get("servos", []), "bus": stats.get("bus", {}), "faults": stats.get("faults", {}),
+                           "passivity": stats.get("passivity", []),
+                           "compensation_fallbacks": stats.get("compensation_fallbacks", 0)})
         if self.stop is None:
             self.stop = self._loop_stop(loop) or self._sensor_stop(sensor)
             return self.stop
@@ -147,6 +151,14 @@ class FaultWatch:
                             f"{margins.get(jid, float('nan')):g} J, [joints] passivity_margin), an oscillation or a "
                             "virtual inertia too light for the hand; it adds damping (now "
                             f"{guard.get('damping', 0.0):.3g} N·m·s/rad) until the joint is passive again")
+
+    def _tell_compensation(self, fallbacks: int) -> None:
+        if fallbacks > self._last.get("compensation_fallbacks", 0):
+            self.events("compensation_fallback", "servo compensation turned off: with it the horn strayed from the "
+                                                 "model farther than the servo model says it would without it (a "
+                                                 "model that does not fit this servo); blended out without a jump. "
+                                                 "Identify the servo again (`admittance fidelity`), or set "
+                                                 "servo_compensation to another value to try again")
 
     def _sensor_faults(self, sensor: dict[str, Any]) -> list[str]:
         now = self.clock()

@@ -9,7 +9,10 @@ velocity, the goal angle, the cycle's wake-up time, the cycle number, ``held`` =
 model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, plots and replay
 checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
 on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
-own. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
+own. ``tau_mean`` keeps the torque's impulse between rows: the mean of the torques the model
+stepped with from the previous row's time to this row's (``tau`` is one cycle's sample, and a
+step in the hand's torque between two rows would otherwise move the refit's impulse by up to a
+whole row interval of it); the first row of a recording has its own ``tau``. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
 because the force was stale, or a fault held a joint. After a stall longer than the loop
 catches up (``MAX_CATCH_UP_STEPS`` steps) the model restarted its time at the late deadline and
 never integrated the torque over the rest of the stall: a *lapse*, which leaves no column but
@@ -120,8 +123,9 @@ class Recorder:
         self._targets: dict[int, dict[str, float]] = {jid: {} for jid in self.models}
         self._entries: dict[int, list[dict]] = {jid: [] for jid in self.models}
         self._pending: dict[int, dict[str, np.ndarray]] = {}
-        # Per joint: (held, fault) of the cycles after its last written row (see recorded_rows).
-        self._carry: dict[int, tuple[int, int]] = {}
+        # Per joint: (held, fault, torque sum, cycles) of the cycles after its last written row
+        # (see recorded_rows).
+        self._carry: dict[int, tuple] = {}
         self._last_rows_held: dict[int, tuple[float, float]] = {}  # held of the last two rows, newest first
         self.rows = {joint_id: 0 for joint_id in self.models}
         self._segments: dict[int, list[str]] = {joint_id: [] for joint_id in self.models}

@@ -50,6 +50,8 @@ def run_fidelity(args: argparse.Namespace) -> int:
 
 
 def summary(r: dict) -> str:
+    from admittance.fidelity.judge import verdict_line
+
     t, g, s = r["target"], r["rendered"], r["servo"]
     return (f"fidelity: joint {r['joint_id']}: rendering error {1e3 * r['rendering_rmse']:.2f} mrad RMS; rendered "
             f"I {g['virtual_inertia']:.4g} (target {t['virtual_inertia']:.4g}), B {g['virtual_damping']:.4g} "
@@ -57,4 +59,12 @@ def summary(r: dict) -> str:
             f"{1e3 * s['time_constant']:.1f} ms, inertial {1e3 * s['inertial_time']:.1f} ms, dead time "
             f"{1e3 * s['dead_time']:.1f} ms, compliance {s['compliance']:.3g} rad/N·m, band "
             f"{1e3 * s['deadband']:.2f} mrad; held-out error {1e3 * s['rmse_heldout']:.2f} mrad "
-            f"(following the goal exactly: {1e3 * s['baseline_heldout']['goal']:.2f})")
+            f"(following the goal exactly: {1e3 * s['baseline_heldout']['goal']:.2f}); servo model "
+            f"{verdict_line(r['servo_verdict'])}; record → identify "
+            f"{_check_word(r['target_check']['verdict'])}" + "".join(f"; note: {n}" for n in s["notes"]))
+
+
+def _check_word(verdict: dict) -> str:
+    if verdict["passed"] is None:
+        return "not checked (" + verdict["reasons"][0] + ")"
+    return "passes" if verdict["passed"] else "FAILS: " + "; ".join(verdict["reasons"])

@@ -28,7 +28,7 @@ from admittance.formats.mcap_layout import MCAP_NAME
 from admittance.formats.paramfile import read_toml
 
 REQUIRED = ("t", "theta", "tau", "theta_model", "omega_model", "theta_goal")
-OPTIONAL = ("t_wake", "cycle", "force", "held")
+OPTIONAL = ("t_wake", "cycle", "force", "held", "tau_mean")
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb")
 PRESENT = "present position"
 MIN_MOTION_RAD = 0.01  # a model that moved less than this has nothing to render
@@ -64,7 +64,20 @@ class Segment:
 
     def as_trial(self, column: str) -> TrialData:
         """This stretch as a dataset trial for `identify`, with theta := ``column``."""
-        return dataclasses.replace(self.trial, name=self.name, t=self["t"], theta=self[column], tau=self["tau"])
+        return dataclasses.replace(self.trial, name=self.name, t=self["t"], theta=self[column], tau=self.impulse_tau)
+
+    @property
+    def impulse_tau(self) -> np.ndarray:
+        """The torque per row for a refit that interpolates it linearly between rows: the mean of
+        the two intervals' mean torques around the row (``tau_mean`` of the row and of the next),
+        so the refit integrates the impulse the model got whatever a step between two rows did,
+        and a smooth torque lands at the row's own time (each interval's mean sits at its middle).
+        The last row pairs its interval with its own ``tau``. Older recordings: ``tau``."""
+        tau = self["tau"]
+        if "tau_mean" not in self.columns or tau.size < 2:
+            return tau
+        mean = self["tau_mean"]
+        return 0.5 * (mean + np.concatenate([mean[1:], tau[-1:]]))
 
     @property
     def t_servo(self) -> np.ndarray:

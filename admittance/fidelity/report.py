@@ -12,6 +12,9 @@ and the parameter file with the servo model.
   the recording's timing is wrong (docs/fidelity.md, "record → identify").
 - ``servo``: the servo model fitted on the segments (``servo.fit_servo``), with its error on
   held-out segments and the residual verdict.
+- ``servo_verdict``: whether that model is good enough to compensate with (``judge``): the
+  parameter file's ``[fit] servo_compensation`` is 1 only when it passes.
+- ``target_check_verdict``: whether `identify` on the model's angle gives the target back.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from admittance.errors import DataError
 from admittance.fidelity.recording import TARGET_KEYS, Recording, Segment
+from admittance.fidelity.judge import judge, misfit_note, verdict_line
 from admittance.fidelity.servo import fit_servo
 from admittance.formats import paramfile
 
@@ -42,6 +46,12 @@ def analyse(recording: Recording, joint_id: int | None = None) -> dict:
         target = model_fit
     rendered = _identify(segments, "theta")
     servo = fit_servo(segments)
+    note = misfit_note(servo.residual)
+    if note:
+        servo.notes.append(note)
+    fit = servo.to_json()
+    servo_verdict = judge(servo.rmse_heldout, servo.baseline_heldout, servo.residual, servo.model(), fit["sigma"])
+    check = {k: _relative(model_fit[k], target[k]) for k in TARGET_KEYS}
     compensation = {s.compensation for s in segments}
     return {
         "joint_id": joint_id,
@@ -50,8 +60,9 @@ def analyse(recording: Recording, joint_id: int | None = None) -> dict:
         "target_source": target_source,
         "rendered": rendered,
         "rendered_error": {k: _relative(rendered[k], target[k]) for k in TARGET_KEYS},
-        "target_check": {**model_fit, "error": {k: _relative(model_fit[k], target[k]) for k in TARGET_KEYS}},
-        "servo": servo.to_json(),
+        "target_check": {**model_fit, "error": check, "verdict": target_check_verdict(check, target_source)},
+        "servo": fit,
+        "servo_verdict": servo_verdict.to_json(),
         "servo_compensation": compensation.pop() if len(compensation) == 1 else None,
         "segments": [s.name for s in segments],
         "excluded_segments": excluded,
@@ -61,6 +72,22 @@ def analyse(recording: Recording, joint_id: int | None = None) -> dict:
         "motion_rad": float(np.ptp(np.concatenate([s["theta_model"] for s in segments]))),
         "_servo_fit": servo,
     }
+
+
+# `identify` on the model's own angle must give the target back within these (relative): the
+# record → identify round trip (docs/fidelity.md). Coulomb's is wider: it is pinned only by the
+# reversals.
+TARGET_CHECK_TOLERANCE = {"virtual_inertia": 0.03, "virtual_damping": 0.03, "virtual_coulomb": 0.05}
+
+
+def target_check_verdict(error: dict[str, float | None], source: str) -> dict:
+    """Pass when every relative error is within its tolerance (a zero target is not checked);
+    meaningless when the target itself came from that fit (no manifest values)."""
+    if source.startswith("identify"):
+        return {"passed": None, "reasons": ["the recording does not say what the loop ran: nothing to check against"]}
+    reasons = [f"{k} off by {100 * v:+.1f} % (at most ±{100 * TARGET_CHECK_TOLERANCE[k]:g} %)"
+               for k, v in error.items() if v is not None and not abs(v) <= TARGET_CHECK_TOLERANCE[k]]
+    return {"passed": not reasons, "reasons": reasons, "tolerance": TARGET_CHECK_TOLERANCE}
 
 
 def _pick_joint(recording: Recording, joint_id: int | None) -> int:
@@ -117,7 +144,8 @@ def _rms(parts: list[np.ndarray]) -> float:
 
 def write_params(path: str | Path, recording: Recording, result: dict, source: str) -> None:
     """The joint's plant (from the recording's manifest) with the identified servo model added:
-    a parameter file that turns compensation on when a joint's ``params`` names it."""
+    a parameter file whose ``[fit] servo_compensation`` (1 when the fit passed its verdict, else
+    0) is the default of a joint whose ``params`` names it."""
     joint = recording.joints.get(result["joint_id"])
     if not joint or not isinstance(joint.get("plant"), dict) or "motor_inertia" not in joint["plant"]:
         raise DataError(f"{recording.folder}: the recording does not say which plant joint {result['joint_id']} "
@@ -125,7 +153,10 @@ def write_params(path: str | Path, recording: Recording, result: dict, source: s
     servo = result["_servo_fit"]
     model = {"motor": str(joint.get("model", "")), "friction": str(joint.get("friction", "stick")),
              "mode": "geometry", "source": source}
-    fit = {"servo_source": source, "servo_rmse_heldout": servo.rmse_heldout,
+    verdict = result["servo_verdict"]
+    fit = {"servo_source": source, "servo_compensation": 1.0 if verdict["passed"] else 0.0,
+           "servo_verdict": verdict_line(verdict), "servo_rmse_heldout": servo.rmse_heldout,
            "servo_rmse_training": servo.rmse_training, "servo_heldout": servo.heldout,
            "plant_file": str(joint.get("params_file", ""))}
     paramfile.dump(path, joint["plant"], model=model, fit=fit, servo=servo.model())
+

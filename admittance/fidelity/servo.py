@@ -12,7 +12,8 @@ What the fit sees, with the recording's real timing:
   recorded, is interpolated with cubic Hermite segments, and the goal's offset from it (the tick
   rounding, the compensation's lead) linearly. At 10 cycles per row and a 3 Hz hand a straight
   line between goals would be off by a millimetre-radian, the Hermite segments by 10⁻⁶ rad;
-- the hand torque, linearly interpolated.
+- the hand torque, linearly interpolated between rows from each interval's mean
+  (``Segment.impulse_tau``), so its impulse is the one the model integrated.
 
 The fit is output error (simulate each segment from its first sample, compare the angle) by a
 small projected Levenberg–Marquardt over the five parameters, every Jacobian from ONE batch
@@ -81,7 +82,7 @@ def prepare(segment: Segment) -> ServoData:
     model, velocity = segment["theta_model"], segment["omega_model"]
     grid = np.union1d(np.arange(t[0], t[-1], INPUT_STEP_S), t)
     goal = hermite(t, model, velocity, grid) + np.interp(grid, t, segment["theta_goal"] - model)
-    tau = np.interp(grid, t, segment["tau"])
+    tau = np.interp(grid, t, segment.impulse_tau)
     trial = _rtcore.ServoTrial(t, grid, goal, tau)
     return ServoData(segment.name, trial, t, segment["theta"], (float(segment["theta"][0]), float(velocity[0])),
                      t - t[0] >= BURN_IN_S, np.abs(velocity), model)

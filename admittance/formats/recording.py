@@ -25,7 +25,7 @@ from admittance.formats.mcap_layout import MCAP_CYCLE_COLUMNS, MCAP_NAME
 from admittance.formats.trial import MIN_SAMPLES, Dataset, TrialData, check_series, load_geometry
 
 COLUMNS = ("t", "theta", "tau", "force", "theta_model", "omega_model", "theta_goal", "t_wake", "cycle", "held",
-           "fault", "passivity_energy", "passivity_damping")
+           "fault", "passivity_energy", "passivity_damping", "tau_mean")
 MIN_ROWS = 10  # the dataset loader's minimum per trial
 NEGLIGIBLE_BOB = {"mass": 1e-6}  # kg
 NEGLIGIBLE_BOB_DISTANCE = 1e-3  # m
@@ -109,13 +109,33 @@ def model_lapses(t: np.ndarray, period_s: float | None, previous_t: float | None
     return (t - before > (MAX_CATCH_UP_STEPS + 0.5) * period_s).astype(np.int64)
 
 
+def mean_since_previous_row(values: np.ndarray, weight: np.ndarray, keep: np.ndarray,
+                            carry: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, tuple[float, float]]:
+    """Per cycle, the weighted mean of ``values`` over the cycles from the previous kept row
+    (inclusive) to its own kept row (exclusive): on a row, the mean over the interval that ends
+    at it (``carry``: (sum, weight) of the cycles after the last batch's last row). NaN where no
+    cycle counts (the recording's first row). And the carry for the next batch."""
+    group = np.cumsum(keep).astype(np.int64)  # cycle j counts for the first kept row after it
+    total = np.zeros(int(group[-1]) + 1 if len(group) else 1)
+    count = np.zeros_like(total)
+    np.add.at(total, group, values * weight)
+    np.add.at(count, group, weight)
+    total[0] += carry[0]
+    count[0] += carry[1]
+    ends = np.concatenate([[0], np.cumsum(keep)[:-1]]).astype(np.int64)  # kept rows before each cycle
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count[ends] > 0, total[ends] / np.where(count[ends] > 0, count[ends], 1.0), np.nan)
+    return mean, (float(total[-1]), float(count[-1]))
+
+
 def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: float,
-                  carry: tuple[int, int] = (0, 0), period_s: float | None = None,
-                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+                  carry: tuple = (0, 0), period_s: float | None = None,
+                  previous_t: float | None = None) -> tuple[dict[str, np.ndarray], tuple]:
     """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
     cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
     reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
-    previous row. Also the (held, fault) carry. With the loop's ``period_s``, a cycle where the
+    previous row, ``tau_mean`` the mean torque since it. Also the (held, fault, torque sum, cycles)
+    carry. With the loop's ``period_s``, a cycle where the
     model lost time counts as held (``previous_t``: the absolute deadline before ``columns``')."""
     columns = with_defaults(columns)
     n = len(columns["t"])
@@ -128,13 +148,17 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
     fault, fault_carry = since_previous_row(faults, keep, carry[1])
+    steps = (columns["superseded"] == 0).astype(float)  # a superseded cycle's torque was never integrated
+    tau_mean, tau_carry = mean_since_previous_row(columns["tau"], steps, keep, tuple(carry[2:4]) or (0.0, 0.0))
+    tau_mean = np.where(np.isfinite(tau_mean), tau_mean, columns["tau"])
     theta = columns["theta_present"] if measured_theta else columns["theta_model"]
     rows = {"t": columns["t"] - t0, "theta": theta, "tau": columns["tau"], "force": columns["force"],
             "theta_model": columns["theta_model"], "omega_model": columns["omega_model"],
             "theta_goal": columns["theta_goal"], "t_wake": columns["t_wake"] - t0, "cycle": columns["cycle"],
             "held": held.astype(float), "fault": fault.astype(float), "lapse": lapse.astype(float),
-            "passivity_energy": columns["passivity_energy"], "passivity_damping": columns["passivity_damping"]}
-    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry)
+            "passivity_energy": columns["passivity_energy"], "passivity_damping": columns["passivity_damping"],
+            "tau_mean": tau_mean}
+    return {k: np.asarray(v, dtype=float)[keep] for k, v in rows.items()}, (held_carry, fault_carry, *tau_carry)
 
 
 # --------------------------------------------------------------------------- MCAP recordings

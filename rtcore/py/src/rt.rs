@@ -459,6 +459,7 @@ impl PyAdmittanceLoop {
         d.set_item("sensor_samples", s.sensor_samples)?;
         d.set_item("sensor_stale_events", s.sensor_stale_events)?;
         d.set_item("telemetry_drops", s.telemetry_drops)?;
+        d.set_item("compensation_fallbacks", s.compensation_fallbacks)?;
         d.set_item("sync_reads", s.sync_reads)?;
         let faults = PyDict::new(py);
         for (name, events) in &s.faults {

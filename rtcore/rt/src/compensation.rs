@@ -23,6 +23,17 @@
 //! with it, so the goal stays. The model then starts again from rest, where its lead is small:
 //! the frozen lead's difference to the new one fades out over `RELEASE_S` instead of stepping
 //! the goal back by it.
+//!
+//! **The watch.** A model that passed its fit can still be wrong for the servo it drives (a
+//! different servo, a load, a form the fit could not see). So each read of the horn is compared:
+//! the horn's error from the model's angle (what the hand feels), against the error the servo
+//! model predicts *without* compensation, which is the lead itself (the lead is exactly how far
+//! the model says the horn would trail). Both are mean squares over `WATCH_S`; once the weight
+//! has been at its target for `2·WATCH_S`, an error above the uncompensated prediction (plus one
+//! tick of quantisation) means the compensation makes the horn worse than none would: the weight
+//! blends to 0 (the same blend as a live change: no jump) and `watch` says so once, for the
+//! daemon's line. It stays off for that model and weight; a parameter set with another model or
+//! weight tries again.
 use crate::joint::bound;
 use plant::servo::{lead, ServoModel};
 
@@ -33,6 +44,19 @@ pub const MIN_BLEND_S: f64 = 0.2;
 pub const MAX_LEAD: f64 = 0.3;
 /// s: the time constant over which a frozen lead hands over to the running one after a hold.
 pub const RELEASE_S: f64 = 0.05;
+/// s: the window of the watch's mean squares (several periods of a hand's slowest motion).
+pub const WATCH_S: f64 = 1.0;
+
+/// The running mean squares the watch compares (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Watch {
+    /// Mean square of the horn's error from the model's angle, rad².
+    error: f64,
+    /// Mean square of the lead (the uncompensated prediction of that error), rad².
+    lead: f64,
+    /// s the weight has been at its (non-zero) target.
+    settled: f64,
+}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Compensation {
@@ -48,12 +72,27 @@ pub struct Compensation {
     held: bool,
     /// What is left of a frozen lead's difference to the running one (fades over RELEASE_S).
     carry: f64,
+    watch: Watch,
+    /// The (model, weight) the watch turned off: kept off until a set brings another.
+    refused: Option<(Option<ServoModel>, f64)>,
 }
 
 impl Compensation {
     /// A joint's compensation at `weight` (already validated: 0 without a model).
     pub fn new(model: Option<ServoModel>, weight: f64) -> Self {
-        Compensation { model, weight, from: weight, to: weight, progress: 1.0, lead: 0.0, alpha: 0.0, held: false, carry: 0.0 }
+        Compensation {
+            model,
+            weight,
+            from: weight,
+            to: weight,
+            progress: 1.0,
+            lead: 0.0,
+            alpha: 0.0,
+            held: false,
+            carry: 0.0,
+            watch: Watch::default(),
+            refused: None,
+        }
     }
 
     /// The weight it blends to now.
@@ -68,14 +107,44 @@ impl Compensation {
 
     /// A new parameter set: blend from the weight in use to `weight`.
     pub fn retarget(&mut self, model: Option<ServoModel>, weight: f64) {
+        if self.refused == Some((model, weight)) {
+            return; // the watch turned this one off: the same set does not turn it on again
+        }
+        self.refused = None;
         self.model = model;
+        self.blend_to(weight);
+    }
+
+    fn blend_to(&mut self, weight: f64) {
         if weight != self.to {
+            self.watch = Watch::default();
             // A weight that bypassed the gate (NaN) is refused at the goal by the state guard;
             // the next blend starts from off, not from it.
             self.from = if self.weight.is_finite() { self.weight } else { 0.0 };
             self.to = weight;
             self.progress = 0.0;
         }
+    }
+
+    /// One read of the horn: `horn_error` = present angle − model angle (rad), `dt` s since the
+    /// last read, `floor` the quantisation (rad, one tick). True once, when the compensation
+    /// makes the horn worse than the uncompensated prediction and is turned off (blended out).
+    pub fn watch(&mut self, horn_error: f64, dt: f64, floor: f64) -> bool {
+        let settled = self.progress >= 1.0 && self.to > 0.0 && self.refused.is_none();
+        if self.model.is_none() || !settled || self.held || !horn_error.is_finite() || !(dt > 0.0) {
+            return false;
+        }
+        let share = dt / (WATCH_S + dt);
+        let lead = self.lead + self.carry;
+        self.watch.error += (horn_error * horn_error - self.watch.error) * share;
+        self.watch.lead += (lead * lead - self.watch.lead) * share;
+        self.watch.settled += dt;
+        if self.watch.settled < 2.0 * WATCH_S || self.watch.error <= self.watch.lead + floor * floor {
+            return false;
+        }
+        self.refused = Some((self.model, self.to));
+        self.blend_to(0.0);
+        true
     }
 
     /// Moves the blend on by one cycle of `h` seconds, over max(`ramp_time_s`, MIN_BLEND_S).
@@ -187,6 +256,51 @@ mod tests {
         assert_eq!(c.goal(0.1, 1.0, 2.0, f64::INFINITY, false, 1e-3), before);
         let faster = c.goal(0.1, 2.0, 2.0, 0.1, false, 1e-3);
         assert!(faster.is_finite() && faster > before + 0.01, "and the next cycles lead again: {faster}");
+    }
+
+    /// Drives `c` at a steady sine for `seconds`, with the horn `error(lead)` off the model;
+    /// returns the cycle (if any) the watch turned it off, and the largest goal step.
+    fn watched(c: &mut Compensation, seconds: f64, error: impl Fn(f64) -> f64) -> (Option<usize>, f64) {
+        let h = 1e-3;
+        let (mut fell, mut last, mut step): (Option<usize>, Option<f64>, f64) = (None, None, 0.0);
+        for k in 0..(seconds / h) as usize {
+            let t = k as f64 * h;
+            let (theta, omega) = (0.2 * (6.0 * t).sin(), 1.2 * (6.0 * t).cos());
+            c.advance(h, 0.0);
+            let goal = c.goal(theta, omega, 0.0, 0.0, false, h);
+            if let Some(g) = last {
+                step = step.max((goal - theta - g).abs());
+            }
+            last = Some(goal - theta);
+            if k % 2 == 0 && c.watch(error(goal - theta), 2.0 * h, 1.5e-3) && fell.is_none() {
+                fell = Some(k);
+            }
+        }
+        (fell, step)
+    }
+
+    #[test]
+    fn the_watch_keeps_a_compensation_that_helps() {
+        let mut c = Compensation::new(Some(LAG), 1.0);
+        // The horn within a tick of the model: what a good model gives.
+        let (fell, _) = watched(&mut c, 5.0, |_| 1e-3);
+        assert_eq!(fell, None);
+        assert_eq!(c.weight(), 1.0);
+    }
+
+    #[test]
+    fn the_watch_blends_out_a_compensation_that_makes_the_horn_worse_and_keeps_it_off() {
+        let mut c = Compensation::new(Some(LAG), 1.0);
+        // The horn overshoots the model by twice the lead: worse than trailing by it.
+        let (fell, step) = watched(&mut c, 5.0, |lead| 2.0 * lead);
+        let k = fell.expect("the watch turns it off");
+        assert!(k as f64 * 1e-3 >= 2.0 * WATCH_S - 2e-3, "not before 2·WATCH_S at full weight: cycle {k}");
+        assert_eq!(c.weight(), 0.0, "blended out");
+        assert!(step < 1e-3, "no jump (the whole lead is ~30 mrad): a step of {step}");
+        c.retarget(Some(LAG), 1.0);
+        assert_eq!(c.target(), 0.0, "the same set does not turn it on again");
+        c.retarget(Some(LAG), 0.5);
+        assert_eq!(c.target(), 0.5, "another weight tries again");
     }
 
     #[test]

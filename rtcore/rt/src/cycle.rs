@@ -49,6 +49,7 @@ use crate::sensor::{ForceIntake, Intake};
 use crate::shared::Shared;
 use crate::telemetry::{LoopStats, Record};
 use plant::State;
+use std::f64::consts::TAU;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
@@ -564,6 +565,9 @@ impl Controller {
             if slot.reads.running(self.bus.present()[k], now_ns, &slot.wiring.ticks, speed) {
                 slot.present = self.bus.present()[k];
                 slot.read_now = true;
+                if watch_compensation(slot, self.h * self.sync_read_divisor.max(1) as f64) {
+                    LoopStats::add(&self.shared.stats.compensation_fallbacks, 1);
+                }
             } else {
                 slot.faults.insert(FaultKind::PositionGlitch);
             }
@@ -681,6 +685,14 @@ fn compensated_goal(slot: &mut JointSlot, alpha: f64, hold: bool, h: f64) -> Opt
     }
     // min/max, not clamp: clamp panics on crossed or NaN bounds, and the RT thread never panics.
     Some(slot.wiring.ticks.goal_tick(led.max(slot.limits.position_min.min(theta)).min(slot.limits.position_max.max(theta))))
+}
+
+/// Hands a trusted read of the horn to the compensation's watch (`compensation`): true when the
+/// compensation made the horn worse than none would, and is being blended out.
+fn watch_compensation(slot: &mut JointSlot, dt: f64) -> bool {
+    let ticks = &slot.wiring.ticks;
+    let tick = (TAU / ticks.ticks_per_rev).abs();
+    slot.compensation.watch(ticks.theta_of(slot.present) - slot.state.theta, dt, tick)
 }
 
 /// The guard's policy when a state or its goal is not usable: the joint holds at its last good

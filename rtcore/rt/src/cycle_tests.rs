@@ -384,6 +384,41 @@ fn turning_the_compensation_on_and_off_never_steps_the_goal() {
     assert!(worst <= limit, "a step of {worst} ticks (limit {limit})");
 }
 
+/// A joint moving at 0.5 rad/s (inside its range for the whole run) with compensation on, its horn read every cycle `overshoot` leads
+/// past the goal (0: where the goal says); returns (fallbacks counted, the last lead in ticks,
+/// the largest goal step in ticks).
+fn horn_overshooting(overshoot: f64, cycles: usize) -> (u64, i64, i64) {
+    let mut p = free_joint();
+    p.joints[0].gains.damping = 0.2;
+    p.joints[0].servo = Some(lagging_servo());
+    p.joints[0].compensation = 1.0;
+    let mut r = started(p, &[(1, 2048)]);
+    r.ctl.sync_read_divisor = 1;
+    let tick = 4096.0 / std::f64::consts::TAU;
+    let (mut last, mut worst, mut lead) = (r.cycle_with(Some(1.0)), 0, 0);
+    for _ in 0..cycles {
+        lead = last.goal_tick - 2048 - (last.theta * tick).round() as i64;
+        let horn = last.goal_tick + (overshoot * lead as f64).round() as i64;
+        r.bus.0.lock().unwrap().present = vec![(1, horn)];
+        let rec = r.cycle_with(Some(1.0));
+        worst = worst.max((rec.goal_tick - last.goal_tick).abs());
+        last = rec;
+    }
+    (r.shared.stats.compensation_fallbacks.load(Ordering::Relaxed), lead, worst)
+}
+
+#[test]
+fn a_compensation_that_makes_the_horn_worse_is_blended_out_without_a_jump() {
+    let (fallbacks, lead, _) = horn_overshooting(0.0, 3500);
+    assert_eq!(fallbacks, 0, "a horn where the goal says: the compensation stays");
+    assert!((8..=10).contains(&lead), "with its lead of 13.5 mrad: {lead} ticks");
+    let (fallbacks, lead, worst) = horn_overshooting(2.0, 3500);
+    assert_eq!(fallbacks, 1, "a horn two leads past the goal: counted once");
+    assert!(lead.abs() <= 1, "and blended out: a lead of {lead} ticks left");
+    // The joint's own motion (0.5 rad/s: 0.33 tick a cycle) plus the blend's share of 9 ticks.
+    assert!(worst <= 2, "no jump: a step of {worst} ticks");
+}
+
 #[test]
 fn a_position_limit_stops_the_model_without_kicking_the_goal_back() {
     let mut p = free_joint();

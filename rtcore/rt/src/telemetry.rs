@@ -103,6 +103,8 @@ pub struct LoopStats {
     pub sensor_stale_events: AtomicU64,
     pub telemetry_drops: AtomicU64,
     pub sync_reads: AtomicU64,
+    /// Times a joint's servo compensation made its horn worse than none and was turned off.
+    pub compensation_fallbacks: AtomicU64,
     pub period: Histogram,
     pub latency: Histogram,
     /// Wake-up → end of the cycle's bus traffic: what a cycle costs.
@@ -129,6 +131,7 @@ pub struct StatsSnapshot {
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
     pub sync_reads: u64,
+    pub compensation_fallbacks: u64,
     /// (kind name, events), every kind.
     pub faults: Vec<(&'static str, u64)>,
     pub mode: LoopMode,
@@ -160,6 +163,7 @@ impl LoopStats {
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
             sync_reads: self.sync_reads.load(Relaxed),
+            compensation_fallbacks: self.compensation_fallbacks.load(Relaxed),
             faults: self.faults.snapshot(),
             mode: self.faults.mode(),
             rt: self.rt.lock().map(|r| r.clone()).unwrap_or_default(),

@@ -1,0 +1,92 @@
+"""The servo model on servo forms it was not written from: the fit, its verdict, and what
+compensation does to the horn error, side by side in one run.
+
+For each servo truth of tests/oracles/servo.py (test oracles written from each servo's physics:
+a first-order lag, BAM's MX-64, the same motor behind a gear with 0.5° of backlash, and a
+slew-limited servo that the form does not describe), a loop oracle renders a virtual joint
+under a multi-sine hand (0.3–3 Hz) through the daemon's own Recorder:
+
+1. a session without compensation → `admittance fidelity`'s analysis (fit, verdict, notes);
+2. a session with the fitted model's lead (``_rtcore.servo_lead``, the function the RT loop's
+   compensation calls) at full weight, whatever the verdict ("forced"), and with the weight the
+   verdict gives (``servo_compensation`` of the parameter file `fidelity --params-out` writes);
+3. the horn error (RMS present − model angle) off, forced and as gated, and their ratios.
+
+All data are synthetic (oracles in Python, not the simulated bench's dxlsim servo, and not the
+RT loop's `Compensation` filter). Usage::
+
+    .venv/bin/python bench/servo_forms.py [--seconds 12] [--forms lag,bam,geared,slew] [--json FILE]
+
+takes about 2 minutes per form on a quiet machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from oracles.servo import BamOracle, GearedOracle, LagOracle, SlewOracle, session  # noqa: E402
+
+FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOracle),
+         "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle)}
+
+
+def lead_of(params):
+    from admittance import _rtcore
+
+    return lambda w, a, q: float(_rtcore.servo_lead(params, [w], [a], [q])[0])
+
+
+def measure(work: Path, key: str, seconds: float) -> dict:
+    from admittance.fidelity.recording import load_recording
+    from admittance.fidelity.report import analyse
+
+    label, truth = FORMS[key]
+    off = session(work / f"{key}-off", truth(), seconds=seconds)
+    result = analyse(load_recording(work / f"{key}-off"))
+    fit = result.pop("_servo_fit")
+    forced = session(work / f"{key}-forced", truth(), seconds=seconds, lead=lead_of(fit.params.copy()))
+    gated = forced if result["servo_verdict"]["passed"] else off
+    row = {"form": label, "off": off, "forced": forced, "gated": gated, "servo": result["servo"],
+           "verdict": result["servo_verdict"]}
+    print(f"| {label} | {1e3 * off:.3f} | {1e3 * forced:.3f} ({off / forced:.1f}×) | "
+          f"{'on' if row['verdict']['passed'] else 'off'}: {1e3 * gated:.3f} ({off / gated:.1f}×) | "
+          f"{1e3 * fit.rmse_heldout:.3f} | {row['verdict']['heldout_gain']:.1f} | "
+          f"{fit.residual['rmse_over_noise']:.2f} | {fit.residual['ljung_box_p']:.2g} |", flush=True)
+    for reason in row["verdict"]["reasons"]:
+        print(f"    refused: {reason}", flush=True)
+    for note in fit.notes:
+        print(f"    note: {note}", flush=True)
+    return row
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=12.0, help="length of each session")
+    parser.add_argument("--forms", default=",".join(FORMS), help=f"comma-separated, of {', '.join(FORMS)}")
+    parser.add_argument("--json", type=Path, help="also write every figure here")
+    args = parser.parse_args()
+    forms = [f for f in args.forms.split(",") if f]
+    unknown = [f for f in forms if f not in FORMS]
+    if unknown:
+        parser.error(f"unknown form {unknown[0]!r} (known: {', '.join(FORMS)})")
+    print(f"load before: {os.getloadavg()}", flush=True)
+    print("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
+          "held-out gain | residual/noise | Ljung–Box p |")
+    print("|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
+        rows = [measure(Path(tmp), key, args.seconds) for key in forms]
+    print(f"load after: {os.getloadavg()}", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1, default=str) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
