@@ -55,7 +55,7 @@ def test_an_effect_that_changes_sign_or_swings_across_folds_is_not_one_effect():
 
 def test_the_look_elsewhere_correction_raises_the_bar_for_grid_searched_shapes():
     assert required_sigma(3.0, 1) == pytest.approx(3.0, abs=1e-9)
-    assert required_sigma(3.0, 4) == pytest.approx(3.43, abs=0.02)
+    assert required_sigma(3.0, 4) == pytest.approx(3.40, abs=0.01)
     assert required_sigma(3.0, 31) == pytest.approx(3.94, abs=0.02)
 
 
@@ -102,11 +102,11 @@ def _swing(n=600, rate=100.0, theta0=1.0):
 
 
 def test_initial_states_keep_each_trials_best_start():
-    """A start half a period out of phase settles in the wrong basin; the second start is kept."""
+    """A start that swings over the top settles in the wrong basin; the second start is kept."""
     from admittance.ident.fit import fit_initial_states_multi
 
     sim, vector = _swing()
-    wrong, right = np.array([[-1.0, 0.0]]), np.array([[0.97, 0.05]])
+    wrong, right = np.array([[2.5, 0.0]]), np.array([[0.97, 0.05]])  # 2.5 rad: over the top, another basin
     alone = fit_initial_states_multi(sim, vector, [wrong])
     both = fit_initial_states_multi(sim, vector, [wrong, right])
     assert alone.rmse > 0.1
@@ -125,12 +125,12 @@ def test_a_faintly_coloured_residual_is_not_white():
     for e in white:
         x = e.copy()
         for k in range(1, x.size):
-            x[k] += 0.12 * x[k - 1]
+            x[k] += 0.05 * x[k - 1]  # Ljung–Box p ≈ 0.003 with this seed
         coloured.append(x)
     measured = [np.zeros(2000)] * 4
     assert noise_verdict(measured, white, Sensor()).white
     verdict = noise_verdict(measured, coloured, Sensor())
-    assert 1e-12 < verdict.ljung_box_p < 0.01
+    assert 1e-4 < verdict.ljung_box_p < 0.01  # just on the refused side of 0.01
     assert not verdict.white
 
 
@@ -204,8 +204,8 @@ def test_a_slow_clock_is_refused_where_the_load_cannot_swing_that_fast():
 
     t, theta = _free_swing()
     assert check_trial(_trial(t * 1.0, theta), "geometry") == []
-    # Time stamps 6 % short: the swing looks faster than the 0.02 kg·m² load alone allows.
-    (found,) = check_trial(_trial(t * 0.94, theta), "geometry")
+    # Time stamps 10 % short: the swing looks faster than the 0.02 kg·m² load alone allows.
+    (found,) = check_trial(_trial(t * 0.9, theta), "geometry")
     assert found.kind == "clock" and found.action == "refuse"
 
 
@@ -224,3 +224,22 @@ def test_screen_drops_a_spliced_trial_and_refuses_when_nothing_is_left(tmp_path)
     assert len(lines) == 1 and lines[0].startswith("bad.csv: sample 500: jump")
     with pytest.raises(DataError, match="bad.csv"):
         screen(Dataset("geometry", (bad,), folder=tmp_path))
+
+
+# --- a passive rig: the base model on a bound is no reason to refuse an effect ----------------
+
+def test_a_passive_rod_pendulum_with_drag_gets_its_drag_named(tmp_path):
+    """No motor: motor inertia 0, which the base fit puts on its bound. Quadratic drag is tried
+    (not refused for a bound the base model was already on) and named."""
+    from admittance.ident.dataset import load_dataset
+    from admittance.ident.identify import identify_dataset
+    from admittance.ident.synthetic import SynthSpec, generate
+
+    spec = SynthSpec(n_trials=6, duration=5.0, seed=2, params={"motor_inertia": 1e-9, "damping": 0.004, "coulomb": 0.004},
+                     effects={"quadratic_drag": 0.01})
+    j = identify_dataset(load_dataset(generate(tmp_path, spec))).to_json()
+    assert j["base"]["motor_inertia"] < 1e-6
+    tried = [e for round_ in j["evidence"] for e in round_ if e["effect"] == "quadratic_drag"]
+    assert tried and not any("collapsed" in e["reason"] for e in tried)
+    assert j["effects"] == ["quadratic_drag"]
+    assert j["rmse_after"] < 0.8 * j["rmse_before"]

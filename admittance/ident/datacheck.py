@@ -72,8 +72,9 @@ def check_trial(trial, mode: str) -> list[Finding]:
         if found:
             out.append(Finding(trial.name, found[0], check.__name__.strip("_"), found[1], "drop"))
     if not driven:
-        turns = turning_points(theta, _hysteresis(theta))
-        rise = _re_release(theta, turns)
+        smooth = _median5(theta)  # a one-sample outlier is no turning point
+        turns = turning_points(smooth, _hysteresis(smooth))
+        rise = _re_release(smooth, turns)
         if rise:
             out.append(Finding(trial.name, rise[0], "re-release", rise[1], "drop"))
         elif mode == "geometry":
@@ -102,6 +103,13 @@ def screen(dataset, say=None):
 
 def _where(dataset, finding: Finding) -> str:
     return str(dataset.folder / finding.trial) if dataset.folder else finding.trial
+
+
+def _median5(x: np.ndarray) -> np.ndarray:
+    if x.size < 5:
+        return x
+    padded = np.concatenate([x[:1], x[:1], x, x[-1:], x[-1:]])
+    return np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1)
 
 
 def _robust_sigma(x: np.ndarray) -> float:
@@ -148,11 +156,16 @@ def _jump(t: np.ndarray, theta: np.ndarray):
     # How far each step departs from its neighbours' mean: smooth motion leaves acceleration·dt².
     excess = d[1:-1] - 0.5 * (d[:-2] + d[2:])
     limit = max(JUMP_RAD, JUMP_SIGMAS * _robust_sigma(excess))
-    for k in np.flatnonzero(np.abs(excess) > limit):
-        step = d[k + 1]
-        back = d[k + 2] if k + 2 < d.size else 0.0
-        if abs(step + back) > 0.5 * abs(step):  # it stays: not a one-sample outlier
-            return int(k + 2), f"the angle steps by {step:.4g} rad in one sample and stays there"
+    size = np.abs(excess)
+    for k in np.flatnonzero(size > limit):
+        if size[k] < size[max(k - 1, 0)] or size[k] < size[min(k + 1, size.size - 1)]:
+            continue  # the neighbours of a step depart by half of it: the step is the peak
+        i = k + 1  # the step d[i] = θ[i+1] − θ[i]
+        step = d[i]
+        before, after = d[i - 1], (d[i + 1] if i + 1 < d.size else 0.0)
+        # A one-sample outlier goes out and comes back: one step cancels the next.
+        if abs(step + after) > 0.5 * abs(step) and abs(step + before) > 0.5 * abs(step):
+            return int(i + 1), f"the angle steps by {step:.4g} rad in one sample and stays there"
     return None
 
 
@@ -164,15 +177,22 @@ def _runs_of_equal(theta: np.ndarray, min_len: int):
             yield int(start), int(stop)
 
 
-def _speed(t: np.ndarray, theta: np.ndarray, a: int, b: int) -> float:
-    if a < 0 or b >= theta.size:
-        return 0.0
-    return abs(theta[b] - theta[a]) / max(t[b] - t[a], 1e-12)
+def _fast_step(t: np.ndarray, theta: np.ndarray, a: int) -> bool:
+    """Whether the single step a → a+1 is one of a joint at speed: faster than MOVING_SPEED and
+    more than three of the data's smallest steps (an encoder tick is no motion). A joint that
+    sticks arrives and leaves at zero speed, so its steps next to the rest are small; a frozen
+    reading is entered at speed and left with a jump (the reading catching up)."""
+    if a < 0 or a + 1 >= theta.size:
+        return False
+    steps = np.abs(np.diff(theta))
+    quantum = float(steps[steps > 0].min()) if np.any(steps > 0) else 0.0
+    change = abs(theta[a + 1] - theta[a])
+    return change > 3.0 * quantum and change / max(t[a + 1] - t[a], 1e-12) > MOVING_SPEED
 
 
 def _stuck(t: np.ndarray, theta: np.ndarray):
     for start, stop in _runs_of_equal(theta, STUCK_SAMPLES):
-        if _speed(t, theta, start - 2, start) > MOVING_SPEED and _speed(t, theta, stop, stop + 2) > MOVING_SPEED:
+        if _fast_step(t, theta, start - 1) and _fast_step(t, theta, stop):
             return start, (f"{stop - start + 1} identical readings ({theta[start]:.5g} rad), entered and left "
                            f"at speed: a frozen reading")
     return None
@@ -181,7 +201,7 @@ def _stuck(t: np.ndarray, theta: np.ndarray):
 def _clipping(t: np.ndarray, theta: np.ndarray):
     for value in (float(theta.max()), float(theta.min())):
         for start, stop in _runs_of_equal(theta, CLIP_SAMPLES):
-            if theta[start] == value and _speed(t, theta, start - 2, start) > MOVING_SPEED:
+            if theta[start] == value and _fast_step(t, theta, start - 1):
                 return start, (f"{stop - start + 1} readings at the trial's extreme {value:.5g} rad, "
                                f"arrived at speed: the angle is clipped")
     return None
