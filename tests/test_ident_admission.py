@@ -63,7 +63,7 @@ def test_a_cogging_term_at_3_5_sigma_is_refused_for_its_31_looks():
     """assess(): 3.5 σ passes a single look but not the 31 cogging periods."""
     from admittance.ident.search import SearchSettings, assess
 
-    ctx = SimpleNamespace(settings=SearchSettings(), torque_scale=1.0)
+    ctx = SimpleNamespace(settings=SearchSettings(), torque_scale=1.0, sim=SimpleNamespace(mode="geometry"))
     residual = [np.full(100, 1e-3)]
     current = SimpleNamespace(full=_fit(residuals=residual))
     refit = _fit(free=("cogging_amplitude", "cogging_phase"), sigma={"cogging_amplitude": 0.002},
@@ -84,8 +84,16 @@ def test_an_inertia_already_on_its_bound_is_the_rig_not_the_effect():
     passive = _fit(motor_inertia=1e-9)
     with_drag = _fit(motor_inertia=1e-9, quadratic_drag=0.01)
     assert physical_problems(ev, with_drag, passive) == []
-    assert "collapsed" in physical_problems(ev, with_drag, _fit())[-1]
-    assert "collapsed" in physical_problems(ev, with_drag)[-1]
+    # Drag cannot take over the period: a motor inertia of 0 with it is a rig without a motor.
+    assert physical_problems(ev, with_drag, _fit()) == []
+    # A delay can: putting the inertia on its bound, it replaced it ...
+    delay = Evidence("time_delay", params=("time_delay",))
+    with_delay = _fit(motor_inertia=1e-9, time_delay=0.01)
+    assert "collapsed" in physical_problems(delay, with_delay, _fit())[-1]
+    assert "collapsed" in physical_problems(delay, with_delay)[-1]
+    # ... unless the model without it was there already; in lumped mode 0 is no pendulum.
+    assert physical_problems(delay, with_delay, passive) == []
+    assert "collapsed" in physical_problems(ev, with_drag, _fit(), mode="lumped")[-1]
 
 
 # --- fit.py: several starts for the initial states --------------------------------------------
@@ -238,7 +246,6 @@ def test_a_passive_rod_pendulum_with_drag_gets_its_drag_named(tmp_path):
     spec = SynthSpec(n_trials=6, duration=5.0, seed=2, params={"motor_inertia": 1e-9, "damping": 0.004, "coulomb": 0.004},
                      effects={"quadratic_drag": 0.01})
     j = identify_dataset(load_dataset(generate(tmp_path, spec))).to_json()
-    assert j["base"]["motor_inertia"] < 1e-6
     tried = [e for round_ in j["evidence"] for e in round_ if e["effect"] == "quadratic_drag"]
     assert tried and not any("collapsed" in e["reason"] for e in tried)
     assert j["effects"] == ["quadratic_drag"]

@@ -341,7 +341,7 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     main = [n for n in EFFECTS[evidence.effect].evidence if n in evidence.params]
     evidence.significance = significance(refit, main)
     evidence.required_sigma = required_sigma(settings.min_sigma, len(variants(evidence.effect, ctx.torque_scale)))
-    evidence.problems = physical_problems(evidence, refit, current.full)
+    evidence.problems = physical_problems(evidence, refit, current.full, ctx.sim.mode)
     if evidence.problems:
         return _refuse(evidence, "not physical: " + "; ".join(evidence.problems))
     if evidence.significance < evidence.required_sigma:
