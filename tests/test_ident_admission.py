@@ -250,3 +250,23 @@ def test_a_passive_rod_pendulum_with_drag_gets_its_drag_named(tmp_path):
     assert tried and not any("collapsed" in e["reason"] for e in tried)
     assert j["effects"] == ["quadratic_drag"]
     assert j["rmse_after"] < 0.8 * j["rmse_before"]
+
+
+# --- the summary line ---------------------------------------------------------------------------
+
+def test_the_summary_line_lists_stand_ins_groups_and_dropped_trials():
+    from admittance.ident.cli import summary_line
+    from admittance.ident.datacheck import Finding
+    from admittance.ident.search import SearchOutcome
+
+    search = SearchOutcome(["angle_offset", "torque_bias"], _fit(), [], [], None,
+                           equivalents={"torque_bias": ["asymmetric_coulomb"]}, stand_ins=["angle_offset"])
+    result = SimpleNamespace(mode="geometry", effects=search.claimed, stand_ins=search.stand_ins, search=search,
+                             data_checks=[Finding("t07.csv", 812, "jump", "...", "drop")],
+                             before=SimpleNamespace(rmse=0.012), after=SimpleNamespace(rmse=0.002),
+                             timings={"total": 3.0})
+    line = summary_line(result)
+    assert "effects: none" in line
+    assert "stand-ins: angle_offset" in line
+    assert "torque_bias or asymmetric_coulomb" in line and "undriven drops" in line
+    assert "dropped: t07.csv" in line
