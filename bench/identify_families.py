@@ -100,8 +100,9 @@ def verdict(family: str, spec: oracle.OracleSpec, result: dict, truth: dict) -> 
     ibf = all(abs(errors[p]) <= TOLERANCE[p] for p in TOLERANCE)
     if family in ("clean", "unnamed") or (family == "light" and spec.effect not in oracle.LIBRARY_MAIN):
         return (not named), ""
-    if family == "equivalent":  # nothing in the data tells the two apart: no name is the honest answer
-        return (not named), ""
+    if family == "equivalent":  # nothing in the data tells the two apart: the group is the honest answer
+        grouped = any(spec.effect in g["effects"] for g in result.get("groups", []))
+        return (not named and grouped), "" if grouped else "group not named"
     expected = [spec.effect]
     ok = named == expected and ibf
     return ok, "" if ibf else "I/B/F off"

@@ -63,7 +63,7 @@ def _cycles(loop, n: int, read_every: int = 1) -> np.ndarray:
 
 def test_the_last_cycles_before_a_fault_stop_reach_the_csv_and_the_mcap(tmp_path):
     from admittance.errors import FaultStop
-    from admittance.ident.loaders import read_recording
+    from admittance.formats.recording import read_recording
 
     from daemon_process import read_recording as read_csv
 
@@ -88,7 +88,7 @@ def test_every_drained_batch_is_on_disk_when_the_tick_ends(tmp_path, monkeypatch
     on the flushes, not on whether a write happened to exceed Python's 8 KiB buffer."""
     import pathlib
 
-    from admittance.ident.loaders import read_recording
+    from admittance.formats.recording import read_recording
 
     plain_open = pathlib.Path.open
 

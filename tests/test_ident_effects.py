@@ -151,19 +151,20 @@ def test_backward_step_drops_an_effect_a_later_one_explains(tmp_path):
     assert "angle_offset" not in without.full.free
 
 
-def test_a_torque_bias_on_driven_trials_only_is_not_named_for_lack_of_evidence(tmp_path):
+def test_a_torque_bias_on_driven_trials_only_is_named_as_a_group_with_the_separating_experiment(tmp_path):
     """On driven trials a constant torque bias b and an asymmetric Coulomb level a = b are the
     same equation under the stick law: the data cannot tell them apart, so the term is kept in
-    the model (it predicts as well either way) and no name is claimed. With free swings in the
-    set (the test above) the asymmetric level would act there and the bias would not: the
-    evidence exists, and torque_bias is named."""
+    the model (it predicts as well either way), neither is named alone, and the group is named
+    with the experiment that separates them (undriven drops). With free swings in the set (the
+    test above) the asymmetric level acts there and the bias does not: torque_bias is named."""
     folder = oracle.generate(tmp_path, oracle.OracleSpec(n_trials=6, duration=5.0, seed=3, effect="torque_bias",
                                                          size=0.02, with_torque=True))
     j = identify_dataset(load_dataset(folder)).to_json()
-    assert j["effects"] == []
-    assert j["model_effects"] == j["stand_ins"] and j["stand_ins"][0] in ("torque_bias", "asymmetric_coulomb")
-    assert {j["stand_ins"][0], *j["crossvalidation"]["equivalents"][j["stand_ins"][0]]} == {
-        "torque_bias", "asymmetric_coulomb"}
+    assert j["effects"] == [] and j["stand_ins"] == []
+    (group,) = j["groups"]
+    assert set(group["effects"]) == {"torque_bias", "asymmetric_coulomb"}
+    assert j["model_effects"] == [group["kept"]]
+    assert "undriven drops" in group["separate_by"]
     assert j["rmse_after"] < 0.0025  # predicted as well as by the truth
 
 

@@ -43,8 +43,9 @@ def test_an_encoder_off_its_axis_gets_no_library_name(tmp_path):
     assert j["effects"] == []
     assert j["rmse_after"] <= j["rmse_before"] * 1.02
     assert set(j["model_effects"]) == set(j["stand_ins"])
-    if j["unexplained"]:
-        assert j["unexplained"]["where"] and j["unexplained"]["tried"]
+    # Structure is left (an eccentricity no library term is): the verdict must say so.
+    assert not j["residual"]["nothing_left"]
+    assert j["unexplained"]["where"] and j["unexplained"]["tried"]
 
 
 @pytest.fixture(scope="module")

@@ -67,7 +67,7 @@ def record_both(folder: Path, step_at: int, n: int = 3000) -> None:
 
 
 def test_the_session_mcap_gives_the_same_means(tmp_path):
-    from admittance.ident.loaders import read_recording, recording_segments
+    from admittance.formats.recording import read_recording, recording_segments
 
     record_both(tmp_path, 1505)
     from_mcap = recording_segments(read_recording(tmp_path / "session.mcap"))[1]

@@ -152,8 +152,20 @@ def _finite(value):
     return value
 
 
-def _print_summary(result) -> None:
+def summary_line(result) -> str:
+    """The one line a run ends with: what is named, what is kept as a stand-in (in the model,
+    not claimed), groups the data cannot tell apart, and trials the data checks dropped."""
     effects = ", ".join(result.effects) or "none"
-    print(f"mode {result.mode}; effects: {effects}; held-out RMSE "
-          f"{1e3 * result.before.rmse:.2f} → {1e3 * result.after.rmse:.2f} mrad "
-          f"({result.timings.get('total', 0.0):.1f} s)", file=sys.stderr)
+    parts = [f"mode {result.mode}", f"effects: {effects}"]
+    if result.stand_ins:
+        parts.append(f"stand-ins: {', '.join(result.stand_ins)}")
+    for group in result.search.groups() if result.search else []:
+        parts.append(f"{' or '.join(group['effects'])} (one of them; {group['separate_by']})")
+    if result.data_checks:
+        parts.append(f"dropped: {', '.join(sorted({f.trial for f in result.data_checks}))}")
+    return "; ".join(parts) + (f"; held-out RMSE {1e3 * result.before.rmse:.2f} → {1e3 * result.after.rmse:.2f} mrad "
+                               f"({result.timings.get('total', 0.0):.1f} s)")
+
+
+def _print_summary(result) -> None:
+    print(summary_line(result), file=sys.stderr)

@@ -420,7 +420,17 @@ def fallback_starts(evidence: Evidence, current: FitResult, scales: dict[str, fl
     raise KeyError(f"no fallback start for effect {effect!r}")
 
 
-def physical_problems(evidence: Evidence, fit: FitResult) -> list[str]:
+def _inertia_on_bound(fit: FitResult) -> bool:
+    return fit.value("motor_inertia") <= LOWER["motor_inertia"] * (1 + 1e-3)
+
+
+# Effects that can take over the swing's period (a delay, a spring, a torque scale, a ripple in
+# the angle): when one of them puts the motor inertia on its bound it has replaced the inertia.
+PERIOD_EFFECTS = frozenset({"time_delay", "spring", "torque_gain", "cogging"})
+
+
+def physical_problems(evidence: Evidence, fit: FitResult, before: FitResult | None = None,
+                      mode: str = "geometry") -> list[str]:
     """Why a refit is not a physical explanation, whatever it does to the error (empty: none).
 
     An effect parameter on a bound means the data wanted more than the effect can be (or
@@ -428,7 +438,15 @@ def physical_problems(evidence: Evidence, fit: FitResult) -> list[str]:
     period, which no friction or measurement term can (a 14 ms delay on the DFKI runs did);
     an asymmetric level beyond the Coulomb level is a friction that pushes one way. (How far
     the inertia may move is no test: a 0.05 N·m torque bias left out of the base model puts
-    its inertia 3× too high, and the true effect moves it back.)"""
+    its inertia 3× too high, and the true effect moves it back.)
+
+    ``before``: the model without the effect. An inertia that already sat on its bound there is
+    a fact about the rig (a passive pendulum has no motor inertia to fit), not something the
+    effect did. And in geometry mode a motor inertia of 0 is a rig without a motor (the load's
+    inertia remains): only an effect that can take over the period (:data:`PERIOD_EFFECTS`) is
+    refused for putting it there. A passive rod pendulum with quadratic drag: the base fit
+    absorbs the drag into 0.19 g·m² of motor inertia, the drag takes it back to the true 0.
+    In lumped mode the "inertia" is 1/Γ, and 0 is no pendulum at all."""
     out = []
     shape_fixed = [n for n in SHAPE_PARAMS.get(evidence.effect, ()) if n not in FREED_SHAPES]
     for name in evidence.params:
@@ -438,7 +456,8 @@ def physical_problems(evidence: Evidence, fit: FitResult) -> list[str]:
         for bound, kind in ((LOWER.get(name), "lower"), (UPPER.get(name), "upper")):
             if bound is not None and abs(value - bound) <= BOUND_TOLERANCE * max(1.0, abs(bound)):
                 out.append(f"{name} ran to its {kind} bound {bound:g}")
-    if fit.value("motor_inertia") <= LOWER["motor_inertia"] * (1 + 1e-3):
+    takes_over = mode == "lumped" or evidence.effect in PERIOD_EFFECTS
+    if _inertia_on_bound(fit) and takes_over and not (before is not None and _inertia_on_bound(before)):
         out.append("motor_inertia collapsed onto its bound")
     if evidence.effect == "asymmetric_coulomb" and abs(fit.value("coulomb_asym")) > fit.value("coulomb"):
         out.append("|coulomb_asym| above the Coulomb level: friction would push one way")

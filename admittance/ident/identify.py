@@ -33,6 +33,7 @@ from admittance.formats import paramfile
 from admittance.ident.base import fit_base, search_context, torque_scale_of
 from admittance.ident.crossval import Folds
 from admittance.formats.dataset import Dataset
+from admittance.ident.datacheck import Finding, screen
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
 from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
@@ -91,6 +92,7 @@ class IdentifyResult:
     unexplained: dict | None = None
     base_starts: list[dict] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    data_checks: list[Finding] = field(default_factory=list)  # what the data checks found (and dropped)
 
     @property
     def mode(self) -> str:
@@ -161,6 +163,7 @@ class IdentifyResult:
             "base": self.base_summary(),
             "effects": self.effects,
             "stand_ins": self.stand_ins,
+            "groups": self.search.groups() if self.search else [],
             "model_effects": self.model_effects,
             "params": params,
             "motor_inertia": params["motor_inertia"],
@@ -186,6 +189,7 @@ class IdentifyResult:
             "unexplained": self.unexplained,
             "x0": {trials[i].name: [float(v) for v in x] for i, x in zip(self.training, self.final.x0)},
             "timings": self.timings,
+            "data_checks": [f.as_dict() for f in self.data_checks],
         }
         if self.mode == "lumped":
             out["lumped"] = self.lumped(self.final)
@@ -206,17 +210,21 @@ class IdentifyResult:
 
 
 class _Progress:
-    """One self-overwriting line on a terminal; on a pipe or a log file, one line per phase
-    (an iteration counter rewritten with carriage returns would be unreadable there)."""
+    """One self-overwriting line on a terminal (a counter: "round 1: 3/12 stribeck"); on a pipe
+    or a log file, one line per phase (an iteration counter rewritten with carriage returns
+    would be unreadable there). Nothing in the first second: a clean set is done by then."""
+
+    QUIET_SECONDS = 1.0
 
     def __init__(self, quiet: bool):
         self.quiet = quiet
         self.width = 0
         self.tty = sys.stderr.isatty()
         self.phase = ""
+        self.started = time.perf_counter()
 
     def __call__(self, message: str) -> None:
-        if self.quiet:
+        if self.quiet or time.perf_counter() - self.started < self.QUIET_SECONDS:
             return
         line = f"identify: {message}"
         if not self.tty:
@@ -225,9 +233,18 @@ class _Progress:
                 print(line, file=sys.stderr)
                 self.phase = phase
             return
-        sys.stderr.write("\r" + line.ljust(self.width))
+        sys.stderr.write("\r" + line[:119].ljust(self.width))
         sys.stderr.flush()
-        self.width = len(line)
+        self.width = min(len(line), 119)
+
+    def note(self, message: str) -> None:
+        """A line that stays (a data-check finding), even between self-overwriting ones."""
+        if self.quiet:
+            return
+        if self.tty and self.width:
+            sys.stderr.write("\r" + " " * self.width + "\r")
+            self.width = 0
+        print(f"identify: {message}", file=sys.stderr)
 
     def done(self) -> None:
         if self.tty and not self.quiet and self.width:
@@ -257,6 +274,8 @@ def _timed(timings: dict, phase: str):
 
 
 def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timings: dict) -> IdentifyResult:
+    with _timed(timings, "data_checks"):
+        dataset, findings = screen(dataset, progress.note)
     trials = dataset.trials
     heldout, training = stratified_pick(trials)
     if not heldout:  # a single trial: score on it, and say so in the JSON (heldout == training)
@@ -297,7 +316,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
                                                                             dataset.mode), torque_scale)
             unexplained = describe_unexplained(residual, search, remaining)
     return IdentifyResult(dataset, settings, heldout, training, base, final, before, after, search,
-                          remaining, residual, sensor, unexplained, base_starts, timings)
+                          remaining, residual, sensor, unexplained, base_starts, timings, findings)
 
 
 def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale: float,

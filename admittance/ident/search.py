@@ -156,8 +156,15 @@ class SearchOutcome:
 
     @property
     def claimed(self) -> list[str]:
-        """The effects named as the physics at work: admitted, and not stand-ins."""
-        return [e for e in self.effects if e not in self.stand_ins]
+        """The effects named alone as the physics at work: admitted, not stand-ins, and not one
+        of a group the data cannot tell apart (those are named as the group: :meth:`groups`)."""
+        return [e for e in self.effects if e not in self.stand_ins and e not in self.equivalents]
+
+    def groups(self) -> list[dict]:
+        """Each group of effects the data cannot tell apart: which one the model keeps, and
+        what experiment would separate them."""
+        return [{"effects": [kept, *others], "kept": kept, "separate_by": separating_experiment([kept, *others])}
+                for kept, others in self.equivalents.items() if kept in self.effects]
 
     @property
     def validation_rmse(self) -> list[float]:
@@ -180,6 +187,30 @@ class SearchContext:
     def say(self, message: str) -> None:
         if self.progress:
             self.progress(message)
+
+
+# What data would tell two effects apart that fit some data equally well (by pair; any order).
+SEPARATING = {
+    frozenset({"torque_bias", "asymmetric_coulomb"}): (
+        "add undriven drops: a torque bias also acts at rest and moves where the joint settles, "
+        "an asymmetric Coulomb level does not"),
+    frozenset({"torque_bias", "angle_offset"}): (
+        "add trials at another load: an angle offset is the same angle at every load, the rest angle "
+        "a torque bias gives shrinks as the gravity torque grows"),
+    frozenset({"quadratic_drag", "stribeck"}): "add small, slow swings: Stribeck acts near rest, drag at speed",
+    frozenset({"load_dependent_coulomb", "asymmetric_coulomb"}): "add trials at a second load",
+}
+GENERIC_SEPARATION = "add trials that differ from these in load, swing amplitude or drive"
+
+
+def separating_experiment(effects: Sequence[str]) -> str:
+    """The experiment that tells a group of equivalent effects apart (see :data:`SEPARATING`)."""
+    for i, a in enumerate(effects):
+        for b in effects[i + 1 :]:
+            found = SEPARATING.get(frozenset({a, b}))
+            if found:
+                return found
+    return GENERIC_SEPARATION
 
 
 def nothing_left(sim: Simulator, fit: FitResult, sensor: Sensor) -> bool:
@@ -232,7 +263,9 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
         rounds.append(ranking)
         admissible = []
         at_floor: FitResult | None = None  # the first admissible refit that leaves only sensor noise
-        for evidence in ranking:
+        for number, evidence in enumerate(ranking, 1):
+            ctx.say(f"effect search round {len(rounds)}: candidate {number}/{len(ranking)} "
+                    f"{evidence.effect} ({evidence.variant})")
             scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor)
             if scored is not None:
                 admissible.append((evidence, scored))
@@ -279,7 +312,6 @@ def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: b
     This one can then at best tie with it: it gets only the starts its linear test suggests,
     and it is not cross-validated when it fits the training data materially worse (by more
     than a tenth of the noise variance), which would lose it any tie."""
-    ctx.say(f"trying {evidence.effect} ({evidence.variant})")
     refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None)
     if refit is None:
         return _refuse(evidence, "not refitted: its linear test gave the wrong sign, and another candidate "
@@ -309,7 +341,7 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     main = [n for n in EFFECTS[evidence.effect].evidence if n in evidence.params]
     evidence.significance = significance(refit, main)
     evidence.required_sigma = required_sigma(settings.min_sigma, len(variants(evidence.effect, ctx.torque_scale)))
-    evidence.problems = physical_problems(evidence, refit)
+    evidence.problems = physical_problems(evidence, refit, current.full, ctx.sim.mode)
     if evidence.problems:
         return _refuse(evidence, "not physical: " + "; ".join(evidence.problems))
     if evidence.significance < evidence.required_sigma:
@@ -604,10 +636,11 @@ def _choose(ctx: SearchContext, current: Scored, admissible: list[tuple[Evidence
     if equivalent:
         # Nothing in the data tells them apart (on driven trials a torque bias b and an
         # asymmetric Coulomb level a = b are the same equation under the stick law). The term
-        # stays in the model, which predicts as well either way, but no name is claimed for it.
-        leader.stand_in = True
-        leader.reason = (f"kept in the model, not claimed: indistinguishable from {', '.join(equivalent)} on these "
-                         f"data (equal prediction, equal fit, as many parameters); " + leader.reason)
+        # stays in the model, which predicts as well either way, and the group is named, with
+        # the experiment that would separate it: not a stand-in, not one name either.
+        group = " or ".join([leader.effect, *equivalent])
+        leader.reason = (f"named as a group: {group} (equal prediction, equal fit, as many parameters on these "
+                         f"data); {separating_experiment([leader.effect, *equivalent])}; " + leader.reason)
     leader.accepted = True
     return leader, leader_model, equivalent
 

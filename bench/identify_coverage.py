@@ -1,0 +1,96 @@
+"""Do identify's 95 % intervals cover the truth? Coverage of ±1.96 σ on synthetic sets.
+
+Each row is one `admittance synth` set (the Rust plant at a 10× finer step than the fit, known
+truth) for one seed: clean, or with one library effect injected at a clearly visible size. For
+every parameter identify reports a σ for and the truth knows (I, B, F, and the injected effect's
+main parameter when that effect was named), the interval est ± 1.96 σ either holds the truth or
+not. The table gives, per set kind, how many intervals held it; the target is ≥ 90 %.
+
+Synthetic data: this measures the σ against a known truth, with the only model errors the ones
+the generator makes (a finer integration step). Measured data have more.
+
+Usage: ``nice .venv/bin/python bench/identify_coverage.py [--seeds 20] [--kinds clean,stribeck,...]
+[--trials 10]``; prints the machine load with the table. To measure another checkout (the side by
+side of docs/identification.md), run this file with that checkout's interpreter and ``--root``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+KINDS = {  # effect → size (the sizes of tests/test_ident_effects.py)
+    "clean": None,
+    "stribeck": 0.06,
+    "quadratic_drag": 0.01,
+    "load_dependent_coulomb": 0.12,
+    "asymmetric_coulomb": 0.02,
+    "angle_offset": 0.03,
+}
+Z95 = 1.959964
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--kinds", default=",".join(KINDS))
+    parser.add_argument("--trials", type=int, default=10)
+    parser.add_argument("--duration", type=float, default=6.0)
+    parser.add_argument("--root", default=str(Path(__file__).resolve().parents[1]),
+                        help="the checkout whose admittance package to measure")
+    parser.add_argument("--json", help="also write the rows here")
+    args = parser.parse_args()
+    sys.path.insert(0, args.root)
+    try:
+        from admittance.formats.dataset import load_dataset
+    except ImportError:  # a checkout from before the formats package (a side-by-side run)
+        from admittance.ident.dataset import load_dataset
+    from admittance.ident.identify import IdentifySettings, identify_dataset
+    from admittance.ident.synthetic import EFFECT_MAIN, SynthSpec, generate
+
+    print(f"load before: {Path('/proc/loadavg').read_text().strip()}; root {args.root}")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in args.kinds.split(","):
+            size = KINDS[kind]
+            for seed in range(args.seeds):
+                spec = SynthSpec(n_trials=args.trials, duration=args.duration, seed=1000 + seed,
+                                 effects={} if size is None else {kind: size})
+                folder = generate(Path(tmp) / f"{kind}_{seed}", spec)
+                truth = json.loads((folder / "truth.json").read_text())["params"]
+                tick = time.perf_counter()
+                j = identify_dataset(load_dataset(folder), IdentifySettings()).to_json()
+                seconds = time.perf_counter() - tick
+                names = ["motor_inertia", "damping", "coulomb"]
+                if size is not None and kind in j["effects"]:
+                    names.append(EFFECT_MAIN[kind][0])
+                for name in names:
+                    sigma = j["sigma"].get(name)
+                    if sigma is None or truth.get(name) is None:
+                        continue
+                    error = j["params"][name] - truth[name]
+                    rows.append({"kind": kind, "seed": seed, "param": name, "estimate": j["params"][name],
+                                 "truth": truth[name], "sigma": sigma, "z": error / sigma if sigma > 0 else float("inf"),
+                                 "covered": abs(error) <= Z95 * sigma, "named": j["effects"], "seconds": seconds})
+                print(f"  {kind:24s} seed {seed:3d}: {seconds:6.1f} s, named {j['effects']}, "
+                      + ", ".join(f"{r['param']} z={r['z']:+.1f}" for r in rows if r["kind"] == kind and r["seed"] == seed),
+                      flush=True)
+    print(f"load after: {Path('/proc/loadavg').read_text().strip()}")
+    print(f"\n| set | intervals | covered | coverage | max |z| |\n|---|---|---|---|---|")
+    for kind in args.kinds.split(",") + ["all"]:
+        sel = [r for r in rows if kind in ("all", r["kind"])]
+        if sel:
+            covered = sum(r["covered"] for r in sel)
+            print(f"| {kind} | {len(sel)} | {covered} | {100 * covered / len(sel):.0f} % | "
+                  f"{max(abs(r['z']) for r in sel):.1f} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
