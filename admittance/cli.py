@@ -25,6 +25,7 @@ SUBCOMMAND_MODULES = (
     "admittance.bringup.cli",  # setup
     "admittance.ident.cli",  # identify, synth
     "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
+    "admittance.drops.cli",  # drops
     "admittance.fidelity.cli",  # fidelity
 )
 
