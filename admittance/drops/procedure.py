@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from admittance.drivers.dynamixel import ServoCommError, ServoTimeout
 from admittance.errors import ConfigError, DeviceError
 
 RAD_PER_TICK = 2.0 * math.pi / 4096.0
@@ -35,6 +36,9 @@ MOVE_PERIOD_S = 0.02  # the slow move's goal updates
 ARRIVE_TOLERANCE = 0.05  # rad: the horn is at the start angle (a position loop holding gravity sags a little)
 SETTLE_S = 1.0  # held at the start angle before the release, so the drop starts at rest
 ARRIVE_TIMEOUT_S = 10.0
+MIN_SAMPLES = 50  # a drop with fewer answered reads is a bus problem, not a dataset
+BUS_RETRIES = 3  # a command whose reply is lost is sent again: a busy host must not end a run of drops
+READ_ATTEMPTS = 5  # a reply lost to noise or a busy host costs a sample, not the drop
 DIRECTIONS = {"cw": 1.0, "ccw": -1.0}  # the sign of the start angle, as synth labels its trials
 
 
@@ -116,7 +120,24 @@ class DropSession:
     drops: list[Drop] = field(default_factory=list)
 
     def angle(self) -> float:
-        return self.joint.angle(self.bus.read_raw(self.joint.servo_id, "Present Position"))
+        """The horn's angle, read again when a reply is lost (at most READ_ATTEMPTS times)."""
+        for attempt in range(READ_ATTEMPTS):
+            try:
+                return self.joint.angle(self.bus.read_raw(self.joint.servo_id, "Present Position"))
+            except (ServoTimeout, ServoCommError):
+                if attempt == READ_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
+
+    def sample(self) -> tuple[float, float] | None:
+        """(time, angle) of one read, stamped halfway between the request and the reply (where
+        the servo sampled it, give or take the wire); None when the reply was lost."""
+        before = self.clock()
+        try:
+            tick = self.bus.read_raw(self.joint.servo_id, "Present Position")
+        except (ServoTimeout, ServoCommError):
+            return None
+        return 0.5 * (before + self.clock()), self.joint.angle(tick)
 
     def goal(self, angle: float) -> None:
         self.bus.write_raw(self.joint.servo_id, "Goal Position", self.joint.tick(angle))
@@ -149,15 +170,20 @@ class DropSession:
         self.bus.set_torque(sid, False)
         t0 = self.clock()
         times, angles = [], []
-        while (now := self.clock() - t0) < duration:
-            theta = self.angle()
-            times.append(now)
-            angles.append(theta)
+        while self.clock() - t0 < duration:
+            read = self.sample()
+            if read is None:
+                continue
+            times.append(read[0] - t0)
+            angles.append(theta := read[1])
             if not self.joint.inside(theta):
                 caught = self.catch()
                 raise DeviceError(f"the swing left the position limits at {theta:.3f} rad and was caught at "
                                   f"{caught:.3f} rad: lower --start-angle (docs/drops.md)")
         self.catch()
+        if len(times) < MIN_SAMPLES:
+            raise DeviceError(f"servo {sid}: only {len(times)} of the drop's reads were answered in {duration:g} s; "
+                              "check the bus (baud rate, latency timer, cabling)")
         return np.asarray(times), np.asarray(angles)
 
     def run(self, plan: DropPlan, distance: float) -> list[Drop]:

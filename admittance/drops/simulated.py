@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from admittance.drops.procedure import DropSession, Joint
+from admittance.drops.procedure import BUS_RETRIES, DropSession, Joint
 from admittance.ident.dataset import load_geometry
 
 MODEL = "MX-64"
@@ -38,6 +38,7 @@ def simulated_session(rod: dict | None, bob: dict | None, distance: float, joint
     servo = {"id": joint.servo_id, "model": MODEL} | pendulum_load(rod, bob, distance)
     with MockBench(servos=[servo], profile="still", **bench_options) as bench:
         say(f"drops: simulated bench, bob at {distance:g} m")
-        with ServoBus(bench.bus_port, baudrate=bench.config.baudrate, protocol=bench.config.protocol) as bus:
+        with ServoBus(bench.bus_port, baudrate=bench.config.baudrate, protocol=bench.config.protocol,
+                      retries=BUS_RETRIES) as bus:
             bus.prepare(joint.servo_id)
             yield DropSession(bus, joint, say=say)
