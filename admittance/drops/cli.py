@@ -36,15 +36,15 @@ def register(subparsers) -> None:
                    help=f"bob distances from the axis in m (default {THESIS_DISTANCES})")
     p.add_argument("--rod", default=THESIS_ROD, metavar="KG,M",
                    help=f"the rod's mass and length, or 'none' (default {THESIS_ROD}, the thesis's)")
-    p.add_argument("--bob", type=float, default=THESIS_BOB, metavar="KG", help=f"the bob's mass (default {THESIS_BOB})")
+    p.add_argument("--bob", type=float, default=THESIS_BOB, metavar="KG", help=f"the bob's mass in kg (default {THESIS_BOB} kg)")
     p.add_argument("--start-angle", type=float, default=math.pi / 2, metavar="RAD",
-                   help="release angle from hanging straight down, both sides (default π/2)")
+                   help="release angle from hanging straight down, both sides, in rad (default π/2 rad)")
     p.add_argument("--repeats", type=int, default=3, metavar="N", help="drops per distance and direction (default 3)")
-    p.add_argument("--duration", type=float, default=8.0, metavar="S", help="recorded per drop in s (default 8)")
+    p.add_argument("--duration", type=float, default=8.0, metavar="S", help="recorded per drop, in s (default 8 s)")
     p.add_argument("--move-speed", type=float, default=0.5, metavar="RAD/S",
-                   help="speed of the slow move to the start angle (default 0.5)")
+                   help="speed of the slow move to the start angle, in rad/s (default 0.5 rad/s)")
     p.add_argument("--margin", type=float, default=0.1, metavar="RAD",
-                   help="the start angle stays this far inside the position limits (default 0.1)")
+                   help="the start angle stays this far inside the position limits, in rad (default 0.1 rad)")
     p.add_argument("--force", action="store_true", help="write into a non-empty DIR, replacing its manifest and CSVs")
     p.set_defaults(func=run_drops)
 

@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with manifest.toml and the trial files")
     p.add_argument("--json", dest="json_out", metavar="FILE.json",
-                   help="write the result here (optional: --report or --params-out alone are enough)")
+                   help="write the result here (default: not written; --report or --params-out alone are enough)")
     p.add_argument("--params-out", metavar="FILE.toml",
                    help="also write the final model as a parameter file (default: not written)")
     p.add_argument("--report", metavar="DIR", help="write a report into DIR: report.html (self-contained, "
