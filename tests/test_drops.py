@@ -57,13 +57,14 @@ def test_identify_on_the_drops_recovers_the_simulated_servos_plant(drops, tmp_pa
     assert all(abs(errors[n]) < TOLERANCE[n] for n in TOLERANCE), errors
 
 
-def test_a_start_angle_outside_the_limits_is_refused_before_anything_moves(tmp_path):
+def test_a_start_angle_outside_the_limits_is_refused_before_anything_moves(tmp_path, capsys):
     config = tmp_path / "bench.toml"
     config.write_text(tomli_w.dumps({"bus": {"port": "/dev/does-not-exist"},
                                      "joints": [{"id": 1, "model": "MX-64",
                                                  "limits": {"position_min": -1.0, "position_max": 1.0}}],
                                      "sensor": {"kind": "optoforce", "port": "/dev/null", "lever_arm": 0.1}}))
     assert main(["drops", str(tmp_path / "out"), "--config", str(config), "--start-angle", "0.95"]) != 0
+    assert "must lie inside the joint's position limits" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
