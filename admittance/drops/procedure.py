@@ -17,6 +17,7 @@ bench (simulated.py) and a real one (cli.py).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -153,9 +154,11 @@ class DropSession:
         """From where the horn is to ``target`` at ``speed`` rad/s, then held for SETTLE_S."""
         here = self.catch()
         steps = max(int(abs(target - here) / (speed * MOVE_PERIOD_S)), 1)
-        for k in range(1, steps + 1):
-            self.goal(here + (target - here) * k / steps)
+        for k in range(1, steps):
+            with contextlib.suppress(ServoTimeout, ServoCommError):  # the next step's goal supersedes a lost one
+                self.goal(here + (target - here) * k / steps)
             time.sleep(MOVE_PERIOD_S)
+        self.goal(target)
         deadline = self.clock() + ARRIVE_TIMEOUT_S
         while abs(self.angle() - target) > ARRIVE_TOLERANCE:
             if self.clock() > deadline:

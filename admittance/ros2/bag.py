@@ -28,6 +28,7 @@ import numpy as np
 from admittance.ros2 import messages
 
 BAG_FILE = "rosbag2_0.mcap"
+METADATA = "metadata.yaml"
 CHUNK_BYTES = 256 * 1024
 MSG_TYPES = {  # type_id -> the .msg spelling
     messages.INT32: "int32", messages.UINT32: "uint32", messages.DOUBLE: "float64", messages.STRING: "string",
@@ -67,6 +68,8 @@ class Ros2Bag:
 
         self.folder = folder
         folder.mkdir(parents=True, exist_ok=True)
+        # a previous session's metadata must not describe this file if this one is cut short
+        (folder / METADATA).unlink(missing_ok=True)
         self._fh = (folder / BAG_FILE).open("wb")
         self._writer = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
         pack_chunk_indices(self._writer)
@@ -124,7 +127,7 @@ class Ros2Bag:
             self._writer.finish()
         finally:
             self._fh.close()
-        (self.folder / "metadata.yaml").write_text(json.dumps(self.metadata(), indent=1) + "\n")
+        (self.folder / METADATA).write_text(json.dumps(self.metadata(), indent=1) + "\n")
 
     def metadata(self) -> dict[str, Any]:
         """rosbag2's bag information (version 8: type hashes; QoS left to the player's defaults)."""
