@@ -99,7 +99,7 @@ def _real_bench(args, say):
     """The configured bus and joint; the person moves the bob between distances."""
     from admittance.daemon.config import load_config
     from admittance.drivers.dynamixel import ServoBus
-    from admittance.drops.procedure import BUS_RETRIES, DropSession, Joint
+    from admittance.drops.procedure import BUS_RETRIES, REPLY_SLACK_MS, DropSession, Joint
 
     cfg = load_config(args.config)
     joints = {j.id: j for j in cfg.joints}
@@ -114,7 +114,8 @@ def _real_bench(args, say):
     def sessions(distance):
         say(f"drops: clamp the bob at {distance:g} m from the axis, keep clear of the swing, then press Enter")
         input()
-        with ServoBus(cfg.bus.port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol, retries=BUS_RETRIES) as bus:
+        with ServoBus(cfg.bus.port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol, retries=BUS_RETRIES,
+                      reply_slack_ms=REPLY_SLACK_MS) as bus:
             bus.prepare(joint.servo_id)
             try:
                 yield DropSession(bus, joint, say=say)

@@ -39,6 +39,7 @@ SETTLE_S = 1.0  # held at the start angle before the release, so the drop starts
 ARRIVE_TIMEOUT_S = 10.0
 MIN_SAMPLES = 50  # a drop with fewer answered reads is a bus problem, not a dataset
 BUS_RETRIES = 3  # a command whose reply is lost is sent again: a busy host must not end a run of drops
+REPLY_SLACK_MS = 100.0  # waited for a reply beyond its wire time: costs nothing unless a reply is lost
 READ_ATTEMPTS = 5  # a reply lost to noise or a busy host costs a sample, not the drop
 DIRECTIONS = {"cw": 1.0, "ccw": -1.0}  # the sign of the start angle, as synth labels its trials
 
@@ -120,15 +121,19 @@ class DropSession:
     clock: Callable[[], float] = time.monotonic
     drops: list[Drop] = field(default_factory=list)
 
-    def angle(self) -> float:
-        """The horn's angle, read again when a reply is lost (at most READ_ATTEMPTS times)."""
+    def _persist(self, op: Callable[[], Any]) -> Any:
+        """``op`` again when its reply is lost, at most READ_ATTEMPTS times (each with the bus's
+        own retries): the catch and the release must happen even on a busy host."""
         for attempt in range(READ_ATTEMPTS):
             try:
-                return self.joint.angle(self.bus.read_raw(self.joint.servo_id, "Present Position"))
+                return op()
             except (ServoTimeout, ServoCommError):
                 if attempt == READ_ATTEMPTS - 1:
                     raise
         raise AssertionError("unreachable")
+
+    def angle(self) -> float:
+        return self.joint.angle(self._persist(lambda: self.bus.read_raw(self.joint.servo_id, "Present Position")))
 
     def sample(self) -> tuple[float, float] | None:
         """(time, angle) of one read, stamped halfway between the request and the reply (where
@@ -141,13 +146,16 @@ class DropSession:
         return 0.5 * (before + self.clock()), self.joint.angle(tick)
 
     def goal(self, angle: float) -> None:
-        self.bus.write_raw(self.joint.servo_id, "Goal Position", self.joint.tick(angle))
+        self._persist(lambda: self.bus.write_raw(self.joint.servo_id, "Goal Position", self.joint.tick(angle)))
+
+    def torque(self, on: bool) -> None:
+        self._persist(lambda: self.bus.set_torque(self.joint.servo_id, on))
 
     def catch(self) -> float:
         """Torque on where the horn is: the goal first, so the servo holds rather than jumps."""
         here = self.angle()
         self.goal(here)
-        self.bus.set_torque(self.joint.servo_id, True)
+        self.torque(True)
         return here
 
     def move_to(self, target: float, speed: float) -> None:
@@ -156,7 +164,7 @@ class DropSession:
         steps = max(int(abs(target - here) / (speed * MOVE_PERIOD_S)), 1)
         for k in range(1, steps):
             with contextlib.suppress(ServoTimeout, ServoCommError):  # the next step's goal supersedes a lost one
-                self.goal(here + (target - here) * k / steps)
+                self.bus.write_raw(self.joint.servo_id, "Goal Position", self.joint.tick(here + (target - here) * k / steps))
             time.sleep(MOVE_PERIOD_S)
         self.goal(target)
         deadline = self.clock() + ARRIVE_TIMEOUT_S
@@ -170,7 +178,7 @@ class DropSession:
     def drop(self, duration: float) -> tuple[np.ndarray, np.ndarray]:
         """Release and record (t from the release, s; theta, rad) for ``duration`` seconds."""
         sid = self.joint.servo_id
-        self.bus.set_torque(sid, False)
+        self.torque(False)
         t0 = self.clock()
         times, angles = [], []
         while self.clock() - t0 < duration:

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from admittance.drops.procedure import BUS_RETRIES, DropSession, Joint
+from admittance.drops.procedure import BUS_RETRIES, REPLY_SLACK_MS, DropSession, Joint
 from admittance.ident.dataset import load_geometry
 
 MODEL = "MX-64"
@@ -39,6 +39,7 @@ def simulated_session(rod: dict | None, bob: dict | None, distance: float, joint
     with MockBench(servos=[servo], profile="still", **bench_options) as bench:
         say(f"drops: simulated bench, bob at {distance:g} m")
         with ServoBus(bench.bus_port, baudrate=bench.config.baudrate, protocol=bench.config.protocol,
-                      retries=BUS_RETRIES) as bus:
+                      retries=BUS_RETRIES,
+                      reply_slack_ms=REPLY_SLACK_MS) as bus:
             bus.prepare(joint.servo_id)
             yield DropSession(bus, joint, say=say)
