@@ -22,7 +22,7 @@ import math
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -119,7 +119,6 @@ class DropSession:
     joint: Joint
     say: Callable[[str], None] = print
     clock: Callable[[], float] = time.monotonic
-    drops: list[Drop] = field(default_factory=list)
 
     def _persist(self, op: Callable[[], Any]) -> Any:
         """``op`` again when its reply is lost, at most READ_ATTEMPTS times (each with the bus's
