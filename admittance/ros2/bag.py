@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from admittance.errors import ConfigError
 from admittance.ros2 import messages
 
 BAG_FILE = "rosbag2_0.mcap"
@@ -67,10 +68,13 @@ class Ros2Bag:
         from admittance.daemon.mcap_recording import pack_chunk_indices
 
         self.folder = folder
-        folder.mkdir(parents=True, exist_ok=True)
-        # a previous session's metadata must not describe this file if this one is cut short
-        (folder / METADATA).unlink(missing_ok=True)
-        self._fh = (folder / BAG_FILE).open("wb")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            # a previous session's metadata must not describe this file if this one is cut short
+            (folder / METADATA).unlink(missing_ok=True)
+            self._fh = (folder / BAG_FILE).open("wb")
+        except OSError as exc:
+            raise ConfigError(f"record: cannot write the rosbag2 bag in {folder} ({exc.strerror})") from None
         self._writer = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
         pack_chunk_indices(self._writer)
         self._writer.start(profile="ros2", library="admittance")
