@@ -86,3 +86,28 @@ def test_a_recorded_daemon_session_is_a_bag_and_still_our_recording(tmp_path):
         from mcap.reader import make_reader
 
         assert make_reader(fh).get_header().profile == ""
+
+
+def test_a_bag_that_fails_stops_alone(tmp_path):
+    """A full disk under the bag: one warning, the bag off, session.mcap still written."""
+    from types import SimpleNamespace
+
+    from admittance.daemon.ecosystem import Ecosystem
+
+    class FullDisk:
+        closed = False
+
+        def append(self, *_):
+            raise OSError(28, "No space left on device")
+
+        def close(self):
+            self.closed = True
+
+    written = []
+    eco = Ecosystem()
+    eco.mcap = SimpleNamespace(append=lambda jid, cols, off: written.append(jid), flush=lambda: None)
+    eco.bag = bag = FullDisk()
+    eco.record_cycles({1: batch(100.0, 5, 1)})
+    eco.record_cycles({1: batch(100.005, 5, 1)})
+    assert eco.bag is None and bag.closed and eco.mcap is not None and written == [1, 1]
+    assert [w for w in eco.publish(None) if "rosbag2" in w] == ["rosbag2 stopped: OSError: [Errno 28] No space left on device"]
