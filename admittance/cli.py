@@ -26,6 +26,7 @@ SUBCOMMAND_MODULES = (
     "admittance.ident.cli",  # identify, synth
     "admittance.thesis.cli",  # thesis, breakaway, predict
     "admittance.ident.tools_cli",  # ladder, convert
+    "admittance.drops.cli",  # drops
     "admittance.fidelity.cli",  # fidelity
 )
 

@@ -19,7 +19,12 @@ ws_client = pytest.importorskip("websockets.sync.client")
 from admittance.daemon.foxglove_view import FoxgloveView  # noqa: E402
 
 
-def test_a_foxglove_client_sees_every_quantity_of_the_joint():
+@pytest.mark.parametrize("offered, agreed", [
+    (["foxglove.sdk.v1"], "foxglove.sdk.v1"),  # Foxglove's apps
+    (["foxglove.websocket.v1"], "foxglove.websocket.v1"),  # the open-source compatible viewers
+    (["foxglove.sdk.v1", "foxglove.websocket.v1"], "foxglove.sdk.v1"),
+])
+def test_a_foxglove_client_sees_every_quantity_of_the_joint(offered, agreed):
     joint = SimpleNamespace(id=1, zero_tick=2048, direction=1)
     view = FoxgloveView(SimpleNamespace(joints=[joint], foxglove=SimpleNamespace(host="127.0.0.1", port=0,
                                                                                 rate_hz=1000.0)))
@@ -28,13 +33,19 @@ def test_a_foxglove_client_sees_every_quantity_of_the_joint():
                                               wall=1.7e9, position=0.38)])
     try:
         with ws_client.connect(f"ws://127.0.0.1:{view.port}",
-                               subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
+                               subprotocols=offered, open_timeout=10) as ws:
+            assert ws.subprotocol == agreed
             channels = {}
             while not channels:
                 message = json.loads(ws.recv(timeout=10))
                 if message["op"] == "advertise":
                     channels = {c["topic"]: c for c in message["channels"]}
             assert list(channels) == ["/admittance/joint1"] and channels["/admittance/joint1"]["encoding"] == "json"
+            assert channels["/admittance/joint1"]["schemaName"] == "admittance.JointState"
+            schema = json.loads(channels["/admittance/joint1"]["schema"])
+            units = {name: prop["unit"] for name, prop in schema["properties"].items()}
+            assert units["force"] == "N" and units["tau"] == "N·m" and units["omega_model"] == "rad/s"
+            assert all(f"[{unit}]" in schema["properties"][name]["description"] for name, unit in units.items())
             ws.send(json.dumps({"op": "subscribe",
                                 "subscriptions": [{"id": 7, "channelId": channels["/admittance/joint1"]["id"]}]}))
             deadline = time.monotonic() + 10
@@ -53,6 +64,23 @@ def test_a_foxglove_client_sees_every_quantity_of_the_joint():
         assert (data["force"], data["tau"], data["theta_model"], data["theta_present"]) == (3.0, 0.315, 0.40, 0.38)
         assert math.isclose(data["rendering_error"], -0.02, abs_tol=1e-12)
         assert math.isclose(data["theta_goal"], 261 * 2 * math.pi / 4096)
+    finally:
+        view.close()
+
+
+def test_a_client_that_never_finishes_its_handshake_costs_only_its_own_connection():
+    import socket
+
+    joint = SimpleNamespace(id=1, zero_tick=2048, direction=1)
+    view = FoxgloveView(SimpleNamespace(joints=[joint], foxglove=SimpleNamespace(host="127.0.0.1", port=0,
+                                                                                rate_hz=1000.0)))
+    try:
+        with socket.create_connection(("127.0.0.1", view.port), timeout=10) as bad:
+            bad.sendall(b"GET / HTTP/1.1\r\n" + b"X: " + b"a" * 70000)  # no end of header, past the bound
+            assert bad.recv(10) == b""  # dropped
+        with ws_client.connect(f"ws://127.0.0.1:{view.port}", subprotocols=["foxglove.websocket.v1"],
+                               open_timeout=10) as ws:
+            assert ws.subprotocol == "foxglove.websocket.v1"
     finally:
         view.close()
 

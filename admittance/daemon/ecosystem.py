@@ -1,7 +1,7 @@
 """The daemon's optional outputs for the robotics ecosystem, fed from the supervisor's tick.
 
 - ``session.mcap`` beside a ``--record`` dataset (:mod:`mcap_recording`): every cycle, params,
-  stats, events;
+  stats, events; and the same cycles as a rosbag2 bag in ``rosbag2/`` (:mod:`admittance.ros2.bag`);
 - the ROS 2 bridge (``[ros2]``, :mod:`admittance.ros2.rmw_zenoh`) on the daemon's Zenoh session;
 - the Foxglove live view (``[foxglove]``, :mod:`foxglove_view`).
 
@@ -21,11 +21,13 @@ from typing import Any
 from admittance.daemon import telemetry
 from admittance.formats.mcap_layout import MCAP_NAME
 
+BAG_FOLDER = "rosbag2"
 
 
 class Ecosystem:
     def __init__(self) -> None:
         self.mcap: Any = None
+        self.bag: Any = None  # admittance.ros2.bag.Ros2Bag
         self.views: list[Any] = []  # objects with publish(state) and close()
         self._failed: list[str] = []
 
@@ -42,7 +44,18 @@ class Ecosystem:
                    "rate_hz": cfg.loop.rate_hz, "prefix": cfg.zenoh.prefix}
         self.mcap = McapRecorder(folder / MCAP_NAME, session)
         stack.callback(self._close_mcap)
+        self._start_bag(stack, folder, cfg)
         self.record("params", params)
+
+    def _start_bag(self, stack: contextlib.ExitStack, folder: Path, cfg: Any) -> None:
+        from admittance.ros2.bag import Ros2Bag
+        from admittance.ros2.rmw_zenoh import AXIS_INDEX
+
+        names = {j.id: telemetry.joint_name(j) for j in cfg.joints}
+        sensor = getattr(cfg, "sensor", None)
+        frame = str(getattr(sensor, "frame_id", "") or "force_sensor")
+        self.bag = Ros2Bag(folder / BAG_FOLDER, names, frame, AXIS_INDEX.get(getattr(sensor, "axis", "x"), 0))
+        stack.callback(self._close_bag)
 
     def start_views(self, stack: contextlib.ExitStack, cfg: Any, interface: Any) -> None:
         """The ROS 2 bridge declares on the Zenoh interface's own session."""
@@ -70,6 +83,8 @@ class Ecosystem:
             self.mcap.flush()
 
         self._guard("session.mcap", write)
+        if self.bag is not None:
+            self._guard("rosbag2", lambda: (self.bag.append(by_joint, offset), self.bag.flush()))
 
     def record(self, kind: str, value: Any, request: dict | None = None) -> None:
         """A params snapshot ("params"), a stats object ("stats") or a line of text ("event")."""
@@ -102,11 +117,19 @@ class Ecosystem:
             self._failed.append(f"{what} stopped: {type(exc).__name__}: {exc}")
             if view is not None:
                 self.views.remove(view)
-            elif what == "session.mcap":
-                failed, self.mcap = self.mcap, None
+            elif what in ("session.mcap", "rosbag2"):
+                failed = self.mcap if what == "session.mcap" else self.bag
+                if what == "session.mcap":
+                    self.mcap = None
+                else:
+                    self.bag = None
                 with contextlib.suppress(Exception):
                     failed.close()  # the summary if it still fits; the file closed either way
 
     def _close_mcap(self) -> None:
         if self.mcap is not None:
             self.mcap.close()
+
+    def _close_bag(self) -> None:
+        if self.bag is not None:
+            self.bag.close()

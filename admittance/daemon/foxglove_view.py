@@ -5,9 +5,15 @@ the RT path: the supervisor hands it the newest state once per tick, and it forw
 ``[foxglove].rate_hz`` messages per second per joint. Open Foxglove, "Open connection",
 ``ws://<host>:<port>``; docs/foxglove.md lists the panels.
 
-One JSON channel per joint, ``/admittance/joint<ID>``: ``force`` (N), ``tau`` (N·m),
+One JSON channel per joint, ``/admittance/joint<ID>``, schema ``admittance.JointState`` (its
+JSON Schema gives each field's unit in ``description``): ``force`` (N), ``tau`` (N·m),
 ``theta_model``, ``theta_goal``, ``theta_present`` (rad; the last read), ``rendering_error``
 (theta_present − theta_model, rad), ``omega_model`` (rad/s), ``t`` (s, CLOCK_MONOTONIC).
+
+Clients may speak either subprotocol name of the Foxglove WebSocket protocol,
+``foxglove.sdk.v1`` (Foxglove's apps) or ``foxglove.websocket.v1`` (the open-source compatible
+viewers): the configured port is a :class:`SubprotocolBridge` in front of the SDK's server,
+which itself listens on a loopback port of its own.
 The present angle is the last one read, up to ``sync_read_divisor`` cycles older than the model
 angle beside it; ``session.mcap`` has the exact per-cycle error.
 """
@@ -20,11 +26,22 @@ from typing import Any
 from admittance.daemon.telemetry import tick_to_rad
 from admittance.errors import ConfigError
 
-NUMBER = {"type": "number"}
+FIELDS = {  # name: (unit, what it is)
+    "t": ("s", "the cycle's time, CLOCK_MONOTONIC"),
+    "force": ("N", "the conditioned force along the sensor's axis"),
+    "tau": ("N·m", "the torque the model integrated"),
+    "theta_model": ("rad", "the admittance model's angle"),
+    "theta_goal": ("rad", "the goal sent to the servo"),
+    "theta_present": ("rad", "the servo's last measured angle"),
+    "rendering_error": ("rad", "theta_present − theta_model"),
+    "omega_model": ("rad/s", "the admittance model's speed"),
+}
 JOINT_SCHEMA = {
+    "title": "admittance.JointState",
     "type": "object",
-    "properties": {name: NUMBER for name in ("t", "force", "tau", "theta_model", "theta_goal", "theta_present",
-                                             "rendering_error", "omega_model")},
+    "properties": {name: {"type": ["number", "null"] if name in ("theta_present", "rendering_error") else "number",
+                          "description": f"{what} [{unit}]", "unit": unit}
+                   for name, (unit, what) in FIELDS.items()},
 }
 
 
@@ -38,10 +55,17 @@ class FoxgloveView:
         f = cfg.foxglove
         self._joints = {j.id: j for j in cfg.joints}
         self._context = foxglove.Context()
+        from admittance.daemon.foxglove_subprotocol import SubprotocolBridge
+
         try:
-            self._server = foxglove.start_server(name="admittance", host=f.host, port=f.port, context=self._context)
+            self._server = foxglove.start_server(name="admittance", host="127.0.0.1", port=0, context=self._context)
         except Exception as exc:  # the SDK raises its own error type for a busy port or a bad address
-            raise ConfigError(f"[foxglove]: cannot serve on {f.host}:{f.port} ({exc})") from None
+            raise ConfigError(f"[foxglove]: cannot start the Foxglove server ({exc})") from None
+        try:
+            self._bridge = SubprotocolBridge(f.host, f.port, self._server.port)
+        except OSError as exc:
+            self._server.stop()
+            raise ConfigError(f"[foxglove]: cannot serve on {f.host}:{f.port} ({exc.strerror or exc})") from None
         self._channels = {jid: foxglove.Channel(f"/admittance/joint{jid}", schema=JOINT_SCHEMA,
                                                 context=self._context) for jid in self._joints}
         self._period_ns = int(1e9 / f.rate_hz)
@@ -50,7 +74,7 @@ class FoxgloveView:
 
     @property
     def port(self) -> int:
-        return self._server.port
+        return self._bridge.port
 
     def publish(self, state: Any) -> None:
         now = time.time_ns()
@@ -72,4 +96,5 @@ class FoxgloveView:
     def close(self) -> None:
         for channel in self._channels.values():
             channel.close()
+        self._bridge.close()
         self._server.stop()

@@ -17,7 +17,7 @@ from admittance import outfolder
 from admittance.errors import ConfigError, DataError
 
 LUMPED_BOB_DISTANCE = 0.30  # m: the one load of a `synth --lumped` dataset
-REPORT_FILES = ("report.md", "*.png")
+REPORT_FILES = ("report.md", "report.html", "*.png")
 
 
 def register(subparsers) -> None:
@@ -28,13 +28,15 @@ def register(subparsers) -> None:
         "and report the simulation error on held-out trials (shared/contracts/datasets.md).",
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with manifest.toml and the trial files")
-    p.add_argument("--json", dest="json_out", metavar="FILE.json", required=True, help="write the result here")
+    p.add_argument("--json", dest="json_out", metavar="FILE.json",
+                   help="write the result here (default: not written; --report or --params-out alone are enough)")
     p.add_argument("--params-out", metavar="FILE.toml",
                    help="also write the final model as a parameter file (default: not written)")
-    p.add_argument("--report", metavar="DIR", help="write a Markdown report with plots into DIR "
+    p.add_argument("--report", metavar="DIR", help="write a report into DIR: report.html (self-contained, "
+                   "figures embedded: open it in a browser) and report.md with its PNG figures "
                    "(new or empty unless --force; default: no report; needs admittance[plots])")
     p.add_argument("--force", action="store_true", help="write the report into a non-empty DIR, replacing its "
-                   "report.md and figures")
+                   "report.html, report.md and figures")
     p.add_argument("--friction", choices=("stick", "tanh"), default="stick",
                    help="Coulomb law: exact stick-slip (default) or the thesis's tanh")
     p.add_argument("--max-effects", type=int, default=4, metavar="N", help="add at most N effects (default 4)")
@@ -62,6 +64,9 @@ def register(subparsers) -> None:
     s.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default 0)")
     s.add_argument("--force", action="store_true", help="write into a non-empty DIR, replacing its manifest and CSVs")
     s.add_argument("--with-torque", action="store_true", help="torque-driven trials with a tau column")
+    s.add_argument("--ramps", action="store_true",
+                   help="slow torque ramps from rest (a tau column), the breakaway test: try them with "
+                        "admittance breakaway DIR")
     s.add_argument("--lumped", action="store_true",
                    help="leave the geometry out of the manifest (all trials then share one load)")
     s.set_defaults(func=run_synth)
@@ -75,7 +80,7 @@ def run_identify(args: argparse.Namespace) -> int:
         raise ConfigError(f"--max-effects must be >= 0, got {args.max_effects}")
     if not (0.0 <= args.min_gain < 1.0):
         raise ConfigError(f"--min-gain must be in [0, 1), got {args.min_gain}")
-    json_path = _writable(args.json_out, "--json")
+    json_path = _writable(args.json_out, "--json") if args.json_out else None
     params_path = _writable(args.params_out, "--params-out") if args.params_out else None
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise DataError(f"--report {args.report}: exists and is not a folder")
@@ -88,7 +93,8 @@ def run_identify(args: argparse.Namespace) -> int:
     settings = IdentifySettings(friction=args.friction, max_effects=args.max_effects, min_gain=args.min_gain,
                                 quiet=args.quiet)
     result = identify_dataset(dataset, settings)
-    _write_json(json_path, result.to_json())
+    if json_path:
+        _write_json(json_path, result.to_json())
     if params_path:
         result.write_params(params_path,
                             source=f"admittance identify {args.dataset} --friction {args.friction}")
@@ -106,6 +112,8 @@ def run_synth(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
+    if args.ramps and args.with_torque:
+        raise ConfigError("--ramps and --with-torque are two kinds of torque: choose one")
     if not (0.0 < args.duration < math.inf) or not (0.0 <= args.noise < math.inf):
         raise ConfigError(f"--duration must be finite and > 0 and --noise finite and >= 0, "
                           f"got {args.duration} and {args.noise}")
@@ -116,7 +124,7 @@ def run_synth(args: argparse.Namespace) -> int:
     loads = {"distances": (LUMPED_BOB_DISTANCE,)} if args.lumped else {}
     spec = SynthSpec(n_trials=args.trials, duration=args.duration, noise=args.noise,
                      noise_correlation=args.noise_corr, jitter=args.jitter,
-                     effects=parse_effect_args(args.effect), with_torque=args.with_torque,
+                     effects=parse_effect_args(args.effect), with_torque=args.with_torque, ramps=args.ramps,
                      geometry=not args.lumped, seed=args.seed, **loads)
     outfolder.check(args.out_dir, args.force, "synth")
     out = generate(outfolder.clear(args.out_dir, "synth"), spec)

@@ -1,9 +1,12 @@
-"""``identify --report DIR``: a Markdown report with PNG figures, in the spirit of the thesis's
+"""``identify --report DIR``: a report (``report.html``, self-contained, and ``report.md`` with
+PNG figures; report_html.py renders the one from the other), in the spirit of the thesis's
 appendix A (recorded against simulated angle, trial by trial) plus what the thesis lacked: the
 held-out comparison, the evidence for and against each effect, and the residual verdict.
 
 Matplotlib runs on the Agg backend (no display needed); figures are written and closed one by
-one so a 30-trial report does not hold 30 figures in memory.
+one so a 30-trial report does not hold 30 figures in memory. Legends sit above the plots, outside
+every axes (the saved image grows to hold them), so they never cover a bar or a line; every
+figure has a caption (its Markdown alt text, the HTML's figcaption).
 """
 
 from __future__ import annotations
@@ -16,6 +19,10 @@ from admittance.errors import DataError
 from admittance.ident.identify import IdentifyResult
 
 TRIALS_PER_FIGURE = 6
+HELDOUT_CAPTIONS = (
+    "Held-out trials: simulated minus recorded angle over time, base model in red, final model in blue",
+    "Held-out trials: RMS simulation error per trial, base model in red, final model in blue",
+)
 UNITS = {
     "motor_inertia": "kg·m²", "damping": "N·m·s/rad", "coulomb": "N·m", "coulomb_asym": "N·m",
     "stribeck_torque": "N·m", "stribeck_velocity": "rad/s", "load_coulomb": "–", "angle_offset": "rad",
@@ -26,7 +33,7 @@ UNITS = {
 
 
 def write_report(result: IdentifyResult, out_dir: str | Path) -> Path:
-    """Write ``report.md`` and its figures into ``out_dir``; returns the Markdown path."""
+    """Write ``report.md``, its figures and ``report.html`` into ``out_dir``; returns the HTML path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -42,18 +49,27 @@ def write_report(result: IdentifyResult, out_dir: str | Path) -> Path:
         "evidence": _evidence_figure(out, result),
         "signatures": _signature_figure(out, result),
     }
-    path = out / "report.md"
-    path.write_text(_markdown(result, figures))
-    return path
+    from admittance.ident.report_html import write_html
+
+    markdown = _markdown(result, figures)
+    (out / "report.md").write_text(markdown)
+    return write_html(markdown, out, out / "report.html")
 
 
 def _save(fig, path: Path) -> str:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # "tight" keeps the legends above the axes
     plt.close(fig)
     return path.name
+
+
+def _legend_above(fig, ax) -> None:
+    """The figure's legend in one row above all its axes: it covers no data."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=max(len(labels), 1),
+               fontsize=8, frameon=False)
 
 
 def _grid(n: int):
@@ -77,11 +93,11 @@ def _trace_figures(out: Path, result: IdentifyResult, label: str) -> list[str]:
         for ax, k in zip(axes, chunk):
             tr = trials[k]
             ax.plot(tr.t, tr.theta, ".", ms=2, color="0.5", label="recorded")
-            ax.plot(tr.t, tr.theta + result.final.residuals[k], "-", lw=1.2, color="C0", label="simulated")
+            ax.plot(tr.t, tr.theta + result.final.residuals[k], "-", lw=1.0, color="C0", alpha=0.8, label="simulated")
             ax.set_title(tr.name, fontsize=9)
             ax.set_xlabel("t [s]")
             ax.set_ylabel("θ [rad]")
-        axes[0].legend(fontsize=8)
+        _legend_above(fig, axes[0])
         names.append(_save(fig, out / f"{label}_{start // TRIALS_PER_FIGURE + 1}.png"))
     return names
 
@@ -93,11 +109,11 @@ def _heldout_figures(out: Path, result: IdentifyResult) -> list[str]:
     fig, axes = _grid(len(trials))
     for ax, tr, rb, ra in zip(axes, trials, result.before.residuals, result.after.residuals):
         ax.plot(tr.t, rb * 1e3, lw=1, color="C3", label="base model")
-        ax.plot(tr.t, ra * 1e3, lw=1, color="C0", label="final model")
+        ax.plot(tr.t, ra * 1e3, lw=1, color="C0", alpha=0.8, label="final model")
         ax.set_title(f"{tr.name}: error", fontsize=9)
         ax.set_xlabel("t [s]")
         ax.set_ylabel("sim − rec [mrad]")
-    axes[0].legend(fontsize=8)
+    _legend_above(fig, axes[0])
     names = [_save(fig, out / "heldout_error.png")]
     fig, ax = plt.subplots(figsize=(max(4, 0.8 * len(trials) + 2), 3))
     x = np.arange(len(trials))
@@ -105,7 +121,7 @@ def _heldout_figures(out: Path, result: IdentifyResult) -> list[str]:
     ax.bar(x + 0.2, [1e3 * np.sqrt(np.mean(r**2)) for r in result.after.residuals], 0.4, color="C0", label="final")
     ax.set_xticks(x, [tr.name for tr in trials], rotation=30, ha="right", fontsize=7)
     ax.set_ylabel("RMSE [mrad]")
-    ax.legend(fontsize=8)
+    _legend_above(fig, ax)
     names.append(_save(fig, out / "heldout_rmse.png"))
     return names
 
@@ -124,7 +140,7 @@ def _residual_figure(out: Path, result: IdentifyResult) -> str:
         ax.axhline(1e3 * result.residual["noise_estimate"], color="k", ls="--", lw=1, label="noise estimate")
         ax.set_xlabel(unit)
         ax.set_ylabel("residual RMS [mrad]")
-    axes[0].legend(fontsize=8)
+    _legend_above(fig, axes[0])
     return _save(fig, out / "residual_bins.png")
 
 
@@ -144,7 +160,7 @@ def _signature_figure(out: Path, result: IdentifyResult) -> str | None:
         ax.plot(trial.t, 1e3 * evidence.signature[worst], color="C1", lw=1.2,
                 label=f"{evidence.effect} ({100 * evidence.explained:.1f} % overall)")
         ax.set_ylabel("mrad")
-        ax.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     axes.ravel()[0].set_title(f"{trial.name}: residual and candidate signatures", fontsize=9)
     axes.ravel()[-1].set_xlabel("t [s]")
     return _save(fig, out / "signatures.png")
@@ -201,11 +217,14 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
     lines += ["", "## Effects", ""]
     lines += _evidence_table(result)
     if figures["evidence"]:
-        lines += ["", f"![evidence]({figures['evidence']})"]
-    lines += ["", "## Residual", "", result.residual["summary"] + ".", "", f"![residual]({figures['residual']})", ""]
+        lines += ["", f"![Explained share of the residual per candidate effect, per search round and on the "
+                  f"final residual; blue: added to the model, grey: not]({figures['evidence']})"]
+    lines += ["", "## Residual", "", result.residual["summary"] + ".", "", f"![The final model's residual RMS binned by speed, angle and time; the dashed line is the "
+              f"noise estimate]({figures['residual']})", ""]
     if figures["signatures"]:
         lines += ["What each remaining candidate would explain, on the worst training trial:", "",
-                  f"![signatures]({figures['signatures']})", ""]
+                  f"![The worst training trial's residual in grey and what each remaining candidate, "
+                  f"linearised, would take away from it]({figures['signatures']})", ""]
     else:
         lines += ["The residual is what the sensor alone leaves: no candidate has anything to explain.", ""]
     if result.unexplained:
@@ -214,9 +233,10 @@ def _markdown(result: IdentifyResult, figures: dict) -> str:
         lines += [f"- stand-in: {t['effect']} ({t['reason']})" for t in result.unexplained["stand_ins"]]
         lines += [""]
     lines += ["## Held-out trials", ""]
-    lines += [f"![held-out]({name})" for name in figures["heldout"]]
+    lines += [f"![{caption}]({name})" for caption, name in zip(HELDOUT_CAPTIONS, figures["heldout"])]
     lines += ["", "## Training trials (final model)", ""]
-    lines += [f"![training]({name})" for name in figures["training"]]
+    lines += [f"![Training trials, part {i} of {len(figures['training'])}: recorded angle as grey dots, the "
+              f"final model's simulation as a blue line]({name})" for i, name in enumerate(figures["training"], start=1)]
     return "\n".join(lines) + "\n"
 
 

@@ -15,6 +15,11 @@ scripted "hand": a sum of three smooth sinusoids (0.3–1.2 Hz) with a soft star
 ``tau`` column is what a force sensor would report; ``torque_gain``, ``torque_bias`` and
 ``time_delay`` act on it exactly as Contract 1 defines them: the sensor records
 (τ_true + bias) / gain, which the plant turns back into τ_true.
+
+Torque-ramp trials (``ramps``) are the thesis's breakaway test (section 2.3, table 3.1): the
+joint at rest at the bottom, a torque growing linearly from zero (cw positive, ccw negative) to
+:data:`RAMP_PEAK` times the true breakaway level (Coulomb plus any Stribeck excess) over the
+trial, so ``admittance breakaway`` can be tried on a known truth.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ MX64 = {"motor_inertia": 0.0147, "damping": 0.035, "coulomb": 0.084}
 ROD = {"mass": 0.0402, "length": 0.456}
 BOB = {"mass": 0.1034}
 GENERATION_STEP = 1e-4  # s: 10× finer than the fit's substep
+RAMP_PEAK = 2.5  # a ramp ends at this many times the breakaway torque: it breaks away at 40 % of the trial
 
 # What ``--effect NAME=VALUE`` sets for an effect name: its main parameter, plus companions
 # that make the effect visible in a pendulum drop (a Stribeck velocity, a cogging period).
@@ -67,6 +73,7 @@ class SynthSpec:
     params: dict[str, float] = field(default_factory=lambda: dict(MX64))
     effects: dict[str, float] = field(default_factory=dict)  # effect or parameter name -> value
     with_torque: bool = False
+    ramps: bool = False  # slow torque ramps from rest (the breakaway test) instead of drops
     geometry: bool = True  # False writes no [rod]/[bob]: a lumped-mode dataset
     seed: int = 0
     motor: str = "MX-64 (synthetic)"
@@ -115,10 +122,10 @@ def generate(out_dir: str | Path, spec: SynthSpec) -> Path:
     plan = trial_plan(spec)
     for entry in plan:
         t = _sample_times(spec, rng)
-        tau = _hand_torque(t, rng, entry["bob_distance"]) if spec.with_torque else None
-        inertia, gravity = load_geometry(ROD, BOB, entry["bob_distance"])
         sign = 1.0 if entry["direction"] == "cw" else -1.0
-        theta0 = 0.0 if spec.with_torque else sign * (spec.release + rng.uniform(-0.08, 0.08))
+        tau = _driving_torque(spec, t, rng, entry["bob_distance"], sign, params)
+        inertia, gravity = load_geometry(ROD, BOB, entry["bob_distance"])
+        theta0 = 0.0 if tau is not None else sign * (spec.release + rng.uniform(-0.08, 0.08))
         recorded_tau = None if tau is None else _recorded(tau, params)
         trial = _rtcore.Trial(t, recorded_tau, load_inertia=inertia, gravity_torque=gravity)
         x0 = np.array([[[theta0, 0.0]]])
@@ -159,6 +166,20 @@ def _sample_times(spec: SynthSpec, rng: np.random.Generator) -> np.ndarray:
         t = t + dt * rng.uniform(-jitter, jitter, n)
         t[0] = 0.0
     return t
+
+
+def _driving_torque(spec: SynthSpec, t: np.ndarray, rng: np.random.Generator, distance: float, sign: float,
+                    params: dict[str, float]) -> np.ndarray | None:
+    """The true torque on the horn of one trial: a ramp, a hand, or none (a free drop)."""
+    if spec.ramps:
+        return sign * breakaway_level(params) * RAMP_PEAK * (t / t[-1])
+    return _hand_torque(t, rng, distance) if spec.with_torque else None
+
+
+def breakaway_level(params: dict[str, float]) -> float:
+    """The torque at which a joint at rest at the bottom starts to move: Coulomb plus the
+    Stribeck excess (gravity is zero there)."""
+    return params.get("coulomb", 0.0) + params.get("stribeck_torque", 0.0)
 
 
 def _hand_torque(t: np.ndarray, rng: np.random.Generator, distance: float) -> np.ndarray:

@@ -70,6 +70,11 @@ def _referenced(type_name: str) -> list[str]:
     return sorted(found)
 
 
+def referenced_types(type_name: str) -> list[str]:
+    """Every type ``type_name`` uses, directly or not, sorted by name."""
+    return _referenced(type_name)
+
+
 def type_hash(type_name: str) -> str:
     """``RIHS01_<sha256 hex>`` of a type in :data:`TYPES` (REP-2011)."""
     description = {"type_description": _individual(type_name),

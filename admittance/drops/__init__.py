@@ -1,0 +1,1 @@
+"""Pendulum drop tests on a bench, real or simulated (docs/drops.md)."""
