@@ -26,6 +26,8 @@ SUBCOMMAND_MODULES = (
     "admittance.ident.cli",  # identify, synth
     "admittance.ident.tools_cli",  # thesis, breakaway, predict, ladder, convert
     "admittance.fidelity.cli",  # fidelity
+    "admittance.service",  # service install
+    "admittance.docs",  # docs TOPIC
 )
 
 

@@ -41,6 +41,7 @@ class JointState(msgspec.Struct, omit_defaults=True):
     wall: float | None = None  # s since the Unix epoch (CLOCK_REALTIME) of the same cycle as t
     position: float | None = None  # rad, the measured angle of present_tick
     rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
+    goal: float | None = None  # rad, the angle of goal_tick (within the joint's position limits)
 
 
 class State(msgspec.Struct):

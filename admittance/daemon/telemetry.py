@@ -125,6 +125,7 @@ def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = No
             wall=(int(row["t_ns"]) + wall_ns) * 1e-9,
             position=None if present is None else float(tick_to_rad(present, joint)),
             rendering_rms=rendering.rms(joint.id) if rendering is not None else None,
+            goal=float(tick_to_rad(int(row["goal_tick"]), joint)),
         ))
     return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
 

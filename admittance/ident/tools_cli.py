@@ -40,7 +40,7 @@ def _register_thesis(subparsers) -> None:
         "thesis", help="reproduce the thesis's per-trial alternating LM fit (tables 3.2-3.4)",
         description="Fit each trial as the thesis did (appendix C.3): Levenberg-Marquardt on (I, B), then on F, "
                     "alternated; print the per-trial table in the layout of tables 3.2-3.4.")
-    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     thesis.add_argument("--out", type=Path, metavar="DIR",
                         help="also write thesis_table.md and thesis_table.csv into DIR (default: print only)")
     thesis.add_argument("--cycles", type=int, default=5, metavar="N",
@@ -62,7 +62,7 @@ def _register_breakaway(subparsers) -> None:
         description="For each trial, find where the angle leaves its rest band under a slow torque ramp and read "
                     "the torque there (thesis section 2.3, table 3.1). Every trial needs a tau column (N·m), and "
                     "tau must ramp steadily up to the breakaway: a step, hold or oscillation is refused.")
-    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     brk.add_argument("--json", type=Path, metavar="FILE.json", help="also write the results as JSON (default: print only)")
     brk.set_defaults(func=_run_breakaway)
 
@@ -73,7 +73,7 @@ def _register_predict(subparsers) -> None:
         description="Thesis section 3.3: simulate each trial's position from its torque with the given parameters, "
                     "and compute the torque from its position; print the errors, and with --out write "
                     "metrics.json and appendix-B-style plots.")
-    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     pred.add_argument("--params", type=Path, required=True, metavar="FILE.toml", help="a Contract 2 parameter file")
     pred.add_argument("--out", type=Path, metavar="DIR", help="write metrics.json and the appendix-B plots into DIR "
                       "(new or empty unless --force; default: print only; needs admittance[plots])")
@@ -92,7 +92,7 @@ def _register_ladder(subparsers) -> None:
         description="Fit each rung (a set of effects) on identify's cross-validation folds (whole trials, or time "
                     "segments when there are few) and score it on the data left out, with identify's admission "
                     "verdict: for asking about effects identify did not try or did not admit.")
-    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     lad.add_argument("--rung", action="append", required=True, metavar="EFFECTS",
                      help="comma-separated effect names ('' = the base model); repeat for each model")
     lad.add_argument("--start", action="append", default=[], metavar="NAME=VALUE",
@@ -110,7 +110,7 @@ def _register_convert(subparsers) -> None:
     conv = subparsers.add_parser(
         "convert", help="turn Motive / Dynamixel / DFKI recordings or a session.mcap into a dataset folder",
         description="Read recordings in a foreign format (Motive CSV, Dynamixel/BAM logs, DFKI CSV, a daemon's session.mcap) and write "
-                    "a dataset folder (shared/contracts/datasets.md) that identify, thesis and predict read.")
+                    "a dataset folder (format: admittance docs datasets) that identify, thesis and predict read.")
     conv.add_argument("format", choices=("motive", "dynamixel", "dfki", "mcap"), help="the recordings' format")
     conv.add_argument("files", type=Path, nargs="+", metavar="FILE", help="the recordings, one trial each")
     conv.add_argument("--out", type=Path, required=True, metavar="DIR",
