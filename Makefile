@@ -51,7 +51,7 @@ bench: setup
 MANYLINUX ?= manylinux2014
 wheel: setup
 	$(BIN)/pip install --quiet 'ziglang>=0.13'
-	$(BIN)/maturin build --release --zig --compatibility $(MANYLINUX) --out dist
+	CARGO_ZIGBUILD_PYTHON_PATH=$(abspath $(BIN))/python $(BIN)/maturin build --release --zig --compatibility $(MANYLINUX) --out dist
 
 # The source distribution: builds on any Linux (aarch64 too: a Raspberry Pi, a Jetson) with a Rust
 # toolchain, by `pip install dist/admittance-*.tar.gz` (README, Install).
