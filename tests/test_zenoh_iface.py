@@ -149,7 +149,7 @@ def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
     endpoint, _, _ = daemon
     assert main(["monitor", "--prefix", "test/arm", "--connect", endpoint, "--duration", "0.6"]) == 0
     out = capsys.readouterr().out
-    assert "joint   1" in out and "\x1b[" not in out
+    assert "joint 1 " in out and "\x1b[" not in out
 
 
 def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsys):
@@ -273,3 +273,34 @@ def test_router_with_a_malformed_endpoint_is_one_line(capsys):
     err = capsys.readouterr().err.strip()
     assert "cannot open a session as a router on not-an-endpoint" in err and "Traceback" not in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(caplog):
+    """[zenoh] mode = "client": the session opens with the router down (the loop must run), the
+    start line says it is not connected, and once a router listens there the state reaches it."""
+    import zenoh
+
+    from admittance.daemon.zenoh_iface import make_config
+
+    endpoint = free_endpoint()
+    zcfg = ZenohConfig(prefix="lab/arm1", mode="client", connect=[endpoint], listen=[])
+    iface = DaemonInterface(zcfg, Codec("json"), FakeHandler())
+    router = None
+    try:
+        assert iface.where() == f"a client of the router at {endpoint}, NOT connected yet (the loop runs; zenoh keeps retrying)"
+        router = zenoh.open(make_config(mode="router", listen=[endpoint]))
+        got = []
+        router.declare_subscriber("lab/arm1/state", lambda sample: got.append(sample))
+        caplog.set_level(logging.INFO, logger="admittance.daemon.zenoh_iface")
+        deadline = time.monotonic() + 20
+        while not got and time.monotonic() < deadline:
+            iface.publish_state(State(cycle=1, joints=[]))
+            iface.watch_link()
+            time.sleep(0.1)
+        assert got, "the state never reached the router"
+        assert iface.where().endswith(", connected")
+        assert f"zenoh: connected to the router at {endpoint}" in caplog.text
+    finally:
+        iface.close()
+        if router is not None:
+            router.close()

@@ -216,8 +216,9 @@ class Supervisor:
         status = self._status_line()
         self.notifier.ready(status)
         z = self.cfg.zenoh
-        log.info("%s; zenoh %s/* on %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
-                 ", ".join(z.listen) or "zenoh defaults")
+        where = getattr(self.interface, "where", None)
+        log.info("%s; zenoh %s/* %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
+                 where() if where is not None else "on " + (", ".join(z.listen) or "zenoh defaults"))
         start_hand()
 
     def _step(self, text: str) -> None:
@@ -395,6 +396,7 @@ class Supervisor:
             if latest is not None:
                 self.interface.publish_state(latest)
             self.interface.poll()
+            getattr(self.interface, "watch_link", lambda: None)()  # a client's router coming or going
         for warning in self.ecosystem.publish(latest):
             self._warn(warning)
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import re
+import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -111,11 +112,11 @@ class DaemonInterface:
         self._codec = codec
         self._handler = handler
         self._log = RateLimitedLog(log)  # at most one line per kind of query problem per 10 s
-        listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
+        self._link = RouterLink(zcfg)
         self._session = open_session(
-            lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
-                                security=security_of(zcfg)),
-            f"listening on {', '.join(zcfg.listen) or 'defaults'}")
+            lambda: make_config(mode=self._link.session_mode, listen=self._link.listen, connect=zcfg.connect,
+                                scouting=zcfg.scouting, security=security_of(zcfg)),
+            self._link.opening())
         encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
             "application/msgpack")
         self._encoding = encoding
@@ -127,6 +128,14 @@ class DaemonInterface:
         self._token = None
         self.queries = 0
         self.query_errors = 0
+
+    def where(self) -> str:
+        """Where the daemon really is on the network now (for the start line)."""
+        return self._link.where(self._session)
+
+    def watch_link(self) -> None:
+        """Log once when a client's router comes or goes (a client runs on without it)."""
+        self._link.watch(self._session)
 
     def serve(self) -> None:
         """Declare the queryables and the liveliness token: the daemon is now visible and steerable."""
@@ -200,6 +209,61 @@ class DaemonInterface:
         for entity in (*entities, *queryables, self._state_pub, self._stats_pub):
             entity.undeclare()
         self._session.close()
+
+
+class RouterLink:
+    """A daemon's place on the network, and a client's link to its router.
+
+    A daemon in ``mode = "client"`` must run its loop whether or not the lab's router is up:
+    zenoh's client mode refuses to open without a router, so such a daemon opens a *peer* session
+    that listens nowhere and only connects to the configured endpoints; zenoh retries them in the
+    background, and the router routes for it as for a client. What the start line says, and the
+    lines when the router comes and goes, are read from the session, not from the configuration.
+    """
+
+    CHECK_PERIOD_S = 1.0
+
+    def __init__(self, zcfg) -> None:
+        self.client = zcfg.mode == "client"
+        self.session_mode = "peer" if self.client else zcfg.mode
+        self.listen = [] if self.client else (zcfg.listen or None)
+        self.connect = list(zcfg.connect)
+        self._listening = list(zcfg.listen)
+        self._connected: bool | None = None
+        self._next_check = 0.0
+
+    def opening(self) -> str:
+        if self.client:
+            return f"as a client of {', '.join(self.connect)}"
+        return f"listening on {', '.join(self._listening) or 'defaults'}"
+
+    def routers(self, session: zenoh.Session) -> int:
+        try:
+            return len(list(session.info.routers_zid()))
+        except Exception:  # a closing session: no router
+            return 0
+
+    def where(self, session: zenoh.Session) -> str:
+        if not self.client:
+            extra = f", connecting to {', '.join(self.connect)}" if self.connect else ""
+            return f"listening on {', '.join(self._listening) or 'zenoh defaults'}{extra}"
+        self._connected = self.routers(session) > 0
+        state = "connected" if self._connected else "NOT connected yet (the loop runs; zenoh keeps retrying)"
+        return f"a client of the router at {', '.join(self.connect)}, {state}"
+
+    def watch(self, session: zenoh.Session) -> None:
+        now = time.monotonic()
+        if not self.client or now < self._next_check:
+            return
+        self._next_check = now + self.CHECK_PERIOD_S
+        connected = self.routers(session) > 0
+        if connected != self._connected and self._connected is not None:
+            if connected:
+                log.info("zenoh: connected to the router at %s", ", ".join(self.connect))
+            else:
+                log.warning("zenoh: the router at %s is gone; the loop runs on, zenoh keeps retrying",
+                            ", ".join(self.connect))
+        self._connected = connected
 
 
 def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
