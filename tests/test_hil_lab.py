@@ -127,7 +127,7 @@ def test_router_three_benches_one_monitor_and_an_acl(tmp_path):
                              "--duration", "3")
         assert monitor.returncode == 0, monitor.stderr
         for i, prefix in enumerate(BENCHES):
-            assert f"{prefix}  joint   1" in monitor.stdout  # every bench, from one monitor, as a visitor
+            assert f"{prefix}  joint 1 " in monitor.stdout  # every bench, from one monitor, as a visitor
 
         as_alice = ["--zenoh-config", str(files["alice"])]
         changed = admittance("set", "virtual_damping=0.123", "--json", "--prefix", "lab/arm2", *as_alice)

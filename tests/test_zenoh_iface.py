@@ -293,7 +293,7 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
         router.declare_subscriber("lab/arm1/state", lambda sample: got.append(sample))
         caplog.set_level(logging.INFO, logger="admittance.daemon.zenoh_iface")
         deadline = time.monotonic() + 20
-        while not got and time.monotonic() < deadline:
+        while not (got and "zenoh: connected" in caplog.text) and time.monotonic() < deadline:
             iface.publish_state(State(cycle=1, joints=[]))
             iface.watch_link()
             time.sleep(0.1)
