@@ -106,7 +106,7 @@ def test_state_is_published_and_decoded(daemon):
 
 
 def test_no_daemon_is_a_clear_device_error():
-    with Client([free_endpoint()]) as client, pytest.raises(DeviceError, match="no daemon answered"):
+    with Client([free_endpoint()]) as client, pytest.raises(DeviceError, match="nothing answers at tcp/127.0.0.1"):
         client.query_params("nobody/here", timeout=0.5)
 
 
@@ -142,7 +142,7 @@ def test_set_command_without_a_daemon_exits_non_zero(capsys):
                  "--timeout", "0.5"])
     assert code != 0
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "no daemon answered" in err
+    assert err.count("\n") == 1 and "nothing answers at tcp/127.0.0.1" in err
 
 
 def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
