@@ -304,3 +304,26 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
         iface.close()
         if router is not None:
             router.close()
+
+
+@pytest.mark.parametrize("login, attachment, who", [
+    ("alice", None, "login 'alice'"),
+    (None, None, "a session without a login"),
+    (None, b"\xff not json", "a session without a login"),  # hostile bytes: ignored, the set still answered
+    (None, b'{"login": "' + b"x" * 300 + b'"}', "a session without a login"),  # too long: not a name
+])
+def test_the_daemon_knows_who_sent_a_set(daemon, login, attachment, who):
+    endpoint, params, iface = daemon
+    seen = []
+    original = params.set_params
+    params.set_params = lambda request: (seen.append(iface.requester), original(request))[1]
+    with Client([endpoint]) as client:
+        client.login = login
+        if attachment is None:
+            assert client.query_params("test/arm", {"virtual_damping": 0.3}) == {"accepted": True}
+        else:
+            replies = list(client._session.get("test/arm/params", payload=b'{"virtual_damping": 0.3}',
+                                               attachment=attachment, timeout=3.0))
+            assert replies and replies[0].ok is not None
+    assert seen == [who]
+    assert iface.requester is None  # cleared once the query is answered

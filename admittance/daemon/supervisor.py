@@ -469,7 +469,9 @@ class Supervisor:
             return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            self._params_log("params", f"params set: {clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
+            who = getattr(self.interface, "requester", None)  # set while a Zenoh query is answered
+            self._params_log("params", f"params set{' by ' + who if who else ''}: "
+                                       f"{clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
             self._record(lambda recorder: recorder.set_targets(self.loop.params()))
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason

@@ -128,6 +128,7 @@ class DaemonInterface:
         self._token = None
         self.queries = 0
         self.query_errors = 0
+        self.requester: str | None = None  # who sent the query being answered (requester())
 
     def where(self) -> str:
         """Where the daemon really is on the network now (for the start line)."""
@@ -170,11 +171,13 @@ class DaemonInterface:
                     self._answer(key, query, answer)
                 finally:
                     query.drop()
+                    self.requester = None
                 answered += 1
         self.queries += answered
         return answered
 
     def _answer(self, key: str, query: Any, answer: Callable[[bytes, bool], Any]) -> None:
+        self.requester = requester(query)
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
             # Exactly this key: a wildcard (`<prefix>/**`) reaches every queryable and may only read.
@@ -209,6 +212,23 @@ class DaemonInterface:
         for entity in (*entities, *queryables, self._state_pub, self._stats_pub):
             entity.undeclare()
         self._session.close()
+
+
+MAX_LOGIN_CHARS = 64
+
+
+def requester(query: Any) -> str:
+    """Who sent a query, in words: the login its session states (``admittance set`` attaches it;
+    the router checked that login's password, the daemon only reads the name), else a session
+    without a login. The attachment is untrusted: bounded, printable, or ignored."""
+    try:
+        attached = query.attachment.to_bytes() if query.attachment is not None else b""
+        login = json.loads(attached[:256]).get("login", "") if attached else ""
+    except Exception:  # malformed: treated as absent
+        login = ""
+    if isinstance(login, str) and login and len(login) <= MAX_LOGIN_CHARS and login.isprintable():
+        return f"login {login!r}"
+    return "a session without a login"
 
 
 LOGIN_KEY = "transport/auth/usrpwd/user"  # zenoh_security's entry for the session's login
@@ -326,6 +346,8 @@ class Client:
     def query(self, key: str, request: dict[str, Any] | None = None, timeout: float = 3.0) -> dict[str, Any]:
         """The first reply to a get on ``key`` as a dict; DeviceError when no daemon answers."""
         kwargs = {"payload": json.dumps(request).encode()} if request is not None else {}
+        # Who asks, for the daemon's log line (the login this session gave the router, or none).
+        kwargs["attachment"] = json.dumps({"login": self.login or ""}).encode()
         for reply in self._session.get(key, timeout=timeout, **kwargs):
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes())
