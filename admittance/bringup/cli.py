@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import sys
 from pathlib import Path
 
@@ -38,8 +37,8 @@ def register(subparsers) -> None:
     arm.add_argument("--direction", type=int, choices=(1, -1), help="give direction instead of measuring it (default: measured)")
     arm.add_argument("--position-limits", type=float, nargs=2, metavar=("MIN", "MAX"),
                      help="give the position limits in rad instead of measuring the range of motion (default: measured)")
-    arm.add_argument("--range-margin", type=float, default=5.0, metavar="DEG",
-                     help="how far inside the measured ends of the range the limits go, in degrees (default 5)")
+    arm.add_argument("--range-margin", type=float, default=0.087, metavar="RAD",
+                     help="how far inside the measured ends of the range the limits go, in rad (default 0.087 = 5°)")
     sensor = p.add_argument_group("force sensor")
     sensor.add_argument("--sensor-kind", choices=("optoforce", "can"), default="optoforce",
                         help="force sensor kind (default optoforce)")
@@ -95,7 +94,7 @@ def cmd_setup(args: argparse.Namespace) -> int:
             direction=args.direction, sensor=_sensor_section(args, sensor_port), axis=args.axis,
             lever_arm=args.lever_arm, dry_run_s=args.dry_run, output_limit=args.output_limit,
             position_limits=tuple(args.position_limits) if args.position_limits else None,
-            range_margin=math.radians(args.range_margin), skip=frozenset(args.skip), force=args.force, **extra)
+            range_margin=args.range_margin, skip=frozenset(args.skip), force=args.force, **extra)
         wizard.run_wizard(opts, prompter, start_hand=getattr(prompter, "start_hand", lambda: None))
     return 0
 
