@@ -62,6 +62,8 @@ class SimulatedPerson:
             "press": lambda s: PRESS_PEAK * math.sin(math.pi * min(max(s / self.press_s, 0.0), 1.0)),
         }.get(action, lambda s: 0.0)  # hang, release, and the dry run until start_hand
         self._follow(shape)
+        if action.startswith("range-"):  # a person says "done" once the arm is at the end, not before
+            time.sleep(RANGE_RAMP_S + 0.5)
 
     def start_hand(self) -> None:
         """The dry run's pushes, once the loop runs (never during its tare)."""
