@@ -310,7 +310,8 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
     ("alice", None, "login 'alice'"),
     (None, None, "a session without a login"),
     (None, b"\xff not json", "a session without a login"),  # hostile bytes: ignored, the set still answered
-    (None, b'{"login": "' + b"x" * 300 + b'"}', "a session without a login"),  # too long: not a name
+    (None, b'{"login": "' + b"x" * 100 + b'"}', "a session without a login"),  # too long: not a name
+    (None, b'{"login": "a\\u001b[31mred"}', "a session without a login"),  # not printable
 ])
 def test_the_daemon_knows_who_sent_a_set(daemon, login, attachment, who):
     endpoint, params, iface = daemon
