@@ -71,4 +71,5 @@ def measure_range(bus: ServoBus, servo_id: int, zero_tick: int, direction: int, 
     prompter.act("range-high", "Now move it to the other end of its range and hold it still.")
     second = tick_angle(read_still(bus, servo_id), zero_tick, direction)
     prompter.act("release", "Let go: let the arm swing back and come to rest.")
+    read_still(bus, servo_id)  # the next step holds the arm where it is: not mid-swing
     return limits_from_ends(first, second, margin)
