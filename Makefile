@@ -10,7 +10,7 @@ CARGO_MANIFEST := rtcore/Cargo.toml
 # before would be imported first and shadow every rebuild, so it goes.
 STALE_EXT := admittance/_rtcore.cpython-*.so
 
-.PHONY: setup ext run test test-rust test-stub test-python test-thorough bench clean
+.PHONY: setup ext run test test-rust test-stub test-python test-thorough bench wheel sdist clean
 
 setup: $(STAMP)
 
@@ -50,6 +50,19 @@ test-thorough: setup
 
 bench: setup
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+# The portable wheel: linked by zig (ziglang from PyPI) against glibc 2.17, so it installs on any
+# manylinux2014 system (CentOS 7 onwards, Debian 9+, Ubuntu 18.04+); maturin refuses to tag it if
+# the extension needs a newer symbol. MANYLINUX selects another policy (e.g. manylinux_2_28).
+MANYLINUX ?= manylinux2014
+wheel: setup
+	$(BIN)/pip install --quiet 'ziglang>=0.13'
+	CARGO_ZIGBUILD_PYTHON_PATH=$(abspath $(BIN))/python $(BIN)/maturin build --release --zig --compatibility $(MANYLINUX) --out dist
+
+# The source distribution: builds on any Linux (aarch64 too: a Raspberry Pi, a Jetson) with a Rust
+# toolchain, by `pip install dist/admittance-*.tar.gz` (README, Install).
+sdist: setup
+	$(BIN)/maturin sdist --out dist
 
 clean:
 	rm -rf $(VENV) rtcore/target

@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,6 +72,18 @@ def _fidelity(path: str) -> Callable[[str], None]:
 
 def _joint_line(out: str) -> None:
     assert "joint 1: MX-64" in out, out
+    limits = tomllib.loads(Path("bench.toml").read_text())["joints"][0]["limits"]
+    assert -1.0 < limits["position_min"] < 0 < limits["position_max"] < 1.2, limits  # the range the wizard measured
+
+
+def _docs(topic: str, word: str) -> Callable[[str], None]:
+    def check(out: str) -> None:
+        assert out.startswith("# ") and word in out, out[:200]
+    return check
+
+
+def _unit_for_this_venv(out: str) -> None:
+    assert f"ExecStart={ADMITTANCE} run --config /etc/admittance/admittance.toml" in out, out
 
 
 def _example_config(out: str) -> None:
@@ -112,6 +125,9 @@ def smoke_steps() -> list[Step]:
         Step("identify", ["identify", "ds", "--json", "ident.json", "--quiet"], _identified("ident.json")),
         Step("setup rehearsal", ["setup", "--mock", "--dry-run", "1", "--out", "bench.toml"]),
         Step("the wizard's file", ["run", "--check", "--config", "bench.toml"], _joint_line),
+        Step("docs datasets", ["docs", "datasets"], _docs("datasets", "bob_distance")),
+        Step("docs recordings", ["docs", "recordings"], _docs("recordings", "theta_model")),
+        Step("service unit", ["service", "install", "--print"], _unit_for_this_venv),
     ]
 
 

@@ -28,6 +28,8 @@ SUBCOMMAND_MODULES = (
     "admittance.ident.tools_cli",  # ladder, convert
     "admittance.drops.cli",  # drops
     "admittance.fidelity.cli",  # fidelity
+    "admittance.service",  # service install
+    "admittance.docs",  # docs TOPIC
 )
 
 

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import io
+import math
 import re
 import tomllib
 
 import numpy as np
 import pytest
 
-from admittance.bringup import arm, scan, servo, wizard
+from admittance.bringup import arm, motion_range, scan, servo, wizard
 from admittance.bringup import sensor_axis as sensor
-from admittance.bringup.simulated import SimulatedPerson, simulated_bench
+from admittance.bringup.simulated import GRAVITY_TORQUE, RANGE_TORQUES, SimulatedPerson, simulated_bench
 from admittance.daemon import config
 from admittance.drivers.dynamixel import ServoBus
 from admittance.errors import ConfigError, DataError, DeviceError
@@ -124,6 +125,31 @@ def test_the_wizard_brings_up_the_simulated_bench(tmp_path, positive):
     # is about the method's gates (sign, axis, units), not its accuracy, which docs/bring-up.md measures.
     assert s["axis"] == "x" and s["lever_arm"] == pytest.approx(-0.105, rel=0.3)
     assert config.load_config(out).joints[0].zero_tick == joint["zero_tick"]
+    # the range of motion the person showed (asin(τ/m·g·l): -36.9° and +53.1°), less the 5° margin;
+    # the servo's Coulomb friction stops a slowly moved arm up to ~0.1 rad short of those angles
+    low, high = (-math.asin(-RANGE_TORQUES[0] / GRAVITY_TORQUE), math.asin(RANGE_TORQUES[1] / GRAVITY_TORQUE))
+    margin, band = motion_range.DEFAULT_MARGIN_RAD, 0.1
+    assert low + margin - 0.01 <= joint["limits"]["position_min"] <= low + margin + band
+    assert high - margin - band <= joint["limits"]["position_max"] <= high - margin + 0.01
+    loaded = config.load_config(out).joints[0].resolved_limits
+    assert (loaded.position_min, loaded.position_max) == (joint["limits"]["position_min"], joint["limits"]["position_max"])
+
+
+@pytest.mark.parametrize("ends, margin, message", [
+    ((0.2, 1.0), 0.05, "do not enclose the hanging angle"),  # both ends on one side
+    ((-0.2, 0.2), 0.1, "leaves less than 20°"),  # 23° shown, 11° left inside the margin
+    ((-1.0, 1.0), float("nan"), "margin must be"),
+])
+def test_a_range_of_motion_that_makes_no_limits_is_refused(ends, margin, message):
+    with pytest.raises(DataError, match=message):
+        motion_range.limits_from_ends(*ends, margin)
+
+
+def test_the_limits_are_the_ends_brought_in_by_the_margin_in_either_order():
+    found = motion_range.limits_from_ends(1.2, -0.8, 0.1)
+    assert (found.position_min, found.position_max) == (-0.7, 1.1)
+    assert motion_range.tick_angle(2048 + 1024, 2048, -1) == pytest.approx(-math.pi / 2)
+    assert motion_range.tick_angle(100, 4000, 1) == pytest.approx(196 * 2 * math.pi / 4096)  # across the wrap
 
 
 def test_the_wizard_refuses_to_replace_a_file_and_writes_nothing_invalid(tmp_path):

@@ -56,14 +56,55 @@ def fed_view(tty=False, degrees=False, bench="bench/arm1", prefix="bench/arm1"):
 def test_the_screen_shows_si_units_one_name_per_quantity_mode_faults_and_params():
     view, clock, _ = fed_view()
     text = screen_many("bench/arm1", view.benches, clock.now)
-    assert "angle  +0.5000 rad" in text and "velocity  -0.200 rad/s" in text and "°" not in text
+    assert "model +0.5000 rad  -0.200 rad/s" in text and "°" not in text
     assert "wake-up lateness" in text and "force-to-write latency" in text and "stale-sensor holds 1" in text
     assert "jitter" not in text
     assert "3 bus errors (2 read timeouts, 1 corrupt replies)" in text
-    assert "== bench/arm1  alive  mode running  fault events none" in text
+    assert "== bench/arm1  alive\nmode running  fault events none" in text
     assert "params  joint 1: virtual_inertia 0.0147 kg·m²  virtual_damping 0.035 N·m·s/rad" in text
     assert "position_max" not in text, "the virtual parameters only; `get` has them all"
     assert "waiting for bench/arm1/state" in screen_many("bench/arm1", {}, 0.0)
+
+
+def test_every_line_fits_80_columns_even_with_wild_values_and_long_names():
+    view, clock, _ = fed_view(bench="lab/bench/arm1", prefix="lab")
+    wild = {**STATE, "mode": "faulted", "joints": [
+        {"id": 253, "t": 1.0, "force": -12345.678, "tau": 9876.5, "theta": -3.14159, "omega": 123.456,
+         "goal_tick": 4095, "goal": -3.1, "position": -3.14, "present_tick": 0, "rendering_rms": 0.25, "fault": 3}]}
+    view.feed("state", wild, "lab/bench/arm1")
+    view.feed("stats", {**STATS, "rendering_rms": {"253": 0.25}, "faults": {"model_state_invalid": 12345},
+                        "period_us": {"p50": 12345.6, "p99": 99999.9, "p999": 123456.7, "max": 999999.9}},
+              "lab/bench/arm1")
+    view.feed("params", {"params": {**PARAMS["params"], "253.virtual_inertia": 0.0147,
+                                    "253.virtual_damping": 0.035, "253.virtual_coulomb": 0.084,
+                                    "253.servo_compensation": 1.0, "253.position_min": -3.1}}, "lab/bench/arm1")
+    for degrees in (False, True):
+        text = screen_many("lab", view.benches, clock.now, monitor.Units(degrees))
+        long = [line for line in text.splitlines() if len(line) > monitor.WIDTH]
+        assert long == [], long
+        assert "-12345.678" not in text.replace("\n", " ") or "-12345.678 N" in text  # never split mid-number
+    clock.now += 5.0
+    view.feed("alive", {"alive": False}, "lab/bench/arm1")
+    assert max(len(line) for line in screen_many("lab", view.benches, clock.now).splitlines()) <= monitor.WIDTH
+
+
+def test_goal_and_read_angles_are_shown_in_radians_not_ticks():
+    view, clock, _ = fed_view()
+    view.feed("state", {**STATE, "joints": [{**STATE["joints"][0], "goal": 0.4987, "position": 0.4901,
+                                             "present_tick": 2367}]}, "bench/arm1")
+    text = screen_many("bench/arm1", view.benches, clock.now)
+    assert "goal +0.4987 rad" in text and "read +0.4901 rad" in text
+    assert "2374" not in text and "2367" not in text
+
+
+@pytest.mark.parametrize("angle, flag", [(3.095, "AT MAX"), (-3.099, "AT MIN"), (3.0, None), (-3.0, None)])
+def test_a_joint_at_its_position_limit_is_flagged(angle, flag):
+    view, clock, _ = fed_view()
+    view.feed("params", {"params": {**PARAMS["params"], "1.position_min": -3.1}}, "bench/arm1")
+    view.feed("state", {**STATE, "joints": [{**STATE["joints"][0], "theta": angle, "position": angle}]},
+              "bench/arm1")
+    text = screen_many("bench/arm1", view.benches, clock.now)
+    assert ("AT MAX" in text, "AT MIN" in text) == (flag == "AT MAX", flag == "AT MIN"), text
 
 
 def test_degrees_everywhere_with_the_flag():
@@ -92,7 +133,8 @@ def test_a_daemon_whose_token_is_withdrawn_is_gone_and_its_values_are_marked_old
     clock.now += 3.0
     text = screen_many("bench/arm1", view.benches, clock.now)
     assert "GONE 3.0 s ago (its liveliness token was withdrawn)" in text
-    assert "[last received 3.2 s ago]" in text and "[stale: stats 3.2 s old]" in text
+    assert "values below: last received 3.2 s ago" in text and "[stale: stats 3.2 s old]" in text
+    assert "mode unknown (last: running)" in text and "mode running" not in text
     view.feed("alive", {"alive": True}, "bench/arm1")
     view.feed("state", STATE, "bench/arm1")
     assert "== bench/arm1  alive" in screen_many("bench/arm1", view.benches, clock.now)
@@ -102,7 +144,7 @@ def test_values_that_stop_coming_are_stale_even_while_the_token_stays():
     view, clock, _ = fed_view()
     clock.now += monitor.STATE_STALE_S + 0.5
     text = screen_many("bench/arm1", view.benches, clock.now)
-    assert "STALE: no state for 1.5 s" in text and "[last received 1.5 s ago]" in text
+    assert "STALE: no state for 1.5 s" in text and "values below: last received 1.5 s ago" in text
     assert "[stale: stats" not in text, "the stats are not 3 s old yet"
     clock.now += 2.0
     assert "[stale: stats 3.5 s old]" in screen_many("bench/arm1", view.benches, clock.now)
@@ -114,7 +156,7 @@ def test_plain_mode_prints_news_only_status_changes_params_and_new_state():
     view, clock, out = fed_view(tty=False)
     view.render()
     first = out.getvalue()
-    assert first.count("joint   1") == 1 and "999.7 Hz" in first and "alive" in first
+    assert first.count("joint 1 ") == 1 and "999.7 Hz" in first and "alive" in first
     assert "params  joint 1: virtual_inertia" in first
     clock.now += monitor.PLAIN_PERIOD_S
     view.render()
@@ -142,7 +184,7 @@ def test_tty_mode_redraws_and_several_benches_are_labelled():
     view = View("bench", plain, False, clock=clock)
     view.feed("state", STATE, "bench/arm2")
     view.render()
-    assert "bench/arm2  joint   1" in plain.getvalue()
+    assert "bench/arm2  joint 1 " in plain.getvalue()
 
 
 def test_run_monitor_fails_clearly_when_nothing_arrives_and_asks_for_params():
@@ -153,7 +195,7 @@ def test_run_monitor_fails_clearly_when_nothing_arrives_and_asks_for_params():
     asked = []
     feed.request_params = lambda: asked.append(1)
     assert run_monitor(feed, View("p", out, False), duration=0.2) == 0
-    assert "joint   1" in out.getvalue() and asked == [1]
+    assert "joint 1 " in out.getvalue() and asked == [1]
 
 
 def test_set_assignments_parse_numbers_and_lists():

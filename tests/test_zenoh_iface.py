@@ -106,7 +106,7 @@ def test_state_is_published_and_decoded(daemon):
 
 
 def test_no_daemon_is_a_clear_device_error():
-    with Client([free_endpoint()]) as client, pytest.raises(DeviceError, match="no daemon answered"):
+    with Client([free_endpoint()]) as client, pytest.raises(DeviceError, match="nothing answers at tcp/127.0.0.1"):
         client.query_params("nobody/here", timeout=0.5)
 
 
@@ -142,14 +142,14 @@ def test_set_command_without_a_daemon_exits_non_zero(capsys):
                  "--timeout", "0.5"])
     assert code != 0
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "no daemon answered" in err
+    assert err.count("\n") == 1 and "nothing answers at tcp/127.0.0.1" in err
 
 
 def test_monitor_prints_plain_lines_when_not_a_tty(daemon, capsys):
     endpoint, _, _ = daemon
     assert main(["monitor", "--prefix", "test/arm", "--connect", endpoint, "--duration", "0.6"]) == 0
     out = capsys.readouterr().out
-    assert "joint   1" in out and "\x1b[" not in out
+    assert "joint 1 " in out and "\x1b[" not in out
 
 
 def test_tare_requests_reach_the_handler_and_bad_ones_are_rejected(daemon, capsys):
@@ -273,3 +273,58 @@ def test_router_with_a_malformed_endpoint_is_one_line(capsys):
     err = capsys.readouterr().err.strip()
     assert "cannot open a session as a router on not-an-endpoint" in err and "Traceback" not in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(caplog):
+    """[zenoh] mode = "client": the session opens with the router down (the loop must run), the
+    start line says it is not connected, and once a router listens there the state reaches it."""
+    import zenoh
+
+    from admittance.daemon.zenoh_iface import make_config
+
+    endpoint = free_endpoint()
+    zcfg = ZenohConfig(prefix="lab/arm1", mode="client", connect=[endpoint], listen=[])
+    iface = DaemonInterface(zcfg, Codec("json"), FakeHandler())
+    router = None
+    try:
+        assert iface.where() == f"a client of the router at {endpoint}, NOT connected yet (the loop runs; zenoh keeps retrying)"
+        router = zenoh.open(make_config(mode="router", listen=[endpoint]))
+        got = []
+        router.declare_subscriber("lab/arm1/state", lambda sample: got.append(sample))
+        caplog.set_level(logging.INFO, logger="admittance.daemon.zenoh_iface")
+        deadline = time.monotonic() + 20
+        while not (got and "zenoh: connected" in caplog.text) and time.monotonic() < deadline:
+            iface.publish_state(State(cycle=1, joints=[]))
+            iface.watch_link()
+            time.sleep(0.1)
+        assert got, "the state never reached the router"
+        assert iface.where().endswith(", connected")
+        assert f"zenoh: connected to the router at {endpoint}" in caplog.text
+    finally:
+        iface.close()
+        if router is not None:
+            router.close()
+
+
+@pytest.mark.parametrize("login, attachment, who", [
+    ("alice", None, "login 'alice'"),
+    (None, None, "a session without a login"),
+    (None, b"\xff not json", "a session without a login"),  # hostile bytes: ignored, the set still answered
+    (None, b'{"login": "' + b"x" * 100 + b'"}', "a session without a login"),  # too long: not a name
+    (None, b'{"login": "a\\u001b[31mred"}', "a session without a login"),  # not printable
+])
+def test_the_daemon_knows_who_sent_a_set(daemon, login, attachment, who):
+    endpoint, params, iface = daemon
+    seen = []
+    original = params.set_params
+    params.set_params = lambda request: (seen.append(iface.requester), original(request))[1]
+    with Client([endpoint]) as client:
+        client.login = login
+        if attachment is None:
+            assert client.query_params("test/arm", {"virtual_damping": 0.3}) == {"accepted": True}
+        else:
+            replies = list(client._session.get("test/arm/params", payload=b'{"virtual_damping": 0.3}',
+                                               attachment=attachment, timeout=3.0))
+            assert replies and replies[0].ok is not None
+    assert seen == [who]
+    assert iface.requester is None  # cleared once the query is answered

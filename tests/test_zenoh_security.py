@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import ipaddress
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -220,3 +222,35 @@ def test_missing_or_bad_security_files_are_config_errors(tmp_path):
     entries = security_entries(ZenohConfig(auth_dictionary="users.txt", auth_user="u", auth_password_file="u.pw",
                                            operators=["u"]), tmp_path)
     assert entries["transport/auth/usrpwd/password"] == "p" and entries["access_control"]["enabled"]
+
+
+def test_a_refused_login_and_an_acl_refusal_are_one_clear_line_each(users):
+    endpoint = free_endpoint()
+    daemon = config.absolute_zenoh_paths(
+        ZenohConfig(prefix=PREFIX, listen=[endpoint], auth_dictionary="users.txt", operators=["operator"]), users)
+    handler, stop = serve(daemon)
+    try:
+        with client_for(endpoint, users, auth_user="intruder", auth_password_file="intruder.pw") as intruder:
+            with pytest.raises(DeviceError) as refused:
+                intruder.query(f"{PREFIX}/params", {"virtual_damping": 0.07}, timeout=1.5)
+        assert str(refused.value) == (f"{endpoint} refused this session (user 'intruder'): check auth_user and "
+                                      "its password file, or the TLS certificate, in --zenoh-config")
+        with client_for(endpoint, users, auth_user="viewer", auth_password_file="viewer.pw") as viewer:
+            assert reads_state(viewer)
+            with pytest.raises(DeviceError, match=f"the daemon at {PREFIX} is up but did not answer {PREFIX}/params: "
+                                                  "the router's access control lets only its operators send "
+                                                  "commands, and this session has user 'viewer'"):
+                viewer.query(f"{PREFIX}/params", {"virtual_damping": 0.07}, timeout=1.5)
+        # the command line, in its own process (zenoh's log is set once per process): one line, no raw log
+        (users / "intruder.toml").write_text(f'[zenoh]\nconnect = ["{endpoint}"]\nauth_user = "intruder"\n'
+                                             f'auth_password_file = "intruder.pw"\n')
+        cli = subprocess.run([str(Path(sys.executable).parent / "admittance"), "set", "virtual_damping=0.07",
+                              "--prefix", PREFIX, "--zenoh-config", str(users / "intruder.toml")],
+                             capture_output=True, text=True, timeout=60)
+        assert cli.returncode == 3 and cli.stdout == "", cli.stdout
+        assert cli.stderr == f"admittance set: error: {refused.value}\n", cli.stderr
+    finally:
+        stop()
+    with client_for(free_endpoint(), users) as nobody, pytest.raises(DeviceError, match="nothing answers at tcp/"):
+        nobody.query(f"{PREFIX}/params", timeout=0.5)
+    assert handler.values.get("1.virtual_damping") != 0.07

@@ -35,6 +35,10 @@ def register(subparsers) -> None:
     arm = p.add_argument_group("arm")
     arm.add_argument("--zero-tick", type=int, metavar="TICK", help="give zero_tick in ticks (0..4095) instead of measuring it (default: measured)")
     arm.add_argument("--direction", type=int, choices=(1, -1), help="give direction instead of measuring it (default: measured)")
+    arm.add_argument("--position-limits", type=float, nargs=2, metavar=("MIN", "MAX"),
+                     help="give the position limits in rad instead of measuring the range of motion (default: measured)")
+    arm.add_argument("--range-margin", type=float, default=0.087, metavar="RAD",
+                     help="how far inside the measured ends of the range the limits go, in rad (default 0.087 = 5°)")
     sensor = p.add_argument_group("force sensor")
     sensor.add_argument("--sensor-kind", choices=("optoforce", "can"), default="optoforce",
                         help="force sensor kind (default optoforce)")
@@ -54,8 +58,9 @@ def register(subparsers) -> None:
                      help="length of the limited-torque session in s; 0 skips it (default 5)")
     run.add_argument("--output-limit", type=float, default=0.2, metavar="FRACTION",
                      help="servo output cap during the dry run, fraction of full PWM/torque (default 0.2)")
-    run.add_argument("--skip", action="append", default=[], choices=("servo", "arm", "sensor", "dry-run"),
-                     help="skip a step (repeatable; default: none); skipping arm or sensor needs their values given")
+    run.add_argument("--skip", action="append", default=[], choices=("servo", "arm", "range", "sensor", "dry-run"),
+                     help="skip a step (repeatable; default: none); skipping arm or sensor needs their values given; "
+                          "skipping range leaves the daemon's default limits")
     run.add_argument("--yes", action="store_true", help="answer yes and give each physical step --settle seconds "
                      "instead of waiting for Enter (default: ask on the terminal)")
     run.add_argument("--settle", type=positive_float, default=5.0, metavar="S",
@@ -88,7 +93,8 @@ def cmd_setup(args: argparse.Namespace) -> int:
             new_id=args.new_id, new_baudrate=args.new_baud or (1_000_000 if args.mock else None), mode=args.mode, zero_tick=args.zero_tick,
             direction=args.direction, sensor=_sensor_section(args, sensor_port), axis=args.axis,
             lever_arm=args.lever_arm, dry_run_s=args.dry_run, output_limit=args.output_limit,
-            skip=frozenset(args.skip), force=args.force, **extra)
+            position_limits=tuple(args.position_limits) if args.position_limits else None,
+            range_margin=args.range_margin, skip=frozenset(args.skip), force=args.force, **extra)
         wizard.run_wizard(opts, prompter, start_hand=getattr(prompter, "start_hand", lambda: None))
     return 0
 

@@ -19,6 +19,9 @@ HANGING_OFFSET_RAD = 0.15  # where the simulated arm hangs: tick 2048 + 100
 GRAVITY_TORQUE = 1.0  # N·m: m·g·l of the simulated arm
 LOAD_INERTIA = 0.01  # kg·m²
 PUSH_TORQUE = 0.5  # N·m: holds the arm about 30° off its rest
+# The range of motion the simulated person shows: the arm held at asin(τ/m·g·l) each side of its rest.
+RANGE_TORQUES = (-0.6, 0.8)  # N·m: -36.9° and +53.1°
+RANGE_RAMP_S = 2.0
 FACTORY_BAUD_CODE = 1  # 57 600 bit/s on Protocol 2.0
 PRESS_PEAK = 0.8  # N·m at the top of the press (7.6 N at 0.105 m)
 
@@ -53,9 +56,14 @@ class SimulatedPerson:
         self.say(f"{instruction} (simulated person: {action})")
         shape = {
             "push": lambda s: PUSH_TORQUE,
+            # a person moves the arm to an end slowly: a step of 0.8 N·m would throw it over the top
+            "range-low": lambda s: RANGE_TORQUES[0] * min(s / RANGE_RAMP_S, 1.0),
+            "range-high": lambda s: RANGE_TORQUES[1] * min(s / RANGE_RAMP_S, 1.0),
             "press": lambda s: PRESS_PEAK * math.sin(math.pi * min(max(s / self.press_s, 0.0), 1.0)),
         }.get(action, lambda s: 0.0)  # hang, release, and the dry run until start_hand
         self._follow(shape)
+        if action.startswith("range-"):  # a person says "done" once the arm is at the end, not before
+            time.sleep(RANGE_RAMP_S + 0.5)
 
     def start_hand(self) -> None:
         """The dry run's pushes, once the loop runs (never during its tare)."""

@@ -5,6 +5,8 @@ Steps (each skippable, each also a module of its own):
 1. scan      every servo, at every baud rate and protocol tried;
 2. servo     new ID, baud rate, operating mode (only when asked for);
 3. arm       zero_tick and direction, by letting the arm hang and pushing it;
+   range     the range of motion: the person moves the arm end to end, torque off; the
+             position limits are those ends less a margin;
 4. sensor    the force axis, its sign and the lever arm, by pressing against the held arm;
 5. dry-run   a short admittance session with the servo's output limited;
 6. write     the configuration, validated by the daemon's own loader before it is written.
@@ -25,13 +27,14 @@ import tomli_w
 
 from admittance.bringup import arm as arm_step
 from admittance.bringup import dryrun, scan
+from admittance.bringup import motion_range
 from admittance.bringup import sensor_axis as sensor_step
 from admittance.bringup import servo as servo_step
 from admittance.bringup.prompt import Prompter
 from admittance.drivers.dynamixel import ServoBus
 from admittance.errors import ConfigError
 
-STEPS = ("servo", "arm", "sensor", "dry-run")
+STEPS = ("servo", "arm", "range", "sensor", "dry-run")
 MIN_LOOP_BAUDRATE = 1_000_000
 LEVER_ARM_MISMATCH = 0.15  # a measured lever arm this far off the given one is reported
 
@@ -53,6 +56,8 @@ class SetupOptions:
     lever_arm: float | None = None
     dry_run_s: float = 5.0
     output_limit: float = 0.2
+    position_limits: tuple[float, float] | None = None  # given instead of measured (rad)
+    range_margin: float = motion_range.DEFAULT_MARGIN_RAD
     skip: frozenset[str] = frozenset()
     force: bool = False
     press_s: float = sensor_step.PRESS_S
@@ -68,8 +73,9 @@ def run_wizard(opts: SetupOptions, prompter: Prompter, *, start_hand: Callable[[
     model, protocol, baudrate = found.info.model, found.info.protocol, found.baudrate
     with ServoBus(opts.port, baudrate=baudrate, protocol=protocol, **opts.bus_options) as bus:
         zero, direction = _arm(opts, bus, found.id, prompter)
+        limits = _range(opts, bus, found.id, zero, direction, prompter)
         axis, lever = _sensor(opts, bus, found.id, model, direction, prompter)
-    doc = build_doc(opts, found, zero, direction, axis, lever)
+    doc = build_doc(opts, found, zero, direction, axis, lever, limits)
     validate(doc, opts.out)
     if "dry-run" not in opts.skip and opts.dry_run_s > 0:
         _dry_run(opts, doc, prompter, start_hand)
@@ -132,6 +138,19 @@ def _arm(opts: SetupOptions, bus: ServoBus, servo_id: int, prompter: Prompter) -
             reading.direction if opts.direction is None else opts.direction)
 
 
+def _range(opts: SetupOptions, bus: ServoBus, servo_id: int, zero: int, direction: int,
+           prompter: Prompter) -> tuple[float, float] | None:
+    """(position_min, position_max) in rad; None when skipped (the daemon's default then applies)."""
+    if opts.position_limits is not None:
+        return opts.position_limits
+    if "range" in opts.skip:
+        prompter.say("  range skipped: the limits stay the daemon's default (±3.1 rad within the servo's reach)")
+        return None
+    found = motion_range.measure_range(bus, servo_id, zero, direction, prompter, opts.range_margin)
+    prompter.say(f"  {found.line()}")
+    return found.position_min, found.position_max
+
+
 def _sensor(opts: SetupOptions, bus: ServoBus, servo_id: int, model: str, direction: int,
             prompter: Prompter) -> tuple[str, float]:
     if "sensor" in opts.skip:
@@ -165,11 +184,15 @@ def _sensor_samples(section: dict[str, Any]) -> Iterator[Any]:
         yield buffer
 
 
-def build_doc(opts: SetupOptions, found: scan.Found, zero: int, direction: int, axis: str, lever: float) -> dict:
+def build_doc(opts: SetupOptions, found: scan.Found, zero: int, direction: int, axis: str, lever: float,
+              limits: tuple[float, float] | None = None) -> dict:
     sensor = {k: v for k, v in opts.sensor.items() if v is not None} | {"axis": axis, "lever_arm": lever}
+    joint = {"id": found.id, "model": found.info.model, "zero_tick": zero, "direction": direction}
+    if limits is not None:
+        joint["limits"] = {"position_min": limits[0], "position_max": limits[1]}
     return {
         "bus": {"port": opts.port, "baudrate": found.baudrate, "protocol": found.info.protocol},
-        "joints": [{"id": found.id, "model": found.info.model, "zero_tick": zero, "direction": direction}],
+        "joints": [joint],
         "sensor": sensor,
         "loop": {"rate_hz": 1000},
         "stop": {"torque_policy": "hold"},

@@ -43,6 +43,7 @@ class JointState(msgspec.Struct, omit_defaults=True):
     rendering_rms: float | None = None  # rad: running RMS of present − model angle (1 s), once read
     passivity_energy: float | None = None  # J: the passivity guard's energy balance (< −margin: it acts)
     passivity_damping: float | None = None  # N·m·s/rad: the damping the passivity guard adds now
+    goal: float | None = None  # rad, the angle of goal_tick (within the joint's position limits)
 
 
 class State(msgspec.Struct):

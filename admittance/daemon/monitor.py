@@ -31,6 +31,7 @@ subscriptions come from :mod:`zenoh_iface`, so all of this is unit-tested withou
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,6 +46,8 @@ PARAMS_PERIOD_S = 2.0
 STATE_STALE_S = 1.0  # the state comes at ≥ 50 Hz: a second without one is a stalled daemon or link
 STATS_STALE_S = 3.0  # the stats come about once a second
 CLEAR = "\x1b[H\x1b[2J"
+WIDTH = 80  # every line fits an 80-column terminal (a laptop's ssh window beside the bench)
+AT_LIMIT_RAD = 0.02  # a joint this close to a position limit is flagged AT MIN / AT MAX
 # The parameters the monitor shows (the loop's gains and the compensation's weight); `get` has all.
 SHOWN_PARAMS = ("virtual_inertia", "virtual_damping", "virtual_coulomb", "servo_compensation", "passivity_guard")
 
@@ -56,27 +59,69 @@ class Units:
     degrees: bool = False
 
     def angle(self, rad: float) -> str:
-        return f"{math.degrees(rad):+8.2f}°" if self.degrees else f"{rad:+8.4f} rad"
+        return f"{number(math.degrees(rad), 8, 2)}°" if self.degrees else f"{number(rad, 7, 4)} rad"
 
     def rate(self, rad_s: float) -> str:
-        return f"{math.degrees(rad_s):+8.2f} °/s" if self.degrees else f"{rad_s:+7.3f} rad/s"
+        return f"{number(math.degrees(rad_s), 8, 2)} °/s" if self.degrees else f"{number(rad_s, 7, 3)} rad/s"
 
     def small_angle(self, rad: float) -> str:
         return f"{math.degrees(rad):.3f}°" if self.degrees else f"{1e3 * rad:.2f} mrad"
 
 
-def joint_line(joint: dict[str, Any], units: Units = Units()) -> str:
-    present = joint.get("present_tick")
-    line = (f"joint {joint['id']:>3}  force {joint['force']:+8.3f} N  torque {joint['tau']:+7.3f} N·m  "
-            f"angle {units.angle(joint['theta'])}  velocity {units.rate(joint['omega'])}  "
-            f"goal {joint['goal_tick']:>5}  present {present if present is not None else '-':>5}")
+def number(value: float, width: int, decimals: int) -> str:
+    """``value`` signed in exactly ``width`` characters: fixed-point while it fits, else fewer digits,
+    so a wild value never widens a line past the screen (nor wraps it mid-number)."""
+    if not math.isfinite(value):
+        return f"{value!s:>{width}}"
+    text = f"{value:+{width}.{decimals}f}"
+    return text if len(text) <= width else f"{value:+{width}.{max(width - 7, 1)}g}"
+
+
+def at_limit(joint: dict[str, Any], params: dict[str, Any] | None) -> str:
+    """``AT MIN``/``AT MAX`` when the joint's angle is within ``AT_LIMIT_RAD`` of a position limit
+    (the running loop's, from its ``params``), else ""."""
+    if not params:
+        return ""
+    angle = joint.get("position") if joint.get("position") is not None else joint.get("theta")
+    low, high = params.get(f"{joint['id']}.position_min"), params.get(f"{joint['id']}.position_max")
+    if not isinstance(angle, (int, float)):
+        return ""
+    if isinstance(low, (int, float)) and angle <= low + AT_LIMIT_RAD:
+        return "AT MIN"
+    if isinstance(high, (int, float)) and angle >= high - AT_LIMIT_RAD:
+        return "AT MAX"
+    return ""
+
+
+def joint_line(joint: dict[str, Any], units: Units = Units(), params: dict[str, Any] | None = None) -> str:
+    """Two lines of at most ``WIDTH`` columns: the forces and flags, then the angles (model, goal,
+    measured) and the model's speed, each with its unit."""
+    present = joint.get("position")
+    goal = joint.get("goal")
+    first = f"joint {joint['id']:<3} force {number(joint['force'], 9, 3)} N  torque {number(joint['tau'], 8, 3)} N·m"
     if joint.get("rendering_rms") is not None:
-        line += f"  {NAMES['rendering_rms']} {units.small_angle(joint['rendering_rms'])}"
+        first += f"  {NAMES['rendering_rms']} {units.small_angle(joint['rendering_rms'])}"
+    flags = [flag for flag in (at_limit(joint, params),) if flag]
     if joint.get("passivity_damping"):
-        line += f"  PASSIVITY GUARD +{joint['passivity_damping']:.3g} N·m·s/rad"
+        flags.append(f"PASSIVITY GUARD +{joint['passivity_damping']:.3g} N·m·s/rad")
     if joint.get("fault"):
-        line += f"  FAULT {', '.join(fault_names(joint['fault']))}"
-    return line
+        flags.append("FAULT " + ", ".join(fault_names(joint["fault"])))
+    second = (f"  model {units.angle(joint['theta'])} {units.rate(joint['omega'])}"
+              f"  goal {units.angle(goal) if goal is not None else '-'}"
+              f"  read {units.angle(present) if present is not None else '-'}")
+    flagged = first + "  " + "  ".join(flags)
+    lines = [flagged] if flags and len(flagged) <= WIDTH else [first, "  " + "  ".join(flags)] if flags else [first]
+    return "\n".join(fit(lines + [second]))
+
+
+def fit(lines: list[str], width: int = 0) -> list[str]:
+    """Lines longer than the screen broken between words (never inside a number), indented."""
+    width = width or WIDTH
+    out = []
+    for line in lines:
+        out += textwrap.wrap(line, width, subsequent_indent="    ", break_long_words=False,
+                             break_on_hyphens=False, drop_whitespace=True) if len(line) > width else [line]
+    return out
 
 
 def fault_names(bits: int) -> list[str]:
@@ -88,9 +133,9 @@ def fault_names(bits: int) -> list[str]:
     return [FAULT_KINDS[k] if k < len(FAULT_KINDS) else f"bit {k}" for k in range(64) if bits >> k & 1]
 
 
-def loop_line(stats: dict[str, Any]) -> str:
-    return (f"loop    {stats.get('rate_hz', 0):8.1f} Hz  cycles {stats.get('cycles', 0)}  "
-            f"overruns {stats.get('overruns', 0)}  {bus_errors_text(stats)}")
+def loop_lines(stats: dict[str, Any]) -> list[str]:
+    return [f"loop    {stats.get('rate_hz', 0):8.1f} Hz  cycles {stats.get('cycles', 0)}  "
+            f"overruns {stats.get('overruns', 0)}", f"bus     {bus_errors_text(stats)}"]
 
 
 def rendering_line(stats: dict[str, Any], units: Units = Units()) -> list[str]:
@@ -117,13 +162,13 @@ def stats_lines(stats: dict[str, Any], units: Units = Units()) -> list[str]:
     rt = stats.get("rt", {})
     period, latency = stats.get("period_us", {}), stats.get("latency_us", {})
     return [
-        loop_line(stats),
+        *loop_lines(stats),
         f"{NAMES['period_us']:<22}  p50 {period.get('p50', 0):7.1f} µs  p99 {period.get('p99', 0):7.1f}  "
         f"p99.9 {period.get('p999', 0):7.1f}  max {period.get('max', 0):7.1f}",
         f"{NAMES['latency_us']:<22}  p50 {latency.get('p50', 0):7.1f} µs  p99 {latency.get('p99', 0):7.1f}  "
         f"max {latency.get('max', 0):7.1f}",
-        f"sensor  samples {stats.get('sensor_samples', 0)}  {NAMES['sensor_stale_events']} {stats.get('sensor_stale_events', 0)}  "
-        f"rt {rt.get('policy', '?')} prio {rt.get('priority', 0)} "
+        f"sensor  samples {stats.get('sensor_samples', 0)}  {NAMES['sensor_stale_events']} {stats.get('sensor_stale_events', 0)}",
+        f"rt      {rt.get('policy', '?')} prio {rt.get('priority', 0)}  "
         f"memory locked {'yes' if rt.get('memory_locked') else 'no'}",
         *rendering_line(stats, units),
         *fault_line(stats),
@@ -186,11 +231,14 @@ def bench_block(name: str, seen: BenchSeen, now: float, units: Units) -> list[st
     """One bench: a header with its status, mode and faults; its joints, parameters and timing."""
     state, stats = seen.state, seen.stats
     mode = (state or {}).get("mode") or (stats or {}).get("mode") or "?"
+    if seen.stale(now):  # a daemon that is gone or silent is not running: say what it last said
+        mode = f"unknown (last: {mode})"
     events = {k: n for k, n in ((stats or {}).get("faults") or {}).items() if n}
     faults = ", ".join(f"{k} ×{n}" for k, n in events.items()) or "none"
-    lines = [f"== {name}  {seen.status(now)}  mode {mode}  fault events {faults}"]
-    old = f"  [last received {now - seen.state_at:.1f} s ago]" if seen.stale(now) and seen.state_at else ""
-    lines += [joint_line(j, units) + old for j in state.get("joints", [])] if state else ["waiting for state ..."]
+    lines = [f"== {name}  {seen.status(now)}", f"mode {mode}  fault events {faults}"]
+    if seen.stale(now) and seen.state_at:
+        lines.append(f"values below: last received {now - seen.state_at:.1f} s ago")
+    lines += [joint_line(j, units, seen.params) for j in state.get("joints", [])] if state else ["waiting for state ..."]
     lines += params_lines(seen.params) if seen.params else []
     if stats:
         timing = stats_lines(stats, units)
@@ -199,7 +247,7 @@ def bench_block(name: str, seen: BenchSeen, now: float, units: Units) -> list[st
         lines += timing
     else:
         lines.append("waiting for stats ...")
-    return lines
+    return fit("\n".join(lines).split("\n"))
 
 
 def screen_many(prefix: str, benches: dict[str, BenchSeen], now: float, units: Units = Units()) -> str:
@@ -247,7 +295,7 @@ class View:
             setattr(seen, f"{kind}_at", now)
             if kind == "stats" and not self.tty:
                 self.out.write("".join(f"{self._label(bench)}{line}\n" for line in
-                                       [loop_line(message), *rendering_line(message, self.units),
+                                       [*loop_lines(message), *rendering_line(message, self.units),
                                         *fault_line(message)]))
 
     def _label(self, bench: str) -> str:
@@ -276,7 +324,7 @@ class View:
             lines += shown
             printed["params"] = shown
         if seen.state is not None and seen.state_at != printed.get("state_at") and not seen.stale(now):
-            lines += [joint_line(j, self.units) for j in seen.state.get("joints", [])]
+            lines += [line for j in seen.state.get("joints", []) for line in joint_line(j, self.units, seen.params).split("\n")]
             printed["state_at"] = seen.state_at
         return lines
 

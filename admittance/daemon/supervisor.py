@@ -233,8 +233,9 @@ class Supervisor:
         status = self._status_line()
         self.notifier.ready(status)
         z = self.cfg.zenoh
-        log.info("%s; zenoh %s/* on %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
-                 ", ".join(z.listen) or "zenoh defaults")
+        where = getattr(self.interface, "where", None)
+        log.info("%s; zenoh %s/* %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
+                 where() if where is not None else "on " + (", ".join(z.listen) or "zenoh defaults"))
         start_hand()
 
     def _step(self, text: str) -> None:
@@ -412,6 +413,7 @@ class Supervisor:
             if latest is not None:
                 self.interface.publish_state(latest)
             self.interface.poll()
+            getattr(self.interface, "watch_link", lambda: None)()  # a client's router coming or going
         for warning in self.ecosystem.publish(latest):
             self._warn(warning)
 
@@ -484,7 +486,9 @@ class Supervisor:
             return False, str(exc)
         accepted, reason = self.loop.set_params(request)
         if accepted:
-            self._params_log("params", f"params set: {clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
+            who = getattr(self.interface, "requester", None)  # set while a Zenoh query is answered
+            self._params_log("params", f"params set{' by ' + who if who else ''}: "
+                                       f"{clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
             self._record(lambda recorder: recorder.set_targets(self.loop.params()))
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason

@@ -136,6 +136,7 @@ def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = No
             rendering_rms=rendering.rms(joint.id) if rendering is not None else None,
             passivity_energy=float(guard_column(rows[-1:], "passivity_energy")[0]),
             passivity_damping=float(guard_column(rows[-1:], "passivity_damping")[0]),
+            goal=float(tick_to_rad(int(row["goal_tick"]), joint)),
         ))
     return State(cycle=int(records["cycle"][-1]), joints=joints, mode=mode_name(int(records["mode"][-1])))
 

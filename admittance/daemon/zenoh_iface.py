@@ -28,6 +28,8 @@ from __future__ import annotations
 import json
 import logging
 import re
+import socket
+import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -76,10 +78,10 @@ def security_of(zcfg: Any) -> dict[str, Any]:
     return security_entries(zcfg, Path.cwd())
 
 
-def open_session(conf: zenoh.Config | Callable[[], zenoh.Config], what: str) -> zenoh.Session:
+def open_session(conf: zenoh.Config | Callable[[], zenoh.Config], what: str, log_level: str = "error") -> zenoh.Session:
     """A session from ``conf`` (or from a function that builds it, whose errors are caught too:
     zenoh refuses a malformed endpoint while the configuration is built); one-line DeviceError."""
-    zenoh.init_log_from_env_or("error")
+    zenoh.init_log_from_env_or(log_level)
     try:
         return zenoh.open(conf() if callable(conf) else conf)
     except zenoh.ZError as exc:
@@ -111,11 +113,10 @@ class DaemonInterface:
         self._codec = codec
         self._handler = handler
         self._log = RateLimitedLog(log)  # at most one line per kind of query problem per 10 s
-        listen = zcfg.listen if zcfg.listen and zcfg.mode != "client" else None  # clients do not listen
-        self._session = open_session(
-            lambda: make_config(mode=zcfg.mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
-                                security=security_of(zcfg)),
-            f"listening on {', '.join(zcfg.listen) or 'defaults'}")
+        self._link = RouterLink(zcfg)
+        self._session = self._link.open(
+            lambda mode, listen: make_config(mode=mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
+                                             security=security_of(zcfg)))
         encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
             "application/msgpack")
         self._encoding = encoding
@@ -127,6 +128,15 @@ class DaemonInterface:
         self._token = None
         self.queries = 0
         self.query_errors = 0
+        self.requester: str | None = None  # who sent the query being answered (requester())
+
+    def where(self) -> str:
+        """Where the daemon really is on the network now (for the start line)."""
+        return self._link.where(self._session)
+
+    def watch_link(self) -> None:
+        """Log once when a client's router comes or goes (a client runs on without it)."""
+        self._link.watch(self._session)
 
     def serve(self) -> None:
         """Declare the queryables and the liveliness token: the daemon is now visible and steerable."""
@@ -161,11 +171,13 @@ class DaemonInterface:
                     self._answer(key, query, answer)
                 finally:
                     query.drop()
+                    self.requester = None
                 answered += 1
         self.queries += answered
         return answered
 
     def _answer(self, key: str, query: Any, answer: Callable[[bytes, bool], Any]) -> None:
+        self.requester = requester(query)
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
             # Exactly this key: a wildcard (`<prefix>/**`) reaches every queryable and may only read.
@@ -202,6 +214,103 @@ class DaemonInterface:
         self._session.close()
 
 
+MAX_LOGIN_CHARS = 64
+
+
+def requester(query: Any) -> str:
+    """Who sent a query, in words: the login its session states (``admittance set`` attaches it;
+    the router checked that login's password, the daemon only reads the name), else a session
+    without a login. The attachment is untrusted: bounded, printable, or ignored."""
+    try:
+        attached = query.attachment.to_bytes() if query.attachment is not None else b""
+        login = json.loads(attached[:256]).get("login", "") if attached else ""
+    except Exception:  # malformed: treated as absent
+        login = ""
+    if isinstance(login, str) and login and len(login) <= MAX_LOGIN_CHARS and login.isprintable():
+        return f"login {login!r}"
+    return "a session without a login"
+
+
+LOGIN_KEY = "transport/auth/usrpwd/user"  # zenoh_security's entry for the session's login
+
+
+def endpoint_accepts(endpoint: str, timeout: float = 1.0) -> bool:
+    """Whether a TCP connection to a tcp/ or tls/ endpoint is accepted (something listens there)."""
+    match = re.fullmatch(r"(?:tcp|tls)/\[?([^\]]+?)\]?:(\d+)(?:#.*)?", endpoint)
+    if match is None:
+        return False
+    try:
+        with socket.create_connection((match.group(1), int(match.group(2))), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+class RouterLink:
+    """A daemon's place on the network, and a client's link to its router.
+
+    A daemon in ``mode = "client"`` must run its loop whether or not the lab's router is up. It
+    opens a zenoh client session; when that fails because no router answers, it opens a *peer*
+    session that listens nowhere and only connects to the configured endpoints: zenoh retries them
+    in the background and the router, once up, routes for it. What the start line says, and the
+    lines when the router comes and goes, are read from the session, not from the configuration.
+    """
+
+    CHECK_PERIOD_S = 1.0
+
+    def __init__(self, zcfg) -> None:
+        self.client = zcfg.mode == "client"
+        self.mode = zcfg.mode
+        self.listen = zcfg.listen if zcfg.listen and not self.client else None  # clients do not listen
+        self.connect = list(zcfg.connect)
+        self._listening = list(zcfg.listen)
+        self._connected: bool | None = None
+        self._next_check = 0.0
+
+    def open(self, config: Callable[[str, list[str] | None], zenoh.Config]) -> zenoh.Session:
+        if not self.client:
+            return open_session(lambda: config(self.mode, self.listen),
+                                f"listening on {', '.join(self._listening) or 'defaults'}")
+        what = f"as a client of {', '.join(self.connect)}"
+        try:
+            return open_session(lambda: config("client", None), what, log_level="off")
+        except DeviceError as exc:
+            if "Unable to connect" not in str(exc):  # a bad endpoint or security file: not a router that is down
+                raise
+        log.warning("zenoh: no router at %s yet; the loop runs without it and zenoh keeps retrying",
+                    ", ".join(self.connect))
+        self._connected = False
+        return open_session(lambda: config("peer", []), what, log_level="off")
+
+    def routers(self, session: zenoh.Session) -> int:
+        try:
+            return len(list(session.info.routers_zid()))
+        except Exception:  # a closing session: no router
+            return 0
+
+    def where(self, session: zenoh.Session) -> str:
+        if not self.client:
+            extra = f", connecting to {', '.join(self.connect)}" if self.connect else ""
+            return f"listening on {', '.join(self._listening) or 'zenoh defaults'}{extra}"
+        self._connected = self.routers(session) > 0
+        state = "connected" if self._connected else "NOT connected yet (the loop runs; zenoh keeps retrying)"
+        return f"a client of the router at {', '.join(self.connect)}, {state}"
+
+    def watch(self, session: zenoh.Session) -> None:
+        now = time.monotonic()
+        if not self.client or now < self._next_check:
+            return
+        self._next_check = now + self.CHECK_PERIOD_S
+        connected = self.routers(session) > 0
+        if connected != self._connected and self._connected is not None:
+            if connected:
+                log.info("zenoh: connected to the router at %s", ", ".join(self.connect))
+            else:
+                log.warning("zenoh: the router at %s is gone; the loop runs on, zenoh keeps retrying",
+                            ", ".join(self.connect))
+        self._connected = connected
+
+
 def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
     """Decode a request and hand it to the supervisor; a malformed or refused one is rejected
     with why (an AdmittanceError raised by the handler is a refusal like any other)."""
@@ -217,8 +326,11 @@ class Client:
 
     def __init__(self, connect: list[str], security: dict[str, Any] | None = None) -> None:
         self.connect = connect
+        self.login = (security or {}).get(LOGIN_KEY)
+        # zenoh's own log lines (raw, coloured, with Rust paths) stay off: each failure is told as one
+        # line below, by what the session saw (RUST_LOG still turns them on for a bug hunt).
         self._session = open_session(lambda: make_config(mode="peer", listen=[], connect=connect, security=security),
-                                     f"connecting to {', '.join(connect)}")
+                                     f"connecting to {', '.join(connect)}", log_level="off")
 
     def __enter__(self) -> Client:
         return self
@@ -234,12 +346,36 @@ class Client:
     def query(self, key: str, request: dict[str, Any] | None = None, timeout: float = 3.0) -> dict[str, Any]:
         """The first reply to a get on ``key`` as a dict; DeviceError when no daemon answers."""
         kwargs = {"payload": json.dumps(request).encode()} if request is not None else {}
+        # Who asks, for the daemon's log line (the login this session gave the router, or none).
+        kwargs["attachment"] = json.dumps({"login": self.login or ""}).encode()
         for reply in self._session.get(key, timeout=timeout, **kwargs):
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes())
             raise DeviceError(f"{key}: the daemon replied with an error: {reply.err.payload.to_string()}")
-        raise DeviceError(f"no daemon answered on {key} via {', '.join(self.connect)} "
-                          f"within {timeout:g} s (is `admittance run` up, with the same prefix?)")
+        raise DeviceError(self.why_no_answer(key, timeout))
+
+    def linked(self) -> bool:
+        """Whether this session has a link to any router or peer (a login refused leaves none)."""
+        info = self._session.info
+        return bool(list(info.routers_zid()) or list(info.peers_zid()))
+
+    def why_no_answer(self, key: str, timeout: float) -> str:
+        """One line for a query nobody answered: no link (nothing listens, or the login was
+        refused), a daemon that is up but whose commands this login may not send (the ACL), or
+        no daemon on that key."""
+        via = ", ".join(self.connect)
+        who = f"user {self.login!r}" if self.login else "no login"
+        if not self.linked():
+            if any(endpoint_accepts(endpoint) for endpoint in self.connect):
+                return (f"{via} refused this session ({who}): check auth_user and its password file, or the "
+                        f"TLS certificate, in --zenoh-config")
+            return f"nothing answers at {via}: is the router or `admittance run` up there?"
+        prefix = key.rsplit("/", 1)[0]
+        if self.publishing(prefix, timeout=1.0):
+            return (f"the daemon at {prefix} is up but did not answer {key}: the router's access control lets "
+                    f"only its operators send commands, and this session has {who}")
+        return (f"no daemon answered on {key} via {via} within {timeout:g} s "
+                f"(is `admittance run` up, with the same prefix?)")
 
     def try_stream(self, prefix: str) -> Any:
         """A subscriber whose ``try_recv()`` never blocks (for a redraw loop with its own clock)."""
@@ -258,6 +394,19 @@ class Client:
         request = lambda: session.get(f"{prefix}/**/params", zenoh.handlers.FifoChannel(64),  # noqa: E731
                                       timeout=PARAMS_TIMEOUT_S)
         return _Polled(data, with_bench=True, alive=alive, request_params=request)
+
+    def publishing(self, prefix: str, timeout: float = 1.0) -> bool:
+        """Whether ``<prefix>/state`` arrives within ``timeout`` (what any login may read)."""
+        subscriber = self._session.declare_subscriber(f"{prefix}/state", zenoh.handlers.RingChannel(1))
+        try:
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                if subscriber.try_recv() is not None:
+                    return True
+                time.sleep(0.02)
+            return False
+        finally:
+            subscriber.undeclare()
 
     def alive(self, prefix: str, timeout: float = 2.0) -> bool:
         return any(r.ok is not None for r in self._session.liveliness().get(f"{prefix}/alive", timeout=timeout))

@@ -3,7 +3,7 @@
 An FTDI chip holds a short reply until its 64-byte buffer fills or its latency timer expires,
 16 ms by default on Linux: every Dynamixel read then costs up to 16 ms, and a 1 kHz loop is
 impossible (shared protocols.md §6). The fix is one sysfs write (or the udev rule in
-systemd/99-admittance-ftdi.rules, since the value resets on replug); this module finds the
+that `admittance service install` puts in /etc/udev/rules.d, since the value resets on replug); this module finds the
 right sysfs file for a port and says so. The port may be a symlink (/dev/serial/by-id/...,
 /dev/dynamixel); it is resolved to its tty first. Devices without a timer (ptys, CDC-ACM
 ports such as the OptoForce DAQ, non-FTDI adapters) have no such file, and nothing is said.
@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 WANTED_MS = 1
-UDEV_RULE = "systemd/99-admittance-ftdi.rules"
+UDEV_RULE = "99-admittance-ftdi.rules"
 
 
 def latency_timer_path(port: str, *, sysfs_root: str | Path = "/sys") -> Path:
@@ -42,5 +42,6 @@ def latency_warning(port: str, *, sysfs_root: str | Path = "/sys", wanted_ms: in
         f"the USB serial adapter of {port} has a {value} ms latency timer: every servo reply waits up to "
         f"{value} ms, too slow for the control loop. Set it to {wanted_ms} ms with "
         f"`echo {wanted_ms} | sudo tee {path}`, or install the udev rule {UDEV_RULE} "
-        f"(copy it to /etc/udev/rules.d/ and replug the adapter) so that it stays set."
+        f"(`sudo admittance service install` puts it in /etc/udev/rules.d/; then replug the adapter) "
+        f"so that it stays set."
     )

@@ -19,7 +19,7 @@ def register(subparsers) -> None:
         help="what the joint really rendered, and the servo model that closes the gap",
         description="Measure the rendering error (present − model angle) of a recording, the admittance the "
         "horn really rendered against the one the loop ran, and identify the servo's tracking dynamics "
-        "(shared/contracts/fidelity.md, docs/fidelity.md).",
+        "(docs/fidelity.md; the recording's format: admittance docs recordings).",
     )
     p.add_argument("recording", metavar="RECORDING",
                    help="a recording of `admittance run --record DIR`: the folder, or its session.mcap")

@@ -25,7 +25,7 @@ def register(subparsers) -> None:
         "identify",
         help="fit I, B, F and the effects the data supports from a pendulum dataset",
         description="Fit the base model by output error, add the effects held-back trials confirm, "
-        "and report the simulation error on held-out trials (shared/contracts/datasets.md).",
+        "and report the simulation error on held-out trials (format: admittance docs datasets).",
     )
     p.add_argument("dataset", metavar="DATASET_DIR", help="folder with manifest.toml and the trial files")
     p.add_argument("--json", dest="json_out", metavar="FILE.json",

@@ -29,7 +29,7 @@ def _register_ladder(subparsers) -> None:
         description="Fit each rung (a set of effects) on identify's cross-validation folds (whole trials, or time "
                     "segments when there are few) and score it on the data left out, with identify's admission "
                     "verdict: for asking about effects identify did not try or did not admit.")
-    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    lad.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     lad.add_argument("--rung", action="append", required=True, metavar="EFFECTS",
                      help="comma-separated effect names ('' = the base model); repeat for each model")
     lad.add_argument("--start", action="append", default=[], metavar="NAME=VALUE",
@@ -47,7 +47,7 @@ def _register_convert(subparsers) -> None:
     conv = subparsers.add_parser(
         "convert", help="turn Motive / Dynamixel / DFKI recordings or a session.mcap into a dataset folder",
         description="Read recordings in a foreign format (Motive CSV, Dynamixel/BAM logs, DFKI CSV, a daemon's session.mcap) and write "
-                    "a dataset folder (shared/contracts/datasets.md) that identify, thesis and predict read.")
+                    "a dataset folder (format: admittance docs datasets) that identify, thesis and predict read.")
     conv.add_argument("format", choices=("motive", "dynamixel", "dfki", "mcap"), help="the recordings' format")
     conv.add_argument("files", type=Path, nargs="+", metavar="FILE", help="the recordings, one trial each")
     conv.add_argument("--out", type=Path, required=True, metavar="DIR",

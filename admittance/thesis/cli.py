@@ -34,7 +34,7 @@ def _register_thesis(subparsers) -> None:
         "thesis", help="reproduce the thesis's per-trial alternating LM fit (tables 3.2-3.4)",
         description="Fit each trial as the thesis did (appendix C.3): Levenberg-Marquardt on (I, B), then on F, "
                     "alternated; print the per-trial table in the layout of tables 3.2-3.4.")
-    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    thesis.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     thesis.add_argument("--out", type=Path, metavar="DIR",
                         help="also write thesis_table.md and thesis_table.csv into DIR (default: print only)")
     thesis.add_argument("--cycles", type=int, default=5, metavar="N",
@@ -56,7 +56,7 @@ def _register_breakaway(subparsers) -> None:
         description="For each trial, find where the angle leaves its rest band under a slow torque ramp and read "
                     "the torque there (thesis section 2.3, table 3.1). Every trial needs a tau column (N·m), and "
                     "tau must ramp steadily up to the breakaway: a step, hold or oscillation is refused.")
-    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    brk.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     brk.add_argument("--json", type=Path, metavar="FILE.json", help="also write the results as JSON (default: print only)")
     brk.set_defaults(func=_run_breakaway)
 
@@ -67,7 +67,7 @@ def _register_predict(subparsers) -> None:
         description="Thesis section 3.3: simulate each trial's position from its torque with the given parameters, "
                     "and compute the torque from its position; print the errors, and with --out write "
                     "metrics.json and appendix-B-style plots.")
-    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (shared/contracts/datasets.md)")
+    pred.add_argument("dataset", type=Path, metavar="DATASET_DIR", help="dataset folder: manifest.toml and the trial files (format: admittance docs datasets)")
     pred.add_argument("--params", type=Path, required=True, metavar="FILE.toml", help="a Contract 2 parameter file")
     pred.add_argument("--out", type=Path, metavar="DIR", help="write metrics.json and the appendix-B plots into DIR "
                       "(new or empty unless --force; default: print only; needs admittance[plots])")
