@@ -497,3 +497,106 @@ impl Worker {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optoforce::encode_sample;
+    use std::sync::atomic::AtomicUsize;
+
+    /// A scripted device: serves `frames` once per read, fails the read when `fail` is set, and
+    /// refuses `refusals` reopens.
+    struct Scripted {
+        frame: Vec<u8>,
+        fail: Arc<AtomicBool>,
+        refusals: Arc<AtomicUsize>,
+        silent: Arc<AtomicBool>,
+    }
+
+    impl Source for Scripted {
+        fn open(&mut self) -> Result<(), String> {
+            if self.refusals.load(Ordering::SeqCst) > 0 {
+                self.refusals.fetch_sub(1, Ordering::SeqCst);
+                return Err("no such device".into());
+            }
+            Ok(())
+        }
+        fn read(&mut self, out: &mut Vec<u8>, _timeout_us: u64) -> io::Result<()> {
+            std::thread::sleep(Duration::from_millis(1));
+            if self.fail.swap(false, Ordering::SeqCst) {
+                return Err(io::Error::other("EIO"));
+            }
+            if !self.silent.load(Ordering::SeqCst) {
+                out.extend_from_slice(&self.frame);
+            }
+            Ok(())
+        }
+        fn close(&mut self) {}
+        fn describe(&self) -> String {
+            "optoforce sensor on scripted".into()
+        }
+        fn path(&self) -> &'static str {
+            "rust-test"
+        }
+    }
+
+    fn wait_for(reader: &Reader, what: impl Fn(&ReaderStats) -> bool) -> ReaderStats {
+        for _ in 0..2000 {
+            let s = reader.stats();
+            if what(&s) {
+                return s;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        panic!("timed out; stats {:?}", reader.stats());
+    }
+
+    fn scripted() -> (Scripted, Arc<AtomicBool>, Arc<AtomicUsize>, Arc<AtomicBool>) {
+        let (fail, refusals, silent) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
+        let frame = encode_sample(0, 0, &[452, 0, 0]).unwrap_or_default();
+        (Scripted { frame, fail: fail.clone(), refusals: refusals.clone(), silent: silent.clone() }, fail, refusals, silent)
+    }
+
+    fn config() -> ReaderConfig {
+        ReaderConfig { counts_per_unit: vec![452.0; 3], axes: 3, sensor_index: 0, saturation: Saturation::Hold, rt_priority: 0, stale_after_ns: 30_000_000 }
+    }
+
+    #[test]
+    fn a_failed_device_is_reopened_with_backoff_and_told_once_each() {
+        let (source, fail, refusals, _) = scripted();
+        let mut reader = Reader::new(Box::new(source), config(), Target::Capture).unwrap();
+        reader.start().unwrap();
+        wait_for(&reader, |s| s.samples_pushed > 5);
+        refusals.store(2, Ordering::SeqCst);
+        fail.store(true, Ordering::SeqCst);
+        let s = wait_for(&reader, |s| s.reconnects == 1 && s.samples_pushed > 20);
+        assert_eq!((s.disconnects, s.reopen_failures, s.state), (1, 2, "streaming"));
+        let kinds: Vec<&str> = reader.take_events().iter().map(|e| e.0).collect();
+        assert_eq!(kinds.iter().filter(|k| **k == "disconnected").count(), 1);
+        assert_eq!(kinds.iter().filter(|k| **k == "reopen_failed").count(), 2);
+        assert_eq!(kinds.iter().filter(|k| **k == "reconnected").count(), 1);
+        let got = reader.take_captured();
+        assert!((got[0].forces[0] - 1.0).abs() < 1e-12);
+        reader.stop();
+    }
+
+    #[test]
+    fn silence_is_stale_once_then_fresh_and_the_gate_holds_samples_back() {
+        let (source, _, _, silent) = scripted();
+        let mut reader = Reader::new(Box::new(source), config(), Target::Capture).unwrap();
+        reader.start().unwrap();
+        wait_for(&reader, |s| s.samples_pushed > 2);
+        silent.store(true, Ordering::SeqCst);
+        wait_for(&reader, |s| s.stale);
+        silent.store(false, Ordering::SeqCst);
+        let s = wait_for(&reader, |s| !s.stale);
+        assert_eq!(s.stale_events, 1);
+        let kinds: Vec<&str> = reader.take_events().iter().map(|e| e.0).collect();
+        assert_eq!(kinds, vec!["stale", "fresh"]);
+        let rows = reader.collect_raw(5, Duration::from_secs(5));
+        assert_eq!(rows.len(), 5);
+        reader.set_bias([1.0, 0.0, 0.0, 0.0, 0.0, 0.0]).unwrap();
+        assert!(reader.set_bias([f64::NAN; 6]).is_err());
+        reader.stop();
+    }
+}

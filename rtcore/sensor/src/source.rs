@@ -21,7 +21,7 @@ pub struct CanStats {
     pub refused_commands: u64,
 }
 
-pub trait Source: Send {
+pub trait Source: Send + Sync {
     /// Acquire the device and send its start-up commands; the error names the device.
     fn open(&mut self) -> Result<(), String>;
     /// Append stream bytes to `out`, waiting up to `timeout_us` for the first; Err = the device failed.
