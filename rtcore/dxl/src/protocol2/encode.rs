@@ -9,14 +9,14 @@ use crate::packet::{BulkEntry, EncodeError};
 
 /// Writes the stuffed body of a packet. It keeps counting past the end of a short buffer, so
 /// the error can say exactly how many bytes the packet needs.
-struct BodyWriter<'a> {
+pub(super) struct BodyWriter<'a> {
     buf: &'a mut [u8],
     pos: usize,
     matcher: PatternMatcher,
 }
 
 impl BodyWriter<'_> {
-    fn put(&mut self, b: u8) {
+    pub(super) fn put(&mut self, b: u8) {
         if let Some(slot) = self.buf.get_mut(self.pos) {
             *slot = b;
         }
@@ -27,17 +27,17 @@ impl BodyWriter<'_> {
         }
     }
 
-    fn put_all(&mut self, bytes: &[u8]) {
+    pub(super) fn put_all(&mut self, bytes: &[u8]) {
         bytes.iter().for_each(|&b| self.put(b));
     }
 
-    fn put_u16(&mut self, v: u16) {
+    pub(super) fn put_u16(&mut self, v: u16) {
         self.put_all(&v.to_le_bytes());
     }
 }
 
 /// Frame a packet: header, ID, length, then `body` writes the scanned (stuffed) bytes.
-fn frame(buf: &mut [u8], id: u8, body: impl FnOnce(&mut BodyWriter)) -> Result<usize, EncodeError> {
+pub(super) fn frame(buf: &mut [u8], id: u8, body: impl FnOnce(&mut BodyWriter)) -> Result<usize, EncodeError> {
     let mut w = BodyWriter { buf, pos: PREFIX_LEN, matcher: PatternMatcher::default() };
     body(&mut w);
     let end = w.pos;
@@ -64,7 +64,7 @@ fn check_target(id: u8) -> Result<(), EncodeError> {
     }
 }
 
-fn check_device(id: u8) -> Result<(), EncodeError> {
+pub(super) fn check_device(id: u8) -> Result<(), EncodeError> {
     if id <= MAX_ID {
         Ok(())
     } else {
