@@ -237,8 +237,8 @@ def _vcan_reason() -> str | None:
         return f"no `ip` tool to look for a vcan interface: {exc}"
     names = [line.split()[0] for line in out.stdout.splitlines() if line.strip()]
     if out.returncode != 0 or not names:
-        return ("no vcan interface on this machine (the vcan module is not loaded here and creating one "
-                "needs root: `ip link add dev vcan0 type vcan && ip link set up vcan0`)")
+        return ("no vcan interface on this machine (create one as root: `ip link add dev vcan0 type vcan && "
+                "ip link set up vcan0`; on a kernel without the vcan module `ip` answers 'Unknown device type')")
     return None
 
 
