@@ -103,11 +103,12 @@ class NativeForceReader:
         from admittance import _rtcore
 
         self.kind = str(section.get("kind"))
+        self.saturation = str(section.get("saturation", "hold"))
         axes = int(section.get("axes", 3))
         config = dict(device) | {
             "counts_per_newton": list(counts_per_unit(section.get("counts_per_newton", 451.89), axes)),
             "axes": axes, "sensor_index": int(section.get("sensor_index", 0)),
-            "saturation": str(section.get("saturation", "hold")), "rt_priority": int(rt_priority),
+            "saturation": self.saturation, "rt_priority": int(rt_priority),
         }
         for key in ("rate_hz", "filter_hz", "tare_on_start"):
             if key in section:
