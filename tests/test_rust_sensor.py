@@ -255,3 +255,23 @@ def test_the_socketcan_reader_reads_samples_from_a_vcan_interface():
                 bus.send(can.Message(arbitration_id=0x100, data=frame[k:k + 8], is_extended_id=False))
         samples = captured_until(reader, 20)
     assert len(samples) >= 20 and reader.stats()["reader"] == "rust-socketcan"
+
+
+def test_the_daemons_gate_holds_the_rust_reader_back_until_the_loop_runs(sim):
+    """Before the gate opens, samples only feed the tare (the loop must see only tared samples
+    taken after it started); once it opens they go to the loop's own ring, past Python."""
+    from admittance import _rtcore
+    from admittance.daemon.supervisor import GatedSink
+
+    loop = _rtcore.AdmittanceLoop({"port": "/dev/null", "rate_hz": 1000, "joints": [
+        {"id": 1, "virtual_inertia": 0.02, "virtual_damping": 0.05, "lever_arm": 0.1}]})
+    gate = GatedSink(loop.force_sink())
+    reader = NativeForceReader.from_config({"kind": "optoforce", "port": sim.link_path, "counts_per_newton": [CPN] * 3},
+                                           gate)
+    with reader:
+        assert wait_until(lambda: reader.stats()["dropped_before_open"] >= 20)
+        assert reader.stats()["samples_pushed"] == reader.stats()["dropped_before_open"], "none reached the ring"
+        gate.open()
+        before = reader.stats()["dropped_before_open"]
+        assert wait_until(lambda: reader.stats()["samples_pushed"] - reader.stats()["dropped_before_open"] >= 20)
+        assert reader.stats()["dropped_before_open"] - before <= 5
