@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import threading
 
 import pytest
 
@@ -21,23 +20,10 @@ from admittance.mockbench.hand import make_profile
 from admittance.mockbench.sensor import ForceModel, SimulatedOptoForce, SimulatedSlcanOptoForce
 
 from helpers import wait_until
+from test_sensor_recovery import Events  # the event hook that keeps what it is told
 
 CPN = 451.89
 STILL = "still:torque=0.21"  # 0.21 N·m on a 0.105 m lever: 2 N on x
-
-
-class Events:
-    def __init__(self) -> None:
-        self.told: list[tuple[str, str]] = []
-        self._lock = threading.Lock()
-
-    def __call__(self, kind: str, message: str) -> None:
-        with self._lock:
-            self.told.append((kind, message))
-
-    def kinds(self) -> list[str]:
-        with self._lock:
-            return [kind for kind, _ in self.told]
 
 
 def rust_reader(port: str, *, kind: str = "optoforce", **section) -> tuple[NativeForceReader, Events]:

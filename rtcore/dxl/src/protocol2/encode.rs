@@ -9,14 +9,14 @@ use crate::packet::{BulkEntry, EncodeError};
 
 /// Writes the stuffed body of a packet. It keeps counting past the end of a short buffer, so
 /// the error can say exactly how many bytes the packet needs.
-pub(super) struct BodyWriter<'a> {
+struct BodyWriter<'a> {
     buf: &'a mut [u8],
     pos: usize,
     matcher: PatternMatcher,
 }
 
 impl BodyWriter<'_> {
-    pub(super) fn put(&mut self, b: u8) {
+    fn put(&mut self, b: u8) {
         if let Some(slot) = self.buf.get_mut(self.pos) {
             *slot = b;
         }
@@ -27,17 +27,17 @@ impl BodyWriter<'_> {
         }
     }
 
-    pub(super) fn put_all(&mut self, bytes: &[u8]) {
+    fn put_all(&mut self, bytes: &[u8]) {
         bytes.iter().for_each(|&b| self.put(b));
     }
 
-    pub(super) fn put_u16(&mut self, v: u16) {
+    fn put_u16(&mut self, v: u16) {
         self.put_all(&v.to_le_bytes());
     }
 }
 
 /// Frame a packet: header, ID, length, then `body` writes the scanned (stuffed) bytes.
-pub(super) fn frame(buf: &mut [u8], id: u8, body: impl FnOnce(&mut BodyWriter)) -> Result<usize, EncodeError> {
+fn frame(buf: &mut [u8], id: u8, body: impl FnOnce(&mut BodyWriter)) -> Result<usize, EncodeError> {
     let mut w = BodyWriter { buf, pos: PREFIX_LEN, matcher: PatternMatcher::default() };
     body(&mut w);
     let end = w.pos;
@@ -64,7 +64,7 @@ fn check_target(id: u8) -> Result<(), EncodeError> {
     }
 }
 
-pub(super) fn check_device(id: u8) -> Result<(), EncodeError> {
+fn check_device(id: u8) -> Result<(), EncodeError> {
     if id <= MAX_ID {
         Ok(())
     } else {
@@ -157,9 +157,14 @@ pub fn encode_clear(buf: &mut [u8], id: u8) -> Result<usize, EncodeError> {
 
 /// SYNC_READ of `length` bytes at `address` from each of `ids`; replies come in `ids` order.
 pub fn encode_sync_read(buf: &mut [u8], address: u16, length: u16, ids: &[u8]) -> Result<usize, EncodeError> {
+    encode_sync_read_as(buf, ins::SYNC_READ, address, length, ids)
+}
+
+/// A Sync Read's parameters under `instruction` (SYNC_READ, or FAST_SYNC_READ: same bytes).
+pub(super) fn encode_sync_read_as(buf: &mut [u8], instruction: u8, address: u16, length: u16, ids: &[u8]) -> Result<usize, EncodeError> {
     ids.iter().try_for_each(|&id| check_device(id))?;
     frame(buf, BROADCAST_ID, |w| {
-        w.put(ins::SYNC_READ);
+        w.put(instruction);
         w.put_u16(address);
         w.put_u16(length);
         w.put_all(ids);

@@ -8,7 +8,7 @@
 //!
 //! Why it matters: one header and one Return Delay Time for the whole bus instead of one per
 //! servo; with 6 servos the reply shrinks from 6 × (11 + X) bytes to 8 + 6 × (4 + X).
-use super::encode::{check_device, frame};
+use super::encode::encode_sync_read_as;
 use super::{BROADCAST_ID, HEADER, PREFIX_LEN};
 use crate::crc::crc16_update;
 use crate::instruction as ins;
@@ -16,13 +16,7 @@ use crate::packet::EncodeError;
 
 /// FAST_SYNC_READ of `length` bytes at `address` from each of `ids` (their segments come in `ids` order).
 pub fn encode_fast_sync_read(buf: &mut [u8], address: u16, length: u16, ids: &[u8]) -> Result<usize, EncodeError> {
-    ids.iter().try_for_each(|&id| check_device(id))?;
-    frame(buf, BROADCAST_ID, |w| {
-        w.put(ins::FAST_SYNC_READ);
-        w.put_u16(address);
-        w.put_u16(length);
-        w.put_all(ids);
-    })
+    encode_sync_read_as(buf, ins::FAST_SYNC_READ, address, length, ids)
 }
 
 /// Bytes of the whole reply for `n` servos of `x` data bytes each: 8 + n·(4 + x).
