@@ -28,6 +28,10 @@ Two loads, the same for all three loops:
   supervisor's gate, and the interpreter is settled as ``admittance run`` settles it
   (admittance.daemon.interpreter); a thread allocates 500 small dicts with reference cycles every
   millisecond (allocation and cyclic-GC pressure); and two processes burn a CPU each.
+  With ``--sensor rust`` the sensor is a real one's stand-in instead: a separate process writes
+  1 kHz OptoForce frames on a pty at absolute deadlines (SCHED_FIFO 60 when allowed), read by the
+  daemon's Rust reader (SCHED_FIFO 40 beside the FIFO loops), and each row also shows the
+  reader's longest gap; only the Rust loops run (the reader pushes into their ring).
 
 Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
 ("period error": a deadline, or a sample's push), the force-to-write latency (a sample's
