@@ -28,6 +28,10 @@ Two loads, the same for all three loops:
   supervisor's gate, and the interpreter is settled as ``admittance run`` settles it
   (admittance.daemon.interpreter); a thread allocates 500 small dicts with reference cycles every
   millisecond (allocation and cyclic-GC pressure); and two processes burn a CPU each.
+  With ``--sensor rust`` the sensor is a real one's stand-in instead: a separate process writes
+  1 kHz OptoForce frames on a pty at absolute deadlines (SCHED_FIFO 60 when allowed), read by the
+  daemon's Rust reader (SCHED_FIFO 40 beside the FIFO loops), and each row also shows the
+  reader's longest gap; only the Rust loops run (the reader pushes into their ring).
 
 Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
 ("period error": a deadline, or a sample's push), the force-to-write latency (a sample's
@@ -310,6 +314,58 @@ class DriftingSensor(ForceSensor):
         pass
 
 
+# A DAQ in its own process: OptoForce frames on a pty at absolute deadlines (its own clock, as a
+# real DAQ has), at SCHED_FIFO when allowed: hardware is not delayed by the host's load.
+PTY_DAQ = r"""
+import os, sys, time, tty
+from admittance.drivers.optoforce import encode_sample
+rate, priority, counts = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+master, slave = os.openpty()
+tty.setraw(slave)
+os.set_blocking(master, False)
+print(os.ttyname(slave), flush=True)
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+except OSError:
+    pass
+period, t0, k = 1e9 / rate, time.monotonic_ns(), 0
+while True:
+    late = t0 + int(k * period) - time.monotonic_ns()
+    if late > 0:
+        time.sleep(late / 1e9)
+    try:
+        os.write(master, encode_sample(k & 0xFFFF, 0, [counts, 0, 0]))
+    except BlockingIOError:
+        pass  # nobody reads: the DAQ drops the frame
+    k += 1
+"""
+DAQ_RATE_HZ = 1000
+DAQ_PRIORITY = 60
+COUNTS_PER_N = 451.89
+
+
+class PtyDaq:
+    """The PTY_DAQ process; ``port`` is the pty a reader opens."""
+
+    def __init__(self, rate_hz: float = DAQ_RATE_HZ) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-c", PTY_DAQ, str(rate_hz), str(DAQ_PRIORITY),
+                                      str(round(FORCE_N * COUNTS_PER_N))],
+                                     stdout=subprocess.PIPE, text=True, preexec_fn=die_with_parent)
+        self.port = self.proc.stdout.readline().strip()
+        self.period_ns = int(1e9 / rate_hz)
+
+    def close(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def rust_reader(port: str, sink, priority: int):
+    """The daemon's Rust reader (native_sensor.py) on the pty DAQ."""
+    from admittance.drivers.native_sensor import NativeForceReader
+    return NativeForceReader.from_config({"kind": "optoforce", "port": port, "counts_per_newton": [COUNTS_PER_N] * 3},
+                                         sink, rt_priority=priority)
+
+
 class BenchLoad:
     """The sensor thread and a JSON "supervisor" thread, as the first version of this bench had."""
 
@@ -386,8 +442,12 @@ class DaemonLoad:
     name = "daemon"
     PREFIX = "bench/loop-timing"
 
-    def __init__(self) -> None:
+    def __init__(self, sensor: str = "python") -> None:
         import zenoh
+        self.sensor = sensor  # python: DriftingSensor (a Python reader thread); rust: PtyDaq + Rust reader
+        self.daq = PtyDaq() if sensor == "rust" else None
+        self.fifo = False
+        self.reader_stats: list[dict] = []
 
         from admittance.daemon.zenoh_iface import make_config, open_session
         self.workdir = Path(tempfile.mkdtemp(prefix="loop-timing-"))
@@ -424,9 +484,17 @@ class DaemonLoad:
         from admittance.daemon.zenoh_iface import DaemonInterface
         self.runs += 1
         cfg = self.config(rate_hz, n_joints)
+        readers = []
+
+        def make_sensor(cfg, port, sink):
+            if self.daq is None:
+                return DriftingSensor(sink)
+            readers.append(rust_reader(self.daq.port, sink, 40 if self.fifo else 0))  # below the loop's 50
+            return readers[-1]
+
         backends = Backends(start_bench=lambda cfg: contextlib.nullcontext((cfg.bus.port, "", lambda: None)),
                             check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
-                            make_sensor=lambda cfg, port, sink: DriftingSensor(sink),
+                            make_sensor=make_sensor,
                             make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
         supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, before_loop=settle_for_the_reader),
                                 notifier=Notifier(environ={}))
@@ -436,9 +504,14 @@ class DaemonLoad:
         finally:  # settled for this run only: the next point, the phase-lock section start as they were
             unsettle(switch_interval_s)
         shutil.rmtree(cfg.record.path, ignore_errors=True)
-        return supervisor.final_stats
+        stats = dict(supervisor.final_stats)
+        if readers:
+            stats["reader"] = readers[-1].stats()
+        return stats
 
     def close(self) -> None:
+        if self.daq is not None:
+            self.daq.close()
         for p in self.burners:
             p.kill()
             p.wait()
@@ -451,14 +524,23 @@ class DaemonLoad:
 
 # -- one point: every loop, both policies, one load -------------------------------------------
 
+def loops_of(load) -> tuple[str, ...]:
+    """The Rust reader pushes into the Rust loop's ring only: no Python loop with it."""
+    return LOOPS if getattr(load, "sensor", "python") == "python" else tuple(x for x in LOOPS if x != "python")
+
+
 def run_point(load, rate: int, n: int, point_s: float) -> dict:
     bus = mock_bus(n)
     results = {}
+    loops = loops_of(load)
     try:
-        for name in (*LOOPS, *(f"{loop}_fifo" for loop in LOOPS)):
+        for name in (*loops, *(f"{loop}_fifo" for loop in loops)):
             loop = make_loop(name, bus.port_path, rate, n)
+            load.fifo = name.endswith("_fifo")
             stats = load.run(loop, point_s) if isinstance(load, BenchLoad) else load.run(loop, point_s, rate, n)
             results[name] = summary(stats)
+            if "reader" in stats:
+                results[name]["reader"] = stats["reader"]
     finally:
         bus.stop()
     return results
@@ -474,8 +556,11 @@ def ratio(a: dict, b: dict, key: str, k: int) -> float:
 
 def print_point(rate: int, n: int, results: dict) -> None:
     for name, r in results.items():
+        reader = r.get("reader")
+        gap = (f" | reader {reader['reader']} {reader['thread_policy']}: longest gap {reader['max_gap_ns'] / 1e3:.0f} µs, "
+               f"stale {reader['stale_events']}" if reader else "")
         print(f"{rate:5d} {n:3d} {name:<15} {r['policy']:<11} | {fmt(r['period'])} | {fmt(r['latency'])} "
-              f"| {fmt(r['cost'])} | {r['overruns']}/{r['cycles']}", flush=True)
+              f"| {fmt(r['cost'])} | {r['overruns']}/{r['cycles']}{gap}", flush=True)
 
 
 def print_latency_table(rows: list[tuple]) -> None:
@@ -494,7 +579,7 @@ def print_latency_table(rows: list[tuple]) -> None:
         print(f"{rate:5d} {n:3d} |      " + " |     ".join(cells))
     for policy, values in ratios.items():
         print(f"median p99 latency after/before at {policy}: {np.median(values):.2f} "
-              f"(max {max(values):.2f})")
+              f"(max {max(values):.2f}; target ≤ 0.25 at every point: {'met' if max(values) <= 0.25 else 'not met'})")
 
 
 def print_ratio_table(rows: list[tuple]) -> None:
@@ -517,7 +602,7 @@ def print_ratio_table(rows: list[tuple]) -> None:
 
 
 def run_load(load, rates, joints, point_s: float) -> None:
-    print(f"\n== load: {load.name}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(f"\n== load: {load.name}, sensor reader: {getattr(load, 'sensor', 'python')}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"{'rate':>5} {'jnt':>3} {'loop':<15} {'policy':<11} | period error µs: p50 p99 p99.9 max "
           f"| latency µs: p50 p99 p99.9 max | cost µs: p50 p99 | overruns/cycles")
     rows = []
@@ -527,7 +612,8 @@ def run_load(load, rates, joints, point_s: float) -> None:
             print_point(rate, n, results)
             rows.append((rate, n, results))
     print_latency_table(rows)
-    print_ratio_table(rows)
+    if "python" in loops_of(load):
+        print_ratio_table(rows)
     print(f"load average after the {load.name} load: {os.getloadavg()[0]:.1f}")
 
 
@@ -618,6 +704,9 @@ def main() -> None:
                         help=f"joint counts (default {' '.join(map(str, JOINT_COUNTS))})")
     parser.add_argument("--point-s", type=float, default=POINT_S, metavar="S",
                         help=f"seconds per loop and point (default {POINT_S})")
+    parser.add_argument("--sensor", choices=("python", "rust"), default="python",
+                        help="the daemon load's sensor: python (a Python reader thread pushing ~1 kHz) or rust "
+                             "(a 1 kHz DAQ process on a pty read by the Rust reader; Rust loops only)")
     parser.add_argument("--no-phase-lock-section", action="store_true",
                         help="skip the last section (a sensor paced at the loop's rate)")
     args = parser.parse_args()
@@ -625,7 +714,8 @@ def main() -> None:
     print(f"command: {' '.join(sys.argv)}")
     print(f"uptime: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")
     started = time.monotonic()
-    loads = {"bench": [BenchLoad], "daemon": [DaemonLoad], "both": [BenchLoad, DaemonLoad], "none": []}[args.load]
+    daemon_load = lambda: DaemonLoad(args.sensor)  # noqa: E731
+    loads = {"bench": [BenchLoad], "daemon": [daemon_load], "both": [BenchLoad, daemon_load], "none": []}[args.load]
     for make in loads:
         load = make()
         try:

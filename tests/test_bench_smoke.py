@@ -48,6 +48,9 @@ CASES = [
                       "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),
     ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3",
                         "--no-phase-lock-section"], r"^median Python/Rust at SCHED_OTHER: p99 period error"),
+    # The daemon load with the Rust reader on a pty DAQ process (Rust loops only).
+    ("loop_timing.py", ["--load", "daemon", "--sensor", "rust", "--rates", "250", "--joints", "1", "--point-s", "0.3",
+                        "--no-phase-lock-section"], r"rust_fifo .* reader rust-serial SCHED_FIFO: longest gap \d+ µs"),
 ]
 # Benches no case runs, each with the reason (test_every_bench_has_a_case makes it explicit).
 SKIPPED = {

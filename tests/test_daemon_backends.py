@@ -72,9 +72,14 @@ def test_the_daemon_claims_its_serial_devices_only(tmp_path, monkeypatch, bus, s
 
 def test_the_saturation_policy_reaches_the_reader(tmp_path):
     for policy in ("hold", "pass"):
-        cfg = _sensor_config(tmp_path, "mock", {"kind": "optoforce", "port": "/dev/null", "saturation": policy})
+        cfg = _sensor_config(tmp_path, "mock", {"kind": "optoforce", "port": "/dev/null", "saturation": policy,
+                                                "reader": "python"})
         reader = backends.make_sensor(cfg, "/dev/null", SampleBuffer())
         assert reader._converter.hold_saturated is (policy == "hold")
+        # The Rust reader (the default): the policy reaches it (tests/test_rust_sensor.py runs both).
+        cfg = _sensor_config(tmp_path, "mock", {"kind": "optoforce", "port": "/dev/null", "saturation": policy})
+        rust = backends.make_sensor(cfg, "/dev/null", None)
+        assert rust.reader_path == "rust-serial" and rust.saturation == policy
 
 
 def test_the_embedded_bench_runs_its_bus_thread_at_the_loops_priority():

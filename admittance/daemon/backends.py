@@ -213,6 +213,7 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
 
 def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
     from admittance.drivers.force_reader import create_sensor
+    from admittance.drivers.native_sensor import NativeForceReader, choose_reader, reader_priority
 
     s = cfg.sensor
     section = {"kind": s.kind, "port": port, "counts_per_newton": list(s.counts_per_newton),
@@ -221,6 +222,9 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
     if s.kind == "mock":  # a scripted sensor in this process: it plays the [bench] hand itself
         section.update(lever_arm=cfg.joints[0].lever_arm, axis=s.axis, profile=cfg.bench.profile,
                        noise_std_n=cfg.bench.noise_std_n)
+    section["reader"] = s.reader
+    if choose_reader(section) == "rust":  # no sample passes through Python (native_sensor.py)
+        return NativeForceReader.from_config(section, sink, rt_priority=reader_priority(cfg.loop.rt_priority))
     return create_sensor(section, sink)
 
 

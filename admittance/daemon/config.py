@@ -139,6 +139,8 @@ class SensorConfig:
     tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
     saturation: str = key("str", "hold", choices=("hold", "pass"),
                           doc="a saturated sample (overload flag, clipped count): hold drops it (the joint holds), pass uses it")
+    reader: str = key("str", "auto", choices=("auto", "rust", "python"),
+                      doc="auto: the Rust reader for optoforce and CAN on socketcan/slcan, python-can otherwise")
     frame_id: str = key("str", "force_sensor", doc="the sensor's frame name (ROS 2 wrench header.frame_id)")
 
 

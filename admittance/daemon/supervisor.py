@@ -133,10 +133,21 @@ class GatedSink:
     def __init__(self, target: Any) -> None:
         self._target = target
         self._push = None
+        self._on_open: list[Callable[[], None]] = []
         self.dropped_before_open = 0
 
     def open(self) -> None:
         self._push = self._target.push
+        for opened in self._on_open:
+            opened()
+
+    def native_target(self) -> Any:
+        """The loop's own sink, for a Rust reader that pushes past Python; it keeps its own
+        gate and opens it with this one (``on_open``)."""
+        return self._target
+
+    def on_open(self, opened: Callable[[], None]) -> None:
+        self._on_open.append(opened)
 
     def push(self, t_ns: int, forces) -> bool:
         push = self._push
@@ -505,7 +516,9 @@ class Supervisor:
     def _status_line(self, stats: dict[str, Any] | None = None) -> str:
         rt = (stats or self.loop.stats()).get("rt", {})
         joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
-        return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')})"
+        reader = getattr(self.sensor, "reader_path", None)
+        sensor = f"; sensor reader {reader}" if reader else ""
+        return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')}){sensor}"
 
     def _write_stats(self, error: BaseException | None = None) -> None:
         """``--stats-json``: the loop's final counts and the daemon's own, plus, after an error,

@@ -57,6 +57,7 @@ class CanForceReader(ForceSensor):
     """Reads OptoForce samples carried in CAN frames with identifier ``can_id``."""
 
     kind = "can"
+    reader_path = "python-can"
 
     def __init__(
         self,

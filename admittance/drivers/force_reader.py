@@ -183,6 +183,7 @@ class ForceSensor(abc.ABC):
     """
 
     kind: str = ""
+    reader_path = "python"  # which reader runs (stats, the start line); the Rust ones say rust-*
     reconnect_first_s = RECONNECT_FIRST_S
     reconnect_max_s = RECONNECT_MAX_S
 
@@ -415,6 +416,7 @@ class ForceSensor(abc.ABC):
     def stats(self) -> dict[str, Any]:
         return {
             "kind": self.kind,
+            "reader": self.reader_path,
             "running": self.running,
             "state": self.state,
             "error": self.error,

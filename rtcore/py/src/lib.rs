@@ -7,6 +7,7 @@
 //! - `dxl.rs`: Dynamixel codec, model table, serial port
 //! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
 //! - `rt.rs`: the real-time admittance loop
+//! - `sensor.rs`: the Rust force-sensor readers feeding the loop
 //! - `dict_fields.rs`: the configuration-dict rules `dxlsim.rs` and `rt.rs` share
 use pyo3::prelude::*;
 
@@ -16,6 +17,7 @@ mod dxlsim;
 mod errors;
 mod plant;
 mod rt;
+mod sensor;
 mod servo;
 
 #[pymodule]
@@ -27,5 +29,6 @@ fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     dxlsim::register(m)?;
     rt::register(m)?;
     servo::register(m)?;
+    sensor::register(m)?;
     Ok(())
 }

@@ -326,7 +326,7 @@ fn start_error(py: Python<'_>, e: StartError) -> PyErr {
 /// The sink force readers push samples into (`push(t_ns, forces) -> bool`).
 #[pyclass(name = "ForceSink", module = "admittance._rtcore", frozen)]
 pub struct PyForceSink {
-    inner: ForceSink,
+    pub(crate) inner: ForceSink,
 }
 
 #[pymethods]

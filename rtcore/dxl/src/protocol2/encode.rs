@@ -157,9 +157,14 @@ pub fn encode_clear(buf: &mut [u8], id: u8) -> Result<usize, EncodeError> {
 
 /// SYNC_READ of `length` bytes at `address` from each of `ids`; replies come in `ids` order.
 pub fn encode_sync_read(buf: &mut [u8], address: u16, length: u16, ids: &[u8]) -> Result<usize, EncodeError> {
+    encode_sync_read_as(buf, ins::SYNC_READ, address, length, ids)
+}
+
+/// A Sync Read's parameters under `instruction` (SYNC_READ, or FAST_SYNC_READ: same bytes).
+pub(super) fn encode_sync_read_as(buf: &mut [u8], instruction: u8, address: u16, length: u16, ids: &[u8]) -> Result<usize, EncodeError> {
     ids.iter().try_for_each(|&id| check_device(id))?;
     frame(buf, BROADCAST_ID, |w| {
-        w.put(ins::SYNC_READ);
+        w.put(instruction);
         w.put_u16(address);
         w.put_u16(length);
         w.put_all(ids);

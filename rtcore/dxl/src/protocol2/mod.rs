@@ -2,11 +2,15 @@
 //! byte stuffing of `FF FF FD` in the instruction..params range, CRC-16/BUYPASS over the
 //! stuffed bytes. Encoders write into caller buffers; the decoder streams.
 mod decode;
+mod fast_sync;
 mod encode;
 mod status;
 pub mod stuffing;
 
 pub use decode::Decoder;
+pub use fast_sync::{
+    decode_fast_sync_reply, encode_fast_sync_read, fast_sync_reply_len, fast_sync_reply_prefix, push_fast_sync_segment, FastSyncError,
+};
 pub use encode::{
     encode_action, encode_addressed, encode_bulk_read, encode_bulk_write, encode_clear, encode_factory_reset,
     encode_instruction, encode_ping, encode_read, encode_reboot, encode_reg_write, encode_status,
