@@ -50,6 +50,9 @@ class JointDict(TypedDict, total=False):
     limits: LimitsDict
     servo: ServoDict | dict | None
     servo_compensation: float  # 0..1
+    passivity_guard: float  # 0 or 1: the passivity guard (docs/fidelity.md)
+    passivity_margin: float  # J
+    passivity_damping_max: float  # N·m·s/rad
 
 
 class FaultPolicyDict(TypedDict, total=False):
