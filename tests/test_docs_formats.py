@@ -11,7 +11,7 @@ import pytest
 
 from admittance import cli, docs
 from admittance.daemon import mcap_recording, recording
-from admittance.ident import loaders
+from admittance.formats import converters as loaders
 
 REPO = Path(__file__).resolve().parents[1]
 DATASET_COMMANDS = ("identify", "thesis", "predict", "ladder", "breakaway", "convert")
@@ -41,7 +41,7 @@ def test_dataset_commands_help_points_at_the_shipped_page(command, capsys):
 
 
 def test_every_manifest_key_the_dataset_reader_reads_is_documented():
-    source = (REPO / "admittance" / "ident" / "dataset.py").read_text()
+    source = (REPO / "admittance" / "formats" / "dataset.py").read_text()
     read = set(re.findall(r"""\.get\(["'](\w+)["']""", source)) | {"mass", "length"}
     assert read >= {"trials", "motor", "file", "bob_distance", "format", "encoder_ticks"}
     assert read - documented("datasets") == set()

@@ -16,7 +16,7 @@ from admittance.cli import main
 from admittance.drops.procedure import Joint
 from admittance.drops.simulated import simulated_session
 from admittance.errors import DeviceError
-from admittance.ident import paramfile
+from admittance.formats import paramfile
 from admittance.mockbench.bench import params_path
 
 ROD = {"mass": 0.0402, "length": 0.456}
