@@ -25,6 +25,7 @@ HANG_S = 180
 CASES = [
     ("daemon_tick.py", ["--joints", "1", "--rows", "2", "--repeat", "50"], r"^json/msgpack size ratio = \d+\.\d+$"),
     ("ecosystem_tick.py", ["--ticks", "20"], r"^\s+ROS 2 bridge\s+\d+\.\d+ µs"),
+    ("identify_coverage.py", ["--seeds", "1", "--kinds", "clean", "--trials", "4", "--duration", "3"], r"^\| all \| \d+ \| \d+ \| \d+ % \|"),
     ("identify_families.py", ["--only", "clean", "--match", "mocap"], r"^passed [01] of 1 synthetic rows"),
     ("identify_jacobian.py", ["--trials", "2", "--duration", "2"], r"^scipy 2-point\s+\d+\.\d+\s+\d+"),
     ("identify_vs_thesis.py", ["--trials", "2", "--duration", "2"],

@@ -187,7 +187,7 @@ def test_a_recording_without_present_columns_is_refused(tmp_path):
 
 @pytest.fixture(scope="module")
 def slew_recording(tmp_path_factory):
-    from servo_oracles import SlewOracle
+    from oracles.servo import SlewOracle
 
     folder = tmp_path_factory.mktemp("slew")
     return folder, session(folder, SlewOracle())

@@ -28,7 +28,6 @@ noise), so the textbook σ, which assumes independent samples, would be too smal
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -177,10 +176,22 @@ class _Problem:
 
 def normal_equations(jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
     """JᵀJ and Jᵀr of the whole problem, assembled from per-trial blocks."""
-    a = assemble([jk @ jk.T for jk in jac], n_g, fit_x0)
-    scores = [jk @ rk for jk, rk in zip(jac, residuals)]
-    b = np.concatenate([sum((sk[:n_g] for sk in scores), np.zeros(n_g))] +
-                       ([sk[n_g:] for sk in scores] if fit_x0 else []))
+    n_t = len(jac)
+    n = n_g + (2 * n_t if fit_x0 else 0)
+    a = np.zeros((n, n))
+    b = np.zeros(n)
+    for k, (jk, rk) in enumerate(zip(jac, residuals)):
+        gk = jk[:n_g]
+        a[:n_g, :n_g] += gk @ gk.T
+        b[:n_g] += gk @ rk
+        if fit_x0:
+            xk = jk[n_g:]
+            s = slice(n_g + 2 * k, n_g + 2 * k + 2)
+            cross = gk @ xk.T
+            a[:n_g, s] = cross
+            a[s, :n_g] = cross.T
+            a[s, s] = xk @ xk.T
+            b[s] = xk @ rk
     return a, b
 
 
@@ -280,58 +291,12 @@ def _result(problem: _Problem, z, r, jac, iterations, seconds) -> FitResult:
 
 
 def _covariance(jac, residuals, problem: _Problem) -> np.ndarray:
-    """Covariance of all unknowns (globals first, then initial states).
-
-    Two estimates, and each σ is the larger of them:
-
-    - (JᵀJ)⁻¹ · s² · τ: the residual variance counted in effective samples (τ, the integrated
-      autocorrelation time). It assumes the residual's correlation does not depend on where in
-      the swing it sits.
-    - a sandwich (JᵀJ)⁻¹ · M · (JᵀJ)⁻¹ whose middle M sums the score J·r of each trial with
-      its own lagged copies up to the residual's correlation time (Newey–West, Bartlett
-      weights), trials independent. Model error is not noise: it is largest where the swing is
-      fast, exactly where J is large, and there the first estimate is too small. With a
-      Stribeck effect in the data it left B, F and the Stribeck velocity 7–9 σ from the truth.
-
-    The correlations between unknowns are those of the first; only the scales grow."""
+    """Covariance of all unknowns (globals first, then initial states)."""
     a, _ = normal_equations(jac, residuals, problem.n_g, problem.fit_x0)
     m = sum(res.size for res in residuals)
     dof = max(m - a.shape[0], 1)
-    tau = autocorrelation_time(residuals)
-    inverse = np.linalg.pinv(a)
-    plain = inverse * (_cost(residuals) / dof * tau)
-    meat = assemble([score_covariance(jk, rk, tau) for jk, rk in zip(jac, residuals)], problem.n_g, problem.fit_x0)
-    sandwich = inverse @ meat @ inverse * (m / dof)
-    scale = np.sqrt(np.maximum(np.diag(sandwich), 0.0) / np.maximum(np.diag(plain), 1e-300))
-    scale = np.maximum(scale, 1.0)
-    return plain * np.outer(scale, scale)
-
-
-def score_covariance(jk: np.ndarray, rk: np.ndarray, tau: float) -> np.ndarray:
-    """Σ over lags |l| ≤ L of the trial's score autocovariance, Bartlett-weighted (Newey–West),
-    L = ⌈4τ⌉: the middle of the sandwich for one trial."""
-    g = jk * rk[None, :]
-    lags = int(min(max(math.ceil(4.0 * tau), 1), max(rk.size - 1, 1)))
-    out = g @ g.T
-    for lag in range(1, lags + 1):
-        c = g[:, lag:] @ g[:, :-lag].T
-        out += (1.0 - lag / (lags + 1.0)) * (c + c.T)
-    return out
-
-
-def assemble(blocks: list[np.ndarray], n_g: int, fit_x0: bool) -> np.ndarray:
-    """The whole-problem matrix from per-trial (n_g [+2])² blocks: globals summed, each trial's
-    own initial state in its own slots."""
-    n = n_g + (2 * len(blocks) if fit_x0 else 0)
-    out = np.zeros((n, n))
-    for k, blk in enumerate(blocks):
-        out[:n_g, :n_g] += blk[:n_g, :n_g]
-        if fit_x0:
-            s = slice(n_g + 2 * k, n_g + 2 * k + 2)
-            out[:n_g, s] = blk[:n_g, n_g:]
-            out[s, :n_g] = blk[n_g:, :n_g]
-            out[s, s] = blk[n_g:, n_g:]
-    return out
+    variance = _cost(residuals) / dof * autocorrelation_time(residuals)
+    return np.linalg.pinv(a) * variance
 
 
 def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) -> float:
