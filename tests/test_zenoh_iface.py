@@ -216,25 +216,31 @@ def test_a_reply_that_cannot_be_sent_is_logged_and_the_poll_goes_on(caplog):
         def drop(self):
             pass
 
-    class Channel:
-        def __init__(self):
-            self.queue = [Query(), Query()]
-
-        def try_recv(self):
-            return self.queue.pop() if self.queue else None
-
-    iface = DaemonInterface.__new__(DaemonInterface)
-    iface._log = RateLimitedLog(logging.getLogger("test.reply"))
-    iface._codec, iface._handler = Codec("json"), FakeHandler()
-    iface._queryables = {"k/params": (Channel(), iface._answer_params)}
-    iface.queries = iface.query_errors = 0
-    iface.prefix = "k"
+    iface = interface_over([Query(), Query()], "test.reply")
     assert iface.poll() == 2
     lines = [r.getMessage() for r in caplog.records if r.name == "test.reply"]
     assert len(lines) == 1 and "could not be sent" in lines[0]
 
 
-def test_a_flood_of_queries_is_answered_a_few_per_tick(monkeypatch):
+def interface_over(queries: list, logger: str) -> DaemonInterface:
+    """A DaemonInterface with no session whose params queryable holds ``queries``."""
+    class Channel:
+        def __init__(self):
+            self.queue = list(queries)
+
+        def try_recv(self):
+            return self.queue.pop() if self.queue else None
+
+    iface = DaemonInterface.__new__(DaemonInterface)
+    iface._log = RateLimitedLog(logging.getLogger(logger))
+    iface._codec, iface._handler = Codec("json"), FakeHandler()
+    iface._queryables = {"k/params": (Channel(), iface._answer_params)}
+    iface.queries = iface.query_errors = 0
+    iface.prefix = "k"
+    return iface
+
+
+def test_a_flood_of_queries_is_answered_a_few_per_tick():
     """A poll answers at most MAX_QUERIES_PER_POLL queries per key; the rest wait for the next
     tick, so the state still goes out between them."""
     from admittance.daemon import zenoh_iface
@@ -248,19 +254,7 @@ def test_a_flood_of_queries_is_answered_a_few_per_tick(monkeypatch):
         def drop(self):
             pass
 
-    class Channel:
-        def __init__(self):
-            self.queue = [Query() for _ in range(3 * zenoh_iface.MAX_QUERIES_PER_POLL + 1)]
-
-        def try_recv(self):
-            return self.queue.pop() if self.queue else None
-
-    iface = DaemonInterface.__new__(DaemonInterface)
-    iface._log = RateLimitedLog(logging.getLogger("test.flood"))
-    iface._codec, iface._handler = Codec("json"), FakeHandler()
-    iface._queryables = {"k/params": (Channel(), iface._answer_params)}
-    iface.queries = iface.query_errors = 0
-    iface.prefix = "k"
+    iface = interface_over([Query() for _ in range(3 * zenoh_iface.MAX_QUERIES_PER_POLL + 1)], "test.flood")
     polls = [iface.poll() for _ in range(5)]
     assert polls == [zenoh_iface.MAX_QUERIES_PER_POLL] * 3 + [1, 0]
 
