@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -294,14 +293,9 @@ def load_config(path: str | Path) -> DaemonConfig:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read ({exc})") from None
+    """The configuration file's TOML, read as every TOML file of the project is (bounded, UTF-8,
+    one line naming the file on any failure: formats.paramfile.read_toml)."""
+    return paramfile.read_toml(path, ConfigError, "configuration file")
 
 
 def parse_config(doc: dict[str, Any], path: Path) -> DaemonConfig:

@@ -225,6 +225,11 @@ class Recorder:
         columns = self._with_next_tau(joint_id, columns)
         return self._write(joint_id, columns) if columns is not None else 0
 
+    def append_all(self, by_joint: dict[int, dict[str, np.ndarray]]) -> None:
+        """``append`` for each joint's columns of one drained batch."""
+        for joint_id, columns in by_joint.items():
+            self.append(joint_id, columns)
+
     def _with_next_tau(self, joint_id: int, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
         """The pending cycle plus this batch, each with the following cycle's torque, minus the new
         last cycle (kept pending)."""

@@ -445,7 +445,7 @@ class Supervisor:
         self.rendering.update(records)
         if self.recorder is not None:
             by_joint = telemetry.columns_by_joint(records, self.cfg)
-            self._record(lambda recorder: [recorder.append(jid, columns) for jid, columns in by_joint.items()])
+            self._record(lambda recorder: recorder.append_all(by_joint))
             self.ecosystem.record_cycles(by_joint)  # on, whatever became of the CSVs
         return telemetry.latest_state(records, self.cfg, self.rendering)
 

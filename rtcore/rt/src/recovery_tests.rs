@@ -453,3 +453,15 @@ proptest::proptest! {
         proptest::prop_assert!(reboots <= max, "{} reboots with an allowance of {}", reboots, max);
     }
 }
+
+#[test]
+fn a_horn_speed_outside_its_range_is_refused() {
+    assert_eq!(policy().validate(), Ok(()));
+    for bad in [0.0, 0.5, 1001.0, f64::NAN, f64::INFINITY, -50.0] {
+        let p = FaultPolicy { horn_speed_max: bad, ..policy() };
+        assert!(p.validate().unwrap_err().contains("horn_speed_max"), "{bad}");
+    }
+    for good in [1.0, 50.0, 1000.0] {
+        assert_eq!(FaultPolicy { horn_speed_max: good, ..policy() }.validate(), Ok(()));
+    }
+}
