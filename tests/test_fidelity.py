@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import tomli_w
 
-from oracles.servo import TICK, VIRTUAL, BamOracle, LagOracle, multisine, session  # noqa: F401
+from oracles.servo import RATE, TICK, VIRTUAL, BamOracle, LagOracle, multisine, session  # noqa: F401
 from admittance.errors import DataError
 from oracles import virtual_joint
 
@@ -34,7 +34,7 @@ def lead_of(fit):
     from admittance import _rtcore
 
     params = fit.params.copy()
-    return lambda w, a, q: float(_rtcore.servo_lead(params, [w], [a], [q])[0])
+    return lambda w, a, q: _rtcore.servo_lead(params, w, a, q, h=1.0 / RATE)
 
 
 @pytest.fixture(scope="module")
