@@ -517,22 +517,31 @@ mod tests {
 
     #[test]
     fn the_play_s_inverse_does_not_chatter_on_noise_at_rest_and_never_steps_the_goal() {
-        let mut play = PlaySide::default();
         let h = 1e-3;
-        play.update(&GEARED, 0.0, 0.1, h);
-        let mut last = play.update(&GEARED, 0.0, 0.1, h);
-        let mut flips = 0;
-        let mut side = play.side();
-        // Deterministic "noise": torque within ±the push threshold, velocity within ±its own.
-        for k in 0..5000 {
-            let x = (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
-            let offset = play.update(&GEARED, 0.99 * PLAY_VELOCITY_MIN * x, 0.99 * GEARED.backlash_torque * x, h);
-            assert!((offset - last).abs() <= GEARED.backlash * h / PLAY_CROSS_S + 1e-15);
-            flips += (play.side() != side) as u32;
-            side = play.side();
-            last = offset;
+        // A fitted horn friction, and none (a sensor's noise is then all the push threshold has).
+        for model in [GEARED, ServoModel { backlash_torque: 0.0, ..GEARED }] {
+            let mut play = PlaySide::default();
+            play.update(&model, 0.0, 0.1, h);
+            let mut last = play.update(&model, 0.0, 0.1, h);
+            let mut flips = 0;
+            let mut side = play.side();
+            // Deterministic "noise": torque within ±the push threshold, velocity within ±its own.
+            let push = model.backlash_torque.max(PLAY_TORQUE_MIN);
+            for k in 0..5000 {
+                let x = (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
+                let offset = play.update(&model, 0.99 * PLAY_VELOCITY_MIN * x, 0.99 * push * x, h);
+                assert!((offset - last).abs() <= model.backlash * h / PLAY_CROSS_S + 1e-15);
+                flips += (play.side() != side) as u32;
+                side = play.side();
+                last = offset;
+            }
+            assert_eq!(flips, 0, "the side is kept at rest: {model:?}");
+            assert_eq!(play.update(&model, f64::NAN, f64::NAN, h), last, "non-finite input: kept");
         }
-        assert_eq!(flips, 0, "the side is kept at rest");
+        let mut play = PlaySide::default();
+        for _ in 0..10 {
+            play.update(&GEARED, 0.0, 0.1, h); // settled against the + side
+        }
         // A real reversal of the hand crosses the play, at the crossing rate.
         let mut steps = 0;
         while play.update(&GEARED, 0.0, -0.1, h) != 0.5 * GEARED.backlash {
