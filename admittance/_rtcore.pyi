@@ -19,7 +19,7 @@ __all__ = ["__version__", "build_profile", "PARAM_NAMES", "PARAM_DEFAULTS", "Tri
     "encode_bulk_read", "encode_bulk_write", "model_table", "Decoder", "DxlClient", "motor_constants",
     "baud_code", "MockBus", "SimulatedDaq", "AdmittanceLoop", "ForceSink", "LOOP_MODES", "FAULT_KINDS", "MAX_CATCH_UP_STEPS",
     "MAX_JOINT_ID", "split_param_name", "LOOP_DEFAULTS", "STOP_CAUSES", "UNSAFE_HARDWARE_ERRORS",
-    "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader"]
+    "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "SERVO_PARAM_DEFAULTS", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader"]
 
 FAULT_KINDS: Final[list[str]]
 LOOP_DEFAULTS: Final[dict[str, float]]  # the loop's defaults the daemon's configuration shares
@@ -30,6 +30,7 @@ PARAM_DEFAULTS: Final[tuple[float, ...]]
 PARAM_NAMES: Final[tuple[str, ...]]
 SERVO_DOMAIN: Final[tuple[Any, ...]]
 SERVO_PARAM_NAMES: Final[tuple[str, ...]]
+SERVO_PARAM_DEFAULTS: Final[tuple[float | None, ...]]
 STOP_CAUSES: Final[list[str]]
 UNSAFE_HARDWARE_ERRORS: Final[int]
 __version__: str
@@ -212,7 +213,7 @@ def motor_constants(model: str) -> dict[str, float]: ...
 def required_torque(params: ArrayLike, theta: ArrayLike, omega: ArrayLike, alpha: ArrayLike, *,
                     load_inertia: float = 0.0, gravity_torque: float = 0.0, friction: _Friction = 'stick',
                     velocity_eps: float = 0.001) -> _Floats: ...
-def servo_lead(params: ArrayLike, omega: ArrayLike, alpha: ArrayLike, tau: ArrayLike) -> _Floats: ...
+def servo_lead(params: ArrayLike, omega: ArrayLike, alpha: ArrayLike, tau: ArrayLike, *, h: float | None = None) -> _Floats: ...
 def servo_simulate_batch(trials: Sequence[ServoTrial], params: ArrayLike, x0: ArrayLike, *,
                          max_step: float = 0.0005) -> list[_Floats]: ...
 def split_param_name(name: str) -> tuple[int | None, str]: ...

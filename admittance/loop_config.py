@@ -27,6 +27,8 @@ class ServoDict(TypedDict):
     dead_time: float  # s
     compliance: float  # rad/(N·m)
     deadband: float  # rad
+    backlash: NotRequired[float]  # rad (absent: 0)
+    backlash_torque: NotRequired[float]  # N·m (absent: 0)
 
 
 class JointDict(TypedDict, total=False):

@@ -31,7 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from oracles.servo import BamOracle, GearedOracle, LagOracle, SlewOracle, session  # noqa: E402
+from oracles.servo import RATE, BamOracle, GearedOracle, LagOracle, SlewOracle, session  # noqa: E402
 
 FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOracle),
          "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle)}
@@ -40,7 +40,7 @@ FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOr
 def lead_of(params):
     from admittance import _rtcore
 
-    return lambda w, a, q: float(_rtcore.servo_lead(params, [w], [a], [q])[0])
+    return lambda w, a, q: _rtcore.servo_lead(params, w, a, q, h=1.0 / RATE)
 
 
 def measure(work: Path, key: str, seconds: float) -> dict:

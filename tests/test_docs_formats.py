@@ -67,3 +67,10 @@ def test_every_recorded_column_and_manifest_key_is_documented(tmp_path):
                    mcap_recording.EVENT_SCHEMA):
         assert schema["title"] in page
         assert set(schema["properties"]) - page == set(), schema["title"]
+
+
+def test_the_servo_page_is_the_key_declaration_that_validates_them():
+    from admittance.formats import paramfile
+
+    assert docs.page("servo") == docs.servo_page()
+    assert set(paramfile.SERVO_KEYS) <= documented("servo")

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import tomli_w
 
-from oracles.servo import TICK, VIRTUAL, BamOracle, LagOracle, multisine, session  # noqa: F401
+from oracles.servo import RATE, TICK, VIRTUAL, BamOracle, LagOracle, multisine, session  # noqa: F401
 from admittance.errors import DataError
 from oracles import virtual_joint
 
@@ -34,7 +34,7 @@ def lead_of(fit):
     from admittance import _rtcore
 
     params = fit.params.copy()
-    return lambda w, a, q: float(_rtcore.servo_lead(params, [w], [a], [q])[0])
+    return lambda w, a, q: _rtcore.servo_lead(params, w, a, q, h=1.0 / RATE)
 
 
 @pytest.fixture(scope="module")
@@ -69,6 +69,26 @@ def test_the_fit_captures_a_bam_style_servo_with_its_give_under_the_hand(bam_rec
     assert m["inertial_time"] == pytest.approx(truth.inertia / total_damping, rel=0.35), m
     assert fit.rmse_heldout < fit.baseline_heldout["goal"] / 5
     assert "summary" in fit.residual and fit.residual["rmse"] > 0
+
+
+def test_the_gear_play_is_fitted_where_the_data_show_it_and_left_out_where_they_do_not(bam_recording, tmp_path):
+    from oracles.servo import GearedOracle
+
+    truth = GearedOracle()
+    off = session(tmp_path / "geared", truth)
+    fit = fit_of(tmp_path / "geared")
+    m = fit.model()
+    assert m["backlash"] == pytest.approx(truth.play, rel=0.1), m
+    assert m["backlash_torque"] == pytest.approx(truth.free, rel=0.25), m
+    told = [n for n in fit.notes if n.startswith("gear backlash")]
+    assert len(told) == 1 and "admitted" in told[0] and "without the play" in told[0], fit.notes
+    # The play's inverse in the lead (the cycles in order) lowers the horn error further.
+    on = session(tmp_path / "geared-on", GearedOracle(), lead=lead_of(fit))
+    assert on < off / 2.5, f"{1e3 * off:.2f} → {1e3 * on:.2f} mrad"
+    # A servo without play: the play's fit does not cut the held-out error, so it stays 0.
+    rigid = fit_of(bam_recording[0])
+    assert rigid.model()["backlash"] == 0.0 and rigid.model()["backlash_torque"] == 0.0
+    assert any(n.startswith("no gear backlash: held-out error") for n in rigid.notes), rigid.notes
 
 
 @pytest.mark.parametrize("truth", [LagOracle, BamOracle])

@@ -33,11 +33,27 @@ def test_a_servo_table_round_trips_and_its_names_agree_with_the_rust_model(tmp_p
 
     assert paramfile.SERVO_PARAM_NAMES == tuple(_rtcore.SERVO_PARAM_NAMES)
     assert tuple(paramfile.SERVO_BOUNDS.values()) == tuple(tuple(b) for b in _rtcore.SERVO_DOMAIN)
-    servo = {"time_constant": 0.017, "inertial_time": 0.02, "dead_time": 0.001, "compliance": 0.024, "deadband": 0.002}
+    assert tuple(k.default for k in paramfile.SERVO_KEYS.values()) == tuple(_rtcore.SERVO_PARAM_DEFAULTS)
+    servo = {"time_constant": 0.017, "inertial_time": 0.02, "dead_time": 0.001, "compliance": 0.024, "deadband": 0.002,
+             "backlash": 0.0087, "backlash_torque": 0.02}
     path = tmp_path / "with_servo.toml"
     paramfile.dump(path, {"motor_inertia": 0.0147}, servo=servo)
     assert paramfile.load(path)["servo"] == servo
     assert "servo" not in paramfile.load(MX64)
+
+
+def test_a_servo_table_without_the_gear_play_means_none_and_a_play_out_of_its_domain_is_refused(tmp_path):
+    lag_form = {"time_constant": 0.017, "inertial_time": 0.02, "dead_time": 0.001, "compliance": 0.024,
+                "deadband": 0.002}
+    path = tmp_path / "old.toml"
+    path.write_text("[params]\nmotor_inertia = 0.0147\n[servo]\n" + "".join(f"{k} = {v}\n" for k, v in lag_form.items()))
+    assert paramfile.load(path)["servo"] == {**lag_form, "backlash": 0.0, "backlash_torque": 0.0}
+    for key, bad in [("backlash", -1e-3), ("backlash", 0.04), ("backlash", 1e300), ("backlash_torque", -0.1),
+                     ("backlash_torque", 3.0)]:
+        with pytest.raises(ConfigError, match=key):
+            paramfile.validate_servo({**lag_form, key: bad}, where="t")
+    with pytest.raises(ConfigError, match="time_constant: required"):
+        paramfile.validate_servo({k: v for k, v in lag_form.items() if k != "time_constant"}, where="t")
 
 
 def test_names_agree_with_the_simulator():

@@ -42,6 +42,8 @@ def config(**overrides) -> dict:
     ({"joints": [{"id": 1, "servo_compensation": 1.0}]}, "needs a servo model"),
     ({"joints": [{"id": 1, "servo": {"time_constant": 0.02}}]}, "inertial_time\" is required"),
     ({"joints": [{"id": 1, "servo": {**SERVO, "time_constant": -1.0}}]}, "time_constant"),
+    ({"joints": [{"id": 1, "servo": {**SERVO, "backlash": 0.04}}]}, "backlash must be within"),
+    ({"joints": [{"id": 1, "servo": {**SERVO, "backlash_torque": -0.1}}]}, "backlash_torque must be within"),
     ({"joints": [{"id": 1, "servo": SERVO, "servo_compensation": 2.0}]}, "servo_compensation"),
 ])
 def test_bad_configurations_name_the_key(overrides, message):

@@ -16,8 +16,12 @@ What the fit sees, with the recording's real timing:
   (``Segment.impulse_tau``), so its impulse is the one the model integrated.
 
 The fit is output error (simulate each segment from its first sample, compare the angle) by a
-small projected Levenberg–Marquardt over the five parameters, every Jacobian from ONE batch
-simulation. The first ``BURN_IN_S`` of a segment is left out of the cost: its initial velocity
+small projected Levenberg–Marquardt over the lag form's five parameters, every Jacobian from ONE
+batch simulation. Then the gear play (``backlash``, ``backlash_torque``): fitted from the lag
+form's values and a small grid of plays, and **admitted only where the data support it**: the
+play's held-out error at most ``BACKLASH_MIN_CUT`` of the lag form's and the play at least
+``MIN_SIGMAS`` σ from 0; otherwise both stay 0. `notes` says which, with the held-out error
+before and after. The first ``BURN_IN_S`` of a segment is left out of the cost: its initial velocity
 is only the model's. Segments are split as `identify` splits trials: every third is held out
 and scored, never fitted; the residual verdict is ident's (whiteness, noise floor, worst bin).
 """
@@ -36,11 +40,20 @@ from admittance.ident.residual import verdict
 BURN_IN_S = 0.25
 INPUT_STEP_S = 1e-3  # the goal's and torque's grid between recorded rows
 MAX_STEP_S = 2.5e-4  # simulation substep: 1/4 of the fastest lag the bounds allow to matter
-LOWER = np.array([2e-4, 0.0, -0.005, -0.5, 0.0])
-UPPER = np.array([1.0, 0.5, 0.2, 0.5, 0.05])
+LOWER = np.array([2e-4, 0.0, -0.005, -0.5, 0.0, 0.0, 0.0])
+UPPER = np.array([1.0, 0.5, 0.2, 0.5, 0.05, 0.035, 2.0])
 # Forward-difference steps: T relative (with a floor), the others absolute in their units.
 REL_STEP_T = 0.02
-ABS_STEPS = np.array([2e-4, 5e-4, 2e-4, 2e-4, 5e-5])
+ABS_STEPS = np.array([2e-4, 5e-4, 2e-4, 2e-4, 5e-5, 2e-4, 2e-3])
+LAG_FORM = 5  # the first five parameters; the last two are the gear play
+PLAY = ("backlash", "backlash_torque")
+# The play is kept only when it cuts the held-out error to at most this fraction of the lag
+# form's (a 20 % cut: a play that only fits noise gains a few per cent at most), and is
+# pinned (≥ MIN_SIGMAS σ from 0).
+BACKLASH_MIN_CUT = 0.8
+# Where the play's fit starts (the best of these on the training segments): plays from 0.1° to
+# 1.2°, horn frictions from none to a light hand.
+PLAY_GRID = [(b, q) for b in (0.002, 0.005, 0.01, 0.02) for q in (0.0, 0.02, 0.06)]
 MAX_ITERATIONS = 60
 HELDOUT_STRIDE = 3
 # The two signed parameters are kept only when the data pin them down (|value| ≥ this many σ);
@@ -121,7 +134,8 @@ class ServoFit:
 
     def to_json(self) -> dict:
         return {
-            "form": "m·θ'' + θ' = (goal(t − dead_time) + compliance·τ − θ − deadband·sgn θ') / time_constant",
+            "form": "m·θ'' + θ' = (goal(t − dead_time) + compliance·τ − θ − deadband·sgn θ') / time_constant; "
+                    "horn within ±backlash/2 of θ, against the side |τ| > backlash_torque pushes it to",
             **self.model(),
             "sigma": {name: float(v) for name, v in zip(SERVO_PARAM_NAMES, self.sigma)},
             "rmse_training": self.rmse_training,
@@ -148,17 +162,10 @@ def fit_servo(segments: list[Segment]) -> ServoFit:
     held, train = split(segments)
     prepared = [prepare(s) for s in segments]
     training, heldout = [prepared[i] for i in train], [prepared[i] for i in held]
-    free = np.ones(len(SERVO_PARAM_NAMES), bool)
-    params, jac, iterations, sims = _levenberg_marquardt(training, _start(training), free)
-    sigma = _sigma(jac, residuals(training, params), free)
-    notes = []
-    for name, k in SIGNED.items():
-        if abs(params[k]) < MIN_SIGMAS * sigma[k]:
-            notes.append(f"{name} {params[k]:.3g} is within {MIN_SIGMAS:g} σ ({sigma[k]:.2g}) of 0: fixed at 0")
-            free[k], params[k] = False, 0.0
-    if not free.all():
-        params, jac, more, more_sims = _levenberg_marquardt(training, params, free)
-        iterations, sims = iterations + more, sims + more_sims
+    lag_form = np.arange(len(SERVO_PARAM_NAMES)) < LAG_FORM
+    params, jac, free, iterations, sims, notes = _fit_form(training, _start(training), lag_form)
+    scored_on = training if held == train else heldout
+    params, jac, free, iterations, sims = _admit_play(training, scored_on, params, jac, free, iterations, sims, notes)
     train_res = residuals(training, params)
     held_res = train_res if held == train else residuals(heldout, params)
     sigma = _sigma(jac, train_res, free)
@@ -171,19 +178,73 @@ def fit_servo(segments: list[Segment]) -> ServoFit:
           "angle": np.concatenate([d.angle[d.scored] for d in training]),
           "time": np.concatenate([(d.t - d.t[0])[d.scored] for d in training])}
     notes += [f"{name} at its bound {bound:g}" for name, value, lo, hi, f in zip(SERVO_PARAM_NAMES, params, LOWER, UPPER, free)
-              for bound in (lo, hi) if f and value == bound and name not in ("inertial_time", "deadband")]
+              for bound in (lo, hi) if f and value == bound and name not in ("inertial_time", "deadband", *PLAY)]
     return ServoFit(params, sigma, [segments[i].name for i in train], [segments[i].name for i in held],
                     rmse(train_res), rmse(held_res), baseline, verdict(train_res, by), iterations, sims, notes)
+
+
+def _fit_form(training: list[ServoData], start: np.ndarray, free: np.ndarray):
+    """LM over the ``free`` parameters, then the signed ones the data do not pin (|value| <
+    MIN_SIGMAS σ) fixed at 0 and the rest refitted: (params, Jacobian, free, iterations,
+    simulations, notes)."""
+    free = free.copy()
+    params, jac, iterations, sims = _levenberg_marquardt(training, start, free)
+    sigma = _sigma(jac, residuals(training, params), free)
+    notes = []
+    for name, k in SIGNED.items():
+        if free[k] and abs(params[k]) < MIN_SIGMAS * sigma[k]:
+            notes.append(f"{name} {params[k]:.3g} is within {MIN_SIGMAS:g} σ ({sigma[k]:.2g}) of 0: fixed at 0")
+            free[k], params[k] = False, 0.0
+    if notes:
+        params, jac, more, more_sims = _levenberg_marquardt(training, params, free)
+        iterations, sims = iterations + more, sims + more_sims
+    return params, jac, free, iterations, sims, notes
+
+
+def _admit_play(training, scored_on, params, jac, free, iterations, sims, notes):
+    """The lag form with the gear play added, kept only where the data support it (see the module
+    doc); ``notes`` gets the held-out error before and after either way."""
+    before = rmse(residuals(scored_on, params))
+    # From the lag form's values, and from the lag form's own start grid: a play the lag form
+    # did not know about distorts its values (a lag traded for a dead time), and LM from there
+    # stays in that valley.
+    grid = np.array([[*p[:LAG_FORM], b, q] for p in (params, *_START_GRID) for b, q in PLAY_GRID])
+    start = grid[int(np.argmin(_costs(training, grid)))]
+    played, played_jac, played_free, more, more_sims, played_notes = _fit_form(training, start, free | _play_mask())
+    iterations, sims = iterations + more, sims + more_sims + len(grid)
+    after = rmse(residuals(scored_on, played))
+    k = SERVO_PARAM_NAMES.index("backlash")
+    sigma = _sigma(played_jac, residuals(training, played), played_free)[k]
+    figures = f"held-out error {1e3 * before:.3f} mrad without the play, {1e3 * after:.3f} with it"
+    if after <= BACKLASH_MIN_CUT * before and played[k] >= MIN_SIGMAS * sigma:
+        notes += played_notes
+        notes.append(f"gear backlash {1e3 * played[k]:.2f} ± {1e3 * sigma:.2f} mrad ({np.degrees(played[k]):.2f}°, "
+                     f"pushed across by {played[k + 1]:.3g} N·m) admitted: {figures}")
+        return played, played_jac, played_free, iterations, sims
+    why = (f"cuts it by less than {100 * (1 - BACKLASH_MIN_CUT):.0f} %" if after > BACKLASH_MIN_CUT * before
+           else f"the play {1e3 * played[k]:.2f} mrad is within {MIN_SIGMAS:g} σ ({1e3 * sigma:.2f}) of 0")
+    notes.append(f"no gear backlash: {figures} ({why})")
+    return params, jac, free, iterations, sims
+
+
+def _play_mask() -> np.ndarray:
+    return np.array([name in PLAY for name in SERVO_PARAM_NAMES])
+
+
+def _costs(data: list[ServoData], rows: np.ndarray) -> np.ndarray:
+    """Each parameter row's sum of squared residuals on ``data`` (one batch)."""
+    sims = simulate(data, rows)
+    return sum(((sim[:, d.scored] - d.measured[d.scored]) ** 2).sum(axis=1) for sim, d in zip(sims, data))
 
 
 def _start(data: list[ServoData]) -> np.ndarray:
     """The best of a small grid of lags and inertial times (one batch): LM from a first-order lag
     of the wrong size can stall where the second-order term first helps."""
-    grid = np.array([[tc, m * tc, 0.0, 0.0, 0.0] for tc in (0.005, 0.01, 0.02, 0.04, 0.08, 0.16)
-                     for m in (0.0, 0.5, 1.0)])
-    sims = simulate(data, grid)
-    cost = sum(((sim[:, d.scored] - d.measured[d.scored]) ** 2).sum(axis=1) for sim, d in zip(sims, data))
-    return grid[int(np.argmin(cost))]
+    return _START_GRID[int(np.argmin(_costs(data, _START_GRID)))]
+
+
+_START_GRID = np.array([[tc, m * tc, 0.0, 0.0, 0.0, 0.0, 0.0] for tc in (0.005, 0.01, 0.02, 0.04, 0.08, 0.16)
+                        for m in (0.0, 0.5, 1.0)])
 
 
 def _levenberg_marquardt(data: list[ServoData], p: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:

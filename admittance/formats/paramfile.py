@@ -3,7 +3,8 @@
 A file has three tables: ``[model]`` (labels: motor, friction law, mode, source), ``[params]``
 (the plant parameters of Contract 1 by name, SI units; absent names keep their defaults) and
 ``[fit]`` (provenance); and optionally ``[servo]``, the servo's tracking dynamics that
-``admittance fidelity`` identifies (docs/fidelity.md): all five of ``SERVO_PARAM_NAMES``. A
+``admittance fidelity`` identifies (docs/fidelity.md): ``SERVO_KEYS`` (the five of the lag form
+required, the gear play's two optional, 0 when absent). A
 joint whose file has ``[servo]`` compensates for it. The parameter names are checked against
 one list, so a typo in a hand-edited file is an error naming the file and key instead of a
 silently ignored value.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,17 +80,36 @@ PARAM_BOUNDS: dict[str, tuple[float, float]] = {
     "friction_ripple_period": (0.0, 1000.0),
     "friction_ripple_phase": (-100.0, 100.0),
 }
-# plant::servo's parameter order (units: s, s, s, rad/N·m, rad), and each value's physical
-# domain: plant::servo::SERVO_DOMAIN (tests/test_ident_paramfile.py checks they agree; the
-# time constant is open at 0).
-SERVO_PARAM_NAMES: tuple[str, ...] = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband")
-SERVO_BOUNDS: dict[str, tuple[float, float]] = {
-    "time_constant": (0.0, 1.0),
-    "inertial_time": (0.0, 0.5),
-    "dead_time": (-0.02, 0.2),
-    "compliance": (-0.5, 0.5),
-    "deadband": (0.0, 0.05),
+
+
+@dataclass(frozen=True)
+class ServoKey:
+    """One ``[servo]`` key: what validation checks and ``admittance docs servo`` prints."""
+
+    unit: str
+    bounds: tuple[float, float]  # the physical domain (time_constant's is open at 0)
+    default: float | None  # None: required
+    meaning: str
+
+
+# plant::servo's parameters in its order, each with its physical domain (plant::servo::
+# SERVO_DOMAIN and SERVO_PARAM_DEFAULTS: tests/test_ident_paramfile.py checks they agree).
+SERVO_KEYS: dict[str, ServoKey] = {
+    "time_constant": ServoKey("s", (0.0, 1.0), None, "the lag T: a ramp at v rad/s is followed T·v behind"),
+    "inertial_time": ServoKey("s", (0.0, 0.5), None, "m, the second-order part (horn inertia over damping; 0: "
+                                                     "a first-order lag)"),
+    "dead_time": ServoKey("s", (-0.02, 0.2), None, "d: the goal acts this late"),
+    "compliance": ServoKey("rad/(N·m)", (-0.5, 0.5), None, "s: how far the hand's torque pushes the horn off its "
+                                                             "goal at rest"),
+    "deadband": ServoKey("rad", (0.0, 0.05), None, "b: the horn sticks while its error is within ±b"),
+    "backlash": ServoKey("rad", (0.0, 0.035), 0.0, "the gear play between motor and horn (MX: a few tenths "
+                                                   "of a degree; 0: none)"),
+    "backlash_torque": ServoKey("N·m", (0.0, 2.0), 0.0, "the hand torque that holds the horn against a side of "
+                                                        "the play (below it the horn stays, or the motor drags it)"),
 }
+SERVO_PARAM_NAMES: tuple[str, ...] = tuple(SERVO_KEYS)
+SERVO_BOUNDS: dict[str, tuple[float, float]] = {name: key.bounds for name, key in SERVO_KEYS.items()}
+
 FRICTION_LAWS = ("stick", "tanh")
 MODES = ("geometry", "lumped")
 
@@ -171,16 +192,17 @@ def validate_params(params: dict[str, Any], where: str = "params") -> dict[str, 
 
 
 def validate_servo(servo: dict[str, Any], where: str = "servo") -> dict[str, float]:
-    """Check a ``[servo]`` table: exactly the five names, finite numbers within their domains."""
+    """Check a ``[servo]`` table: known names, finite numbers within their domains; a key with a
+    default (the gear play's) may be left out and is then its default."""
     for key in servo:
         if key not in SERVO_BOUNDS:
             raise ConfigError(f"{where}: [servo] {key}: unknown servo parameter (known: {', '.join(SERVO_PARAM_NAMES)})")
     out: dict[str, float] = {}
     for key in SERVO_PARAM_NAMES:
-        if key not in servo:
+        value = servo.get(key, SERVO_KEYS[key].default)
+        if value is None:
             raise ConfigError(f"{where}: [servo] {key}: required (a servo model has all of "
-                              f"{', '.join(SERVO_PARAM_NAMES)})")
-        value = servo[key]
+                              f"{', '.join(k for k, v in SERVO_KEYS.items() if v.default is None)})")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ConfigError(f"{where}: [servo] {key}: expected a finite number, got {value!r}")
         lo, hi = SERVO_BOUNDS[key]

@@ -70,26 +70,33 @@ class BamOracle:
 
 def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
     """Run the loop oracle against ``servo`` and record it with the daemon's Recorder. ``lead``
-    (ω, α, τ) -> rad is the compensation. Returns the rendering error (RMS present − model)."""
+    (ω, α, τ arrays of every cycle) -> the goal offsets (rad) is the compensation, given the whole
+    session at once (the virtual joint does not depend on the servo), so that a compensation
+    that carries a state from cycle to cycle (the gear play's side) sees the cycles in order.
+    Returns the rendering error (RMS present − model)."""
     n = int(seconds * RATE)
     cols = {k: np.full(n, np.nan) for k in ("t", "t_wake", "tau", "force", "theta_model", "omega_model",
                                             "theta_goal", "theta_present", "cycle", "mode", "fault")}
+    alpha = np.zeros(n)
     theta = omega = 0.0
+    for k in range(n):
+        tau = hand(k * H)
+        before = omega
+        theta, omega = virtual_joint.step(theta, omega, tau, *VIRTUAL, H)
+        cols["tau"][k], cols["theta_model"][k], cols["omega_model"][k] = tau, theta, omega
+        alpha[k] = (omega - before) / H
+    offsets = lead(cols["omega_model"], alpha, cols["tau"]) if lead else np.zeros(n)
     h = H / SUBSTEPS
     for k in range(n):
         t = k * H
-        tau = hand(t)
-        before = omega
-        theta, omega = virtual_joint.step(theta, omega, tau, *VIRTUAL, H)
-        goal = theta + (lead(omega, (omega - before) / H, tau) if lead else 0.0)
-        goal = round(goal / TICK) * TICK
+        goal = round((cols["theta_model"][k] + offsets[k]) / TICK) * TICK
         read = None
         for j in range(SUBSTEPS):
             servo.step(goal, hand(t + j * h), h)
             if j == READ_AFTER - 1 and k % divisor == 0:
                 read = round(servo.theta / TICK) * TICK
-        for key, value in (("t", t), ("t_wake", t), ("tau", tau), ("force", tau / 0.1), ("theta_model", theta),
-                           ("omega_model", omega), ("theta_goal", goal), ("cycle", k), ("mode", 0.0), ("fault", 0.0)):
+        for key, value in (("t", t), ("t_wake", t), ("force", cols["tau"][k] / 0.1), ("theta_goal", goal),
+                           ("cycle", k), ("mode", 0.0), ("fault", 0.0)):
             cols[key][k] = value
         cols["theta_present"][k] = np.nan if read is None else read
     info = {"model": "MX-64", "params_file": "mx64.toml", "rate_hz": RATE, "friction": "stick",

@@ -28,6 +28,13 @@
 //! with m = s = b = 0. Every term is in radians inside the bracket, so the parameters read as
 //! times and angles whatever the motor.
 //!
+//! **Gear backlash.** A geared servo (every geared Dynamixel: the MX datasheets give a few tenths
+//! of a degree) has play between its motor and its horn. The equation above is then the motor's
+//! (in horn radians), and the horn sits within ±`backlash`/2 of it: a hand that pushes harder
+//! than `backlash_torque` (the horn's own friction) holds it against the side it pushes to;
+//! below that the horn stays where it is until the motor's side of the play drags it (a play
+//! operator, `horn_in_play`). With `backlash` = 0 the horn is the motor, exactly.
+//!
 //! The velocity update is the plant's stick-slip step (`friction::advance_velocity`) multiplied
 //! through by m, so that m = 0 is exact instead of a division by zero.
 use rayon::prelude::*;
@@ -37,11 +44,25 @@ use crate::model::State;
 use crate::trial::{validate_max_step, walk, TorqueCursor, Walk};
 
 /// Number of servo-model parameters.
-pub const N_SERVO_PARAMS: usize = 5;
+pub const N_SERVO_PARAMS: usize = 7;
 
 /// Servo-model parameter names in vector order (the `[servo]` table of a parameter file).
 pub const SERVO_PARAM_NAMES: [&str; N_SERVO_PARAMS] =
-    ["time_constant", "inertial_time", "dead_time", "compliance", "deadband"];
+    ["time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque"];
+
+/// What a `[servo]` table without a key means: `None` = required; the backlash's two keys came
+/// later and default to 0 (no play), so a table written before them loads unchanged.
+pub const SERVO_PARAM_DEFAULTS: [Option<f64>; N_SERVO_PARAMS] = [None, None, None, None, None, Some(0.0), Some(0.0)];
+
+/// N·m: the compensation takes a hand torque for a push across the play only beyond
+/// max(`backlash_torque`, this), so a fitted horn friction below a force sensor's noise does not
+/// make the goal chatter across the play at rest.
+pub const PLAY_TORQUE_MIN: f64 = 0.01;
+/// rad/s: below this model speed the compensation does not take the direction of travel for
+/// the side the motor must push from (the model's velocity at rest is the force's noise / B).
+pub const PLAY_VELOCITY_MIN: f64 = 0.02;
+/// s: the compensation crosses the play over at least this long (the goal never steps by it).
+pub const PLAY_CROSS_S: f64 = 0.005;
 
 /// Below this speed (rad/s) the compensation's friction term fades to zero (a smooth sign), so
 /// a reference that starts or reverses does not step the goal.
@@ -49,11 +70,12 @@ pub const FRICTION_FADE_VELOCITY: f64 = 0.02;
 
 /// Each parameter's physical domain, in `SERVO_PARAM_NAMES` order: what a Dynamixel's position
 /// loop can be (a lag up to 1 s, a horn that gives at most 0.5 rad per N·m, a deadband up to
-/// 0.05 rad, about 3°). The fidelity fit searches inside it, and `validate` refuses anything
+/// 0.05 rad, about 3°, a play up to 0.035 rad, 2°, ten times the MX datasheets', moved by a hand
+/// torque of at most 2 N·m). The fidelity fit searches inside it, and `validate` refuses anything
 /// outside, so an absurd `[servo]` table (a compliance of 1e300) never reaches the loop. A
 /// slightly negative dead time is allowed because a recording labels the goal and the present
 /// position with the same cycle time, while the read happens after the write.
-pub const SERVO_DOMAIN: [(f64, f64); N_SERVO_PARAMS] = [(0.0, 1.0), (0.0, 0.5), (-0.02, 0.2), (-0.5, 0.5), (0.0, 0.05)];
+pub const SERVO_DOMAIN: [(f64, f64); N_SERVO_PARAMS] = [(0.0, 1.0), (0.0, 0.5), (-0.02, 0.2), (-0.5, 0.5), (0.0, 0.05), (0.0, 0.035), (0.0, 2.0)];
 
 /// A servo's tracking dynamics (see the module documentation for the equation).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,12 +90,24 @@ pub struct ServoModel {
     pub compliance: f64,
     /// b, rad (≥ 0).
     pub deadband: f64,
+    /// The play between motor and horn, rad (≥ 0; 0 = no gear play).
+    pub backlash: f64,
+    /// The hand torque that holds the horn against a side of the play, N·m (≥ 0).
+    pub backlash_torque: f64,
 }
 
 impl ServoModel {
     /// A plain first-order lag with time constant `t` (no inertia, delay, give or friction).
-    pub fn first_order_lag(t: f64) -> ServoModel {
-        ServoModel { time_constant: t, inertial_time: 0.0, dead_time: 0.0, compliance: 0.0, deadband: 0.0 }
+    pub const fn first_order_lag(t: f64) -> ServoModel {
+        ServoModel {
+            time_constant: t,
+            inertial_time: 0.0,
+            dead_time: 0.0,
+            compliance: 0.0,
+            deadband: 0.0,
+            backlash: 0.0,
+            backlash_torque: 0.0,
+        }
     }
 
     /// The model from a vector in `SERVO_PARAM_NAMES` order (validated).
@@ -87,13 +121,23 @@ impl ServoModel {
             dead_time: v[2],
             compliance: v[3],
             deadband: v[4],
+            backlash: v[5],
+            backlash_torque: v[6],
         };
         model.validate()?;
         Ok(model)
     }
 
     pub fn to_array(&self) -> [f64; N_SERVO_PARAMS] {
-        [self.time_constant, self.inertial_time, self.dead_time, self.compliance, self.deadband]
+        [
+            self.time_constant,
+            self.inertial_time,
+            self.dead_time,
+            self.compliance,
+            self.deadband,
+            self.backlash,
+            self.backlash_torque,
+        ]
     }
 
     /// `Ok(())` when every value is finite and within its domain; the error names the value.
@@ -154,6 +198,71 @@ pub fn lead(model: &ServoModel, omega: f64, alpha: f64, tau: f64) -> f64 {
     travel + lag + model.deadband * fade - model.compliance * tau
 }
 
+/// Where the play leaves the horn (at `horn` before) once the motor side is at `motor` (horn
+/// radians) under the hand torque `tau`: held against the side the hand pushes to when it pushes
+/// harder than `backlash_torque`, otherwise where it was, dragged by whichever side of the play
+/// reaches it. With no backlash, the motor.
+#[inline]
+pub fn horn_in_play(model: &ServoModel, horn: f64, motor: f64, tau: f64) -> f64 {
+    let half = 0.5 * model.backlash;
+    if tau.abs() > model.backlash_torque {
+        motor + half * tau.signum()
+    } else {
+        horn.max(motor - half).min(motor + half)
+    }
+}
+
+/// s: how far ahead of the reference's velocity the play's side is taken (`omega + alpha·this`):
+/// the goal acts a dead time late and the crossing takes `PLAY_CROSS_S`, so a motor that must
+/// push the other way after a reversal starts across half a crossing before it.
+pub fn play_ahead(model: &ServoModel) -> f64 {
+    model.dead_time.max(0.0) + 0.5 * PLAY_CROSS_S
+}
+
+/// The compensation's inverse of the play: which side of it the horn rests on (−1, 0, +1; the
+/// horn at motor + side·backlash/2), estimated each cycle from what the loop knows, and the goal
+/// offset that puts the motor there, −side·backlash/2, reached at most at backlash/`PLAY_CROSS_S`.
+///
+/// The side follows `horn_in_play` a cycle at a time, with two hystereses, so that a force
+/// sensor's noise at rest does not make the goal chatter across the play: the hand's push counts
+/// only beyond max(`backlash_torque`, `PLAY_TORQUE_MIN`) (between that and −that the side is
+/// kept); within `backlash_torque` the horn is free of the hand and the motor must push it in the
+/// direction of travel (side −sgn ω), but only once the model moves faster than
+/// `PLAY_VELOCITY_MIN`. A hand that pushes the way the joint moves thus has the motor *behind*
+/// the horn (it resists the hand), and a motor that drives a free horn has it *ahead*: one rule
+/// for "cross the gap in the direction of travel" and for a hand that leans on the horn.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PlaySide {
+    side: f64,
+    offset: f64,
+}
+
+impl PlaySide {
+    /// One cycle of `h` s: the reference moving at `omega` under the hand torque `tau`. Returns
+    /// the goal offset (rad). Non-finite inputs keep the side (the offset stays finite).
+    pub fn update(&mut self, model: &ServoModel, omega: f64, tau: f64, h: f64) -> f64 {
+        if model.backlash <= 0.0 {
+            *self = PlaySide::default();
+            return 0.0;
+        }
+        let push = model.backlash_torque.max(PLAY_TORQUE_MIN);
+        if tau.abs() > push {
+            self.side = tau.signum();
+        } else if tau.abs() <= model.backlash_torque && omega.abs() > PLAY_VELOCITY_MIN {
+            self.side = -omega.signum();
+        }
+        let target = -0.5 * model.backlash * self.side;
+        let most = if h > 0.0 { model.backlash * h / PLAY_CROSS_S } else { 0.0 };
+        self.offset += (target - self.offset).max(-most).min(most);
+        self.offset
+    }
+
+    /// The side the horn is taken to rest on (−1, 0, +1).
+    pub fn side(&self) -> f64 {
+        self.side
+    }
+}
+
 /// One recorded run of a servo: the times at which its horn angle is known (`t`), and its goal
 /// and the hand torque on their own time base (`t_in`), linearly interpolated in between.
 #[derive(Debug, Clone, PartialEq)]
@@ -203,10 +312,16 @@ impl ServoTrial {
 pub fn simulate_into<F: FnMut(usize, &State)>(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64, mut record: F) {
     let mut goal = TorqueCursor::new(&trial.t_in, &trial.goal);
     let mut tau = TorqueCursor::new(&trial.t_in, &trial.tau);
-    let mut state = x0;
+    // x0 is the horn; the motor starts on the side of the play the first torque holds it to.
+    let mut horn = x0.theta;
+    let mut state = State { theta: x0.theta - (horn_in_play(model, 0.0, 0.0, tau.at(trial.t[0]))), ..x0 };
     walk(&trial.t, max_step, |event| match event {
-        Walk::Substep { t, h } => step(&mut state, model, goal.at(t - model.dead_time), tau.at(t), h),
-        Walk::Sample(i) => record(i, &state),
+        Walk::Substep { t, h } => {
+            let q = tau.at(t);
+            step(&mut state, model, goal.at(t - model.dead_time), q, h);
+            horn = horn_in_play(model, horn, state.theta, q);
+        }
+        Walk::Sample(i) => record(i, &State { theta: horn, omega: state.omega }),
     });
 }
 
@@ -265,7 +380,17 @@ mod tests {
     use super::*;
 
     const MX: ServoModel =
-        ServoModel { time_constant: 0.017, inertial_time: 0.021, dead_time: 0.002, compliance: 0.024, deadband: 0.002 };
+        ServoModel {
+            time_constant: 0.017,
+            inertial_time: 0.021,
+            dead_time: 0.002,
+            compliance: 0.024,
+            deadband: 0.002,
+            backlash: 0.0,
+            backlash_torque: 0.0,
+        };
+    /// MX with the play of bench/servo_forms.py's geared oracle (0.5°, a horn friction of 0.02 N·m).
+    const GEARED: ServoModel = ServoModel { backlash: 0.0087, backlash_torque: 0.02, ..MX };
 
     fn uniform(n: usize, dt: f64) -> Vec<f64> {
         (0..n).map(|i| i as f64 * dt).collect()
@@ -306,7 +431,9 @@ mod tests {
 
     #[test]
     fn absurd_servo_tables_are_refused_and_the_fit_s_own_domain_is_not() {
-        for (k, bad) in [(3, 1e300), (3, -1e6), (4, 1e300), (2, 1.0), (0, 0.0), (1, -0.1), (0, f64::NAN)] {
+        let bad_values = [(3, 1e300), (3, -1e6), (4, 1e300), (2, 1.0), (0, 0.0), (1, -0.1), (0, f64::NAN)];
+        let bad_play = [(5, -1e-3), (5, 0.04), (5, 1e300), (6, -0.1), (6, 2.5), (6, f64::INFINITY)];
+        for (k, bad) in bad_values.into_iter().chain(bad_play) {
             let mut v = MX.to_array();
             v[k] = bad;
             assert!(ServoModel::from_slice(&v).is_err(), "{} = {bad}", SERVO_PARAM_NAMES[k]);
@@ -330,6 +457,99 @@ mod tests {
         let small = trial(|_| 0.0, |_| 0.5 * MX.deadband / MX.compliance, 1.0);
         let out = simulate(&small, &MX, State::default(), 2.5e-4).unwrap();
         assert!(out.iter().all(|&x| x == 0.0), "within the band the horn never moves");
+    }
+
+    #[test]
+    fn the_play_holds_the_horn_where_the_hand_pushes_and_the_motor_drags_a_free_horn() {
+        let half = 0.5 * GEARED.backlash;
+        // At rest, a hand that pushes +, then −: the horn sits half the play to that side of the
+        // motor, which itself gives by the compliance (without inertia and band: exactly).
+        let soft = ServoModel { inertial_time: 0.0, deadband: 0.0, ..GEARED };
+        let tr = trial(|_| 0.0, |t| if t < 1.0 { 0.3 } else { -0.3 }, 2.0);
+        let out = simulate(&tr, &soft, State::default(), 2.5e-4).unwrap();
+        assert!((out[999] - (0.3 * soft.compliance + half)).abs() < 1e-6, "pushed +: {}", out[999]);
+        assert!((out[1999] - (-0.3 * soft.compliance - half)).abs() < 1e-6, "pushed −: {}", out[1999]);
+        // No hand: a goal ramp drags the horn, which trails the motor by half the play.
+        let ramp = trial(|t| 0.5 * t, |_| 0.0, 2.0);
+        let free = simulate(&ramp, &GEARED, State::default(), 2.5e-4).unwrap();
+        let rigid = simulate(&ramp, &MX, State::default(), 2.5e-4).unwrap();
+        assert!((rigid[1999] - free[1999] - half).abs() < 1e-6, "trails by {}", rigid[1999] - free[1999]);
+        // A hand within the horn's friction does not move it: after the ramp stops, it stays.
+        let back = trial(|t| if t < 0.5 { 0.5 * t } else { 0.25 }, |_| 0.015, 1.5);
+        let out = simulate(&back, &GEARED, State::default(), 2.5e-4).unwrap();
+        let settled = simulate(&back, &MX, State::default(), 2.5e-4).unwrap();
+        assert!((settled[1499] - out[1499] - half).abs() < 1e-4, "still trailing: {}", settled[1499] - out[1499]);
+        // Without play the horn is the motor, bit for bit.
+        assert_eq!(simulate(&ramp, &ServoModel { backlash_torque: 0.3, ..MX }, State::default(), 2.5e-4).unwrap(), rigid);
+    }
+
+    /// RMS of (horn − reference) after the first 0.5 s, with and without the play's inverse.
+    fn play_errors(model: &ServoModel, tau: impl Fn(f64) -> f64 + Copy) -> (f64, f64) {
+        let r = |t: f64| 0.2 * (2.0 * t).sin() + 0.05 * (9.0 * t).sin();
+        let w = |t: f64| 0.4 * (2.0 * t).cos() + 0.45 * (9.0 * t).cos();
+        let a = |t: f64| -0.8 * (2.0 * t).sin() - 4.05 * (9.0 * t).sin();
+        let t: Vec<f64> = uniform(4000, 1e-3);
+        let mut play = PlaySide::default();
+        let offsets: Vec<f64> = t.iter().map(|&x| play.update(model, w(x) + a(x) * play_ahead(model), tau(x), 1e-3)).collect();
+        let goal = |with: bool| -> Vec<f64> {
+            t.iter().zip(&offsets).map(|(&x, o)| r(x) + lead(model, w(x), a(x), tau(x)) + if with { *o } else { 0.0 }).collect()
+        };
+        let q: Vec<f64> = t.iter().map(|&x| tau(x)).collect();
+        let err = |g: Vec<f64>| {
+            let tr = ServoTrial::new(t.clone(), t.clone(), g, q.clone()).unwrap();
+            let out = simulate(&tr, model, State { theta: r(0.0), omega: w(0.0) }, 2.5e-4).unwrap();
+            let sq: f64 = out.iter().enumerate().skip(500).map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2)).sum();
+            (sq / (out.len() - 500) as f64).sqrt()
+        };
+        (err(goal(false)), err(goal(true)))
+    }
+
+    #[test]
+    fn the_play_s_inverse_makes_the_horn_follow_whether_the_hand_or_the_motor_pushes() {
+        // A hand that leans on the horn (|τ| well beyond its friction), and one that never does.
+        for (name, tau) in [("motor", (|_: f64| 0.0) as fn(f64) -> f64), ("hand", |t: f64| 0.3 * (2.0 * t).cos())] {
+            let (without, with) = play_errors(&GEARED, tau);
+            // A hand that reverses throws the horn across the play at once, faster than any motor
+            // follows: what is left is the motor's own lag over the play, at each reversal.
+            assert!(with < without / 4.0, "{name}: {without} → {with}");
+        }
+    }
+
+    #[test]
+    fn the_play_s_inverse_does_not_chatter_on_noise_at_rest_and_never_steps_the_goal() {
+        let h = 1e-3;
+        // A fitted horn friction, and none (a sensor's noise is then all the push threshold has).
+        for model in [GEARED, ServoModel { backlash_torque: 0.0, ..GEARED }] {
+            let mut play = PlaySide::default();
+            play.update(&model, 0.0, 0.1, h);
+            let mut last = play.update(&model, 0.0, 0.1, h);
+            let mut flips = 0;
+            let mut side = play.side();
+            // Deterministic "noise": torque within ±the push threshold, velocity within ±its own.
+            let push = model.backlash_torque.max(PLAY_TORQUE_MIN);
+            for k in 0..5000 {
+                let x = (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
+                let offset = play.update(&model, 0.99 * PLAY_VELOCITY_MIN * x, 0.99 * push * x, h);
+                assert!((offset - last).abs() <= model.backlash * h / PLAY_CROSS_S + 1e-15);
+                flips += (play.side() != side) as u32;
+                side = play.side();
+                last = offset;
+            }
+            assert_eq!(flips, 0, "the side is kept at rest: {model:?}");
+            assert_eq!(play.update(&model, f64::NAN, f64::NAN, h), last, "non-finite input: kept");
+        }
+        let mut play = PlaySide::default();
+        for _ in 0..10 {
+            play.update(&GEARED, 0.0, 0.1, h); // settled against the + side
+        }
+        // A real reversal of the hand crosses the play, at the crossing rate.
+        let mut steps = 0;
+        while play.update(&GEARED, 0.0, -0.1, h) != 0.5 * GEARED.backlash {
+            steps += 1;
+            assert!(steps < 100);
+        }
+        assert!((steps as f64 - PLAY_CROSS_S / h).abs() <= 1.0, "crossed in {steps} cycles");
+        assert_eq!(PlaySide::default().update(&MX, 1.0, 1.0, h), 0.0, "no play, no offset");
     }
 
     #[test]
@@ -375,8 +595,9 @@ mod tests {
         }
         let bad = ServoModel { time_constant: 0.0, ..MX };
         assert!(simulate_batch(&[&a], &[bad], &x0[..1], 5e-4).unwrap_err().to_string().contains("time_constant"));
-        assert!(ServoModel::from_slice(&[0.01, -1.0, 0.0, 0.0, 0.0]).is_err());
-        assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, f64::NAN]).is_err());
+        assert!(ServoModel::from_slice(&[0.01, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]).is_err());
+        assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, f64::NAN, 0.0, 0.0]).is_err());
+        assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, 0.0]).is_err(), "all seven values");
         assert_eq!(ServoModel::from_slice(&MX.to_array()).unwrap(), MX);
     }
 }

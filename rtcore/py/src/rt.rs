@@ -9,7 +9,7 @@ use dxl::Protocol;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
-use plant::servo::{ServoModel, SERVO_PARAM_NAMES};
+use plant::servo::{ServoModel, SERVO_PARAM_DEFAULTS, SERVO_PARAM_NAMES};
 use rt::fault::{FaultKind, Faults, LoopMode};
 use rt::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
 use rt::histogram::Percentiles;
@@ -160,12 +160,13 @@ fn joint_config(d: &Bound<'_, PyDict>, k: usize, protocol: Protocol) -> PyResult
     Ok(j)
 }
 
-/// A `[servo]` table: every one of `SERVO_PARAM_NAMES`, numbers.
+/// A `[servo]` table: `SERVO_PARAM_NAMES`, numbers; the ones with a default may be left out.
 fn servo_model(d: &Bound<'_, PyDict>, where_: &str) -> PyResult<ServoModel> {
     check_keys(d, &SERVO_PARAM_NAMES, where_)?;
     let mut values = [0.0; SERVO_PARAM_NAMES.len()];
-    for (value, name) in values.iter_mut().zip(SERVO_PARAM_NAMES) {
+    for ((value, name), default) in values.iter_mut().zip(SERVO_PARAM_NAMES).zip(SERVO_PARAM_DEFAULTS) {
         *value = opt(d, name, where_)?
+            .or(default)
             .ok_or_else(|| config_error(d.py(), format!("{where_}: \"{name}\" is required")))?;
     }
     ServoModel::from_slice(&values).map_err(|e| config_error(d.py(), format!("{where_}: {e}")))

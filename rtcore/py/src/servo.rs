@@ -4,7 +4,9 @@
 //! trial under every parameter row without the GIL (rayon), which is what the fidelity fit's
 //! Jacobians need; `servo_lead` is the compensation's inverse, vectorised, for checks and plots.
 use numpy::{PyArray1, PyArrayMethods};
-use plant::servo::{self, ServoModel, ServoTrial, N_SERVO_PARAMS, SERVO_DOMAIN, SERVO_PARAM_NAMES};
+use plant::servo::{
+    self, PlaySide, ServoModel, ServoTrial, N_SERVO_PARAMS, SERVO_DOMAIN, SERVO_PARAM_DEFAULTS, SERVO_PARAM_NAMES,
+};
 use plant::State;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -49,7 +51,7 @@ fn models(params: &Bound<'_, PyAny>) -> PyResult<Vec<ServoModel>> {
 }
 
 /// The horn angle of every trial under every parameter row: per trial an (S, n_samples) array.
-/// `params` (S, 5) in SERVO_PARAM_NAMES order; `x0` (S, T, 2) initial (θ, ω).
+/// `params` (S, 7) in SERVO_PARAM_NAMES order; `x0` (S, T, 2) initial (θ, ω).
 #[pyfunction]
 #[pyo3(signature = (trials, params, x0, *, max_step=5e-4))]
 fn servo_simulate_batch<'py>(
@@ -78,27 +80,39 @@ fn servo_simulate_batch<'py>(
 }
 
 /// The compensation's goal offset (rad) for a reference moving at `omega` with acceleration
-/// `alpha` under hand torque `tau` (arrays of one length); `params` is one model (5 values).
+/// `alpha` under hand torque `tau` (arrays of one length); `params` is one model (7 values).
+/// With `h` (s) the samples are consecutive cycles of that length, and the gear play's inverse
+/// (`PlaySide`, which carries its side from one cycle to the next) is added, as the loop does.
 #[pyfunction]
+#[pyo3(signature = (params, omega, alpha, tau, *, h=None))]
 fn servo_lead<'py>(
     py: Python<'py>,
     params: &Bound<'py, PyAny>,
     omega: &Bound<'py, PyAny>,
     alpha: &Bound<'py, PyAny>,
     tau: &Bound<'py, PyAny>,
+    h: Option<f64>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let model = ServoModel::from_slice(&f64_array(params, "params", 1)?.0).map_err(value_error)?;
     let (w, a, q) = (f64_array(omega, "omega", 1)?.0, f64_array(alpha, "alpha", 1)?.0, f64_array(tau, "tau", 1)?.0);
     if a.len() != w.len() || q.len() != w.len() {
         return Err(PyValueError::new_err("omega, alpha and tau must have the same length"));
     }
-    let out: Vec<f64> = (0..w.len()).map(|i| servo::lead(&model, w[i], a[i], q[i])).collect();
+    let mut play = PlaySide::default();
+    let ahead = servo::play_ahead(&model);
+    let out: Vec<f64> = (0..w.len())
+        .map(|i| {
+            let played = h.map_or(0.0, |h| play.update(&model, w[i] + a[i] * ahead, q[i], h));
+            servo::lead(&model, w[i], a[i], q[i]) + played
+        })
+        .collect();
     Ok(PyArray1::from_vec(py, out))
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SERVO_PARAM_NAMES", PyTuple::new(m.py(), SERVO_PARAM_NAMES)?)?;
     m.add("SERVO_DOMAIN", PyTuple::new(m.py(), SERVO_DOMAIN)?)?;
+    m.add("SERVO_PARAM_DEFAULTS", PyTuple::new(m.py(), SERVO_PARAM_DEFAULTS)?)?;
     m.add_class::<PyServoTrial>()?;
     m.add_function(wrap_pyfunction!(servo_simulate_batch, m)?)?;
     m.add_function(wrap_pyfunction!(servo_lead, m)?)?;

@@ -16,6 +16,13 @@
 //! (docs/fidelity.md, "smallest stable inertia"). So the acceleration is low-passed at twice the
 //! servo's natural frequency 1/√(m·T), where the servo stops following anyway.
 //!
+//! **Gear play.** A model with `backlash` adds the play's inverse (`plant::servo::PlaySide`):
+//! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
+//! the hand leans on it, ahead of it while it drives a free horn), crossing the play over
+//! `PLAY_CROSS_S` with hystereses in the torque and the speed so that the force's noise at rest
+//! does not make the goal chatter. It is part of the lead (so of the watch's uncompensated
+//! prediction, the clip and the blend).
+//!
 //! w is a weight in [0, 1] (`servo_compensation`). It never jumps: a change blends linearly
 //! over the loop's ramp time, but over at least `MIN_BLEND_S`, so that even with
 //! `ramp_time_s = 0` turning the compensation on or off cannot step the goal by the whole lead.
@@ -35,7 +42,7 @@
 //! daemon's line. It stays off for that model and weight; a parameter set with another model or
 //! weight tries again.
 use crate::joint::bound;
-use plant::servo::{lead, ServoModel};
+use plant::servo::{lead, play_ahead, PlaySide, ServoModel};
 
 /// The shortest blend of the weight, s.
 pub const MIN_BLEND_S: f64 = 0.2;
@@ -68,6 +75,8 @@ pub struct Compensation {
     lead: f64,
     /// The acceleration the lead uses (low-passed, see the module doc).
     alpha: f64,
+    /// The side of the gear play the horn rests on, and the goal offset for it.
+    play: PlaySide,
     /// The last cycle held (the lead was frozen).
     held: bool,
     /// What is left of a frozen lead's difference to the running one (fades over RELEASE_S).
@@ -88,6 +97,7 @@ impl Compensation {
             progress: 1.0,
             lead: 0.0,
             alpha: 0.0,
+            play: PlaySide::default(),
             held: false,
             carry: 0.0,
             watch: Watch::default(),
@@ -168,6 +178,7 @@ impl Compensation {
         self.lead = 0.0;
         self.carry = 0.0;
         self.alpha = 0.0;
+        self.play = PlaySide::default();
         self.held = true;
     }
 
@@ -182,7 +193,8 @@ impl Compensation {
             let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
-            let led = lead(&model, omega, self.alpha, tau);
+            let play = self.play.update(&model, omega + self.alpha * play_ahead(&model), tau, h);
+            let led = lead(&model, omega, self.alpha, tau) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
             let led = if led.is_finite() { bound(led, MAX_LEAD) } else { self.lead };
@@ -202,7 +214,7 @@ mod tests {
     use super::*;
 
     const LAG: ServoModel =
-        ServoModel { time_constant: 0.025, inertial_time: 0.0, dead_time: 0.002, compliance: 0.01, deadband: 0.0 };
+        ServoModel { dead_time: 0.002, compliance: 0.01, ..ServoModel::first_order_lag(0.025) };
 
     #[test]
     fn without_a_model_the_goal_is_the_model_angle() {
@@ -301,6 +313,29 @@ mod tests {
         assert_eq!(c.target(), 0.0, "the same set does not turn it on again");
         c.retarget(Some(LAG), 0.5);
         assert_eq!(c.target(), 0.5, "another weight tries again");
+    }
+
+    #[test]
+    fn a_geared_model_crosses_the_play_when_the_hand_reverses_without_a_step() {
+        let geared = ServoModel { backlash: 0.01, backlash_torque: 0.02, ..LAG };
+        let mut c = Compensation::new(Some(geared), 1.0);
+        let h = 1e-3;
+        let pushed = c.goal(0.0, 0.0, 0.0, 0.1, false, h);
+        for _ in 0..20 {
+            c.goal(0.0, 0.0, 0.0, 0.1, false, h);
+        }
+        let behind = c.goal(0.0, 0.0, 0.0, 0.1, false, h);
+        assert!((behind - (-0.005 - 0.001)).abs() < 1e-12, "half the play behind the horn, less the give: {behind}");
+        assert!(pushed > behind, "crossing, not stepping: {pushed}");
+        let mut last = behind;
+        for _ in 0..20 {
+            let g = c.goal(0.0, 0.0, 0.0, -0.1, false, h);
+            assert!((g - last).abs() <= 0.01 * h / plant::servo::PLAY_CROSS_S + 0.002 + 1e-12, "a step of {}", g - last);
+            last = g;
+        }
+        assert!((last - (0.005 + 0.001)).abs() < 1e-12, "the hand reversed: the other side: {last}");
+        c.reanchor();
+        assert_eq!(c.goal(0.0, 0.0, 0.0, 0.0, false, h), 0.0, "a re-anchor forgets the side");
     }
 
     #[test]

@@ -349,7 +349,7 @@ fn an_overrun_is_integrated_so_the_model_keeps_the_deadlines_time() {
 }
 
 fn lagging_servo() -> plant::servo::ServoModel {
-    plant::servo::ServoModel { time_constant: 0.025, inertial_time: 0.0, dead_time: 0.002, compliance: 0.01, deadband: 0.0 }
+    plant::servo::ServoModel { dead_time: 0.002, compliance: 0.01, ..plant::servo::ServoModel::first_order_lag(0.025) }
 }
 
 #[test]
