@@ -6,7 +6,8 @@
 //! would have arrived (instruction length × 10 bits / baud after it was read) plus the servo's
 //! Return Delay Time; the reply is due when its own last byte would have arrived. Chained
 //! replies (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its
-//! servo's Return Delay Time. Without `wire_delay` replies are due at once.
+//! servo's Return Delay Time; a Fast Sync Read's one combined reply waits one Return Delay Time
+//! (its first servo's) for all. Without `wire_delay` replies are due at once.
 //!
 //! Times are CLOCK_MONOTONIC nanoseconds (`rt::clock::monotonic_ns`), the loop's own clock,
 //! so the in-process link compares a reply's due time with the loop's read deadline directly.

@@ -17,7 +17,7 @@ use crate::rt::percentiles;
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
-const SERVO_KEYS: [&str; 17] = [
+const SERVO_KEYS: [&str; 18] = [
     "id",
     "model",
     "protocol",
@@ -35,6 +35,7 @@ const SERVO_KEYS: [&str; 17] = [
     "first_order_lag",
     "reboot_time_s",
     "overload_time_s",
+    "fast_sync_read",
 ];
 
 /// `key` of a servo dict as `T`, or `default` when absent.
@@ -94,6 +95,7 @@ fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
         first_order_lag: field(d, "first_order_lag", None)?,
         reboot_time_s: field(d, "reboot_time_s", defaults.reboot_time_s)?,
         overload_time_s: field(d, "overload_time_s", None)?,
+        fast_sync_read: field(d, "fast_sync_read", true)?,
     })
 }
 
