@@ -251,6 +251,21 @@ mod tests {
     }
 
     #[test]
+    fn fast_sync_read_is_asked_for_only_where_every_model_has_it() {
+        let mut c = config(2);
+        c.bus_read = ReadChoice::Fast;
+        assert_eq!(c.validate(), Ok(()));
+        c.joints[1].model = "a servo not in the table".into();
+        assert!(c.validate().unwrap_err().contains("Fast Sync Read"));
+        assert!(!c.models_have_fast_sync_read());
+        c.bus_read = ReadChoice::Auto;
+        assert_eq!(c.validate(), Ok(()), "auto reads with Sync Read there");
+        let mut p1 = LoopConfig { protocol: Protocol::V1, joints: vec![JointConfig::new(1, Protocol::V1)], ..Default::default() };
+        p1.bus_read = ReadChoice::Fast;
+        assert!(p1.validate().unwrap_err().contains("Protocol 2.0"));
+    }
+
+    #[test]
     fn each_bad_key_is_named() {
         let mut c = config(2);
         c.joints[1].id = 1;
