@@ -73,6 +73,7 @@ class LoopConfigDict(TypedDict):
     joints: list[JointDict]
     baudrate: NotRequired[int]
     protocol: NotRequired[int]  # 1 or 2
+    bus_read: NotRequired[str]  # "auto", "fast" or "sync": how the present positions are read
     rate_hz: NotRequired[float]
     rt_policy: NotRequired[str]  # "fifo" or "other"
     rt_priority: NotRequired[int]

@@ -35,6 +35,8 @@ CASES = [
     ("servo_forms.py", ["--forms", "lag", "--seconds", "4"], r"^\| first-order lag 25 ms \| \d+\.\d+ \| "),
     ("servo_scan.py", ["--baud", "1000000"], r"^\s+ServoBus\.scan\(ids\) ping per ID .*found 1\)$"),
     ("sim_step.py", [], r"^\s+rayon \(\d+ cpus\)\s+\d+\.\d+ M substeps/s"),
+    ("wire_limit.py", ["--servos", "2", "--bauds", "4000000", "--rdt", "0", "--cycles", "20", "--rates", "250",
+                       "--point-s", "0.3"], r"^\| 0 \| 2 \| 4 \| \d+ \| \d+ \(\d+.*\| (none|250) \(\d/1\) \|$"),
     # One daemon run, then one mock-bus test under pytest (the bench's two tables).
     ("simulated_bench.py", ["--burners", "0", "--runs", "1", "--duration", "1", "--test-burners", "0", "--tests",
                             "tests/test_mockbus_sdk.py::test_ping_answers_model_311_and_absent_ids_stay_silent"],

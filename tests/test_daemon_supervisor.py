@@ -40,7 +40,7 @@ class FakeLoop:
         self.lifetime = None
         self.request = None  # the loop's stop request (a fault its policy gives up on)
         self.sensor_faults = []  # every set_sensor_faults call
-        self.bus = {"state": "up", "lost_for_s": None, "losses": 0, "reconnects": 0}
+        self.bus = {"state": "up", "lost_for_s": None, "losses": 0, "reconnects": 0, "read": "fast_sync_read"}
         self.servos = [{"id": jid, "phase": "ok", "hardware_error": 0, "last_error": 0, "errors": 0, "recoveries": 0}
                        for jid in ids]
 
@@ -432,7 +432,7 @@ def test_ready_status_and_watchdog_reach_a_real_notify_socket(tmp_path):
         runner.join()
         sock.close()
     ready = next(i for i, m in enumerate(messages) if m.startswith("READY=1"))
-    assert "STATUS=running MX-64#1, MX-28#2 at 1000 Hz" in messages[ready]
+    assert "STATUS=running MX-64#1, MX-28#2 at 1000 Hz (SCHED_OTHER); bus read fast_sync_read" in messages[ready]
     pings = [i for i, m in enumerate(messages) if m == "WATCHDOG=1"]
     assert len(pings) >= 2 and min(pings) > ready  # one per 0.1 s while running, after READY
 

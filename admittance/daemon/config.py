@@ -60,6 +60,10 @@ class BusConfig:
     port: str = key("str", doc='serial device, or "mock" for the embedded simulated bench')
     baudrate: int = key("int", LOOP_DEFAULTS["baudrate"], unit="bit/s", lo=9600, hi=10_500_000, doc="bus baud rate")
     protocol: int = key("int", 2, choices=(1, 2), doc="Dynamixel protocol")
+    read: str = key("str", "auto", choices=("auto", "fast", "sync"),
+                    doc="how the loop reads the present positions: Fast Sync Read (one reply for all servos; "
+                        "Protocol 2.0), Sync Read, or auto: fast where every joint's model has it and the "
+                        "servos answer it at start, else Sync Read (Bulk Read on Protocol 1.0)")
 
 
 @dataclass(frozen=True, kw_only=True)

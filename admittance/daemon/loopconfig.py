@@ -27,6 +27,7 @@ def loop_config(cfg: DaemonConfig, bus_port: str) -> LoopConfigDict:
         "port": bus_port,
         "baudrate": cfg.bus.baudrate,
         "protocol": cfg.bus.protocol,
+        "bus_read": cfg.bus.read,
         "rate_hz": lp.rate_hz,
         "rt_priority": lp.rt_priority,
         "lock_memory": lp.lock_memory,

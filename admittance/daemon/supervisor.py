@@ -514,11 +514,14 @@ class Supervisor:
     # -- exit ----------------------------------------------------------------------------------
 
     def _status_line(self, stats: dict[str, Any] | None = None) -> str:
-        rt = (stats or self.loop.stats()).get("rt", {})
+        stats = stats or self.loop.stats()
+        rt = stats.get("rt", {})
         joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
         reader = getattr(self.sensor, "reader_path", None)
         sensor = f"; sensor reader {reader}" if reader else ""
-        return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')}){sensor}"
+        read = stats.get("bus", {}).get("read")
+        bus = f"; bus read {read}" if read else ""
+        return f"running {joints} at {self.cfg.loop.rate_hz:g} Hz ({rt.get('policy', '?')}){bus}{sensor}"
 
     def _write_stats(self, error: BaseException | None = None) -> None:
         """``--stats-json``: the loop's final counts and the daemon's own, plus, after an error,

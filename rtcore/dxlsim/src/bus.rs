@@ -6,6 +6,13 @@
 //! - a packet to an absent ID gets no answer; each present ID is answered by its own servo;
 //! - broadcast (0xFE) gets answers only for PING (every servo, ascending ID) and Sync/Bulk
 //!   Read (the listed servos, in listed order; absent ones are skipped);
+//! - Fast Sync Read (0x8A) gets one combined status packet (`dxl::protocol2::fast_sync`):
+//!   the first listed servo sends the prefix, each sends its segment after the one before it,
+//!   one Return Delay Time (the first servo's) for all. A listed servo that is absent, booting,
+//!   at Status Return Level 0 or without the instruction in its firmware sends nothing, and
+//!   the ones after it, waiting for its segment, stay silent too: the reply ends there. The
+//!   e-manual does not say what later servos do (protocols.md §8); this is the assumption
+//!   that costs the client most (every later servo is missing too);
 //! - Status Return Level: PING is always answered, READ from level 1, everything else at 2;
 //! - bad CRC / checksum: see `Bus::handle_corrupt`;
 //! - a booting servo (after REBOOT or a brown-out, `Servo::is_silent`) is off the bus: it
@@ -207,7 +214,7 @@ impl Bus {
             }
             // Sync/Bulk instructions are broadcast by definition; to a single ID they are
             // not an instruction a servo accepts.
-            Request::MultiRead(_) | Request::MultiWrite(_) => (Err(Fault::Instruction), Needs::AllLevel),
+            Request::MultiRead(_) | Request::FastSyncRead(_) | Request::MultiWrite(_) => (Err(Fault::Instruction), Needs::AllLevel),
         }
     }
 
@@ -215,6 +222,7 @@ impl Bus {
         match request {
             Ok(Request::Ping) => self.broadcast_ping(),
             Ok(Request::MultiRead(slots)) => self.multi_read(&slots),
+            Ok(Request::FastSyncRead(slots)) => self.fast_sync_read(&slots),
             Ok(Request::MultiWrite(slots)) => {
                 self.multi_write(&slots);
                 Vec::new()
@@ -257,6 +265,40 @@ impl Bus {
             });
         }
         replies
+    }
+
+    /// One combined reply: the segments of the listed servos up to the first that cannot send
+    /// its own (see the module doc), after the first servo's Return Delay Time.
+    fn fast_sync_read(&mut self, slots: &[ReadSlot]) -> Vec<Reply> {
+        let Some(length) = slots.first().map(|s| usize::from(s.length)) else { return Vec::new() };
+        if protocol2::fast_sync_reply_len(slots.len(), length) > protocol2::MAX_PACKET_LEN {
+            // Beyond any packet a servo buffers (the SDK's cap too): no servo answers.
+            self.counters.malformed += 1;
+            return Vec::new();
+        }
+        let mut bytes = protocol2::fast_sync_reply_prefix(slots.len(), length).to_vec();
+        let mut crc = dxl::crc16(&bytes);
+        let mut delay_us = None;
+        for slot in slots {
+            let Some(index) = self.awake(slot.id) else { break };
+            let outcome = self.read(index, slot.address, slot.length);
+            let servo = &self.servos[index];
+            if !servo.spec.fast_sync_read || servo.status_return_level() < Needs::ReadLevel as i64 {
+                break;
+            }
+            delay_us.get_or_insert(servo.return_delay_us());
+            let (fault, data) = match outcome {
+                Ok(data) => (None, data),
+                // The segment keeps its length: the error byte says the data mean nothing.
+                Err(fault) => (Some(fault), vec![0; length]),
+            };
+            let error = error_byte(self.protocol, fault, servo.hardware_error());
+            crc = protocol2::push_fast_sync_segment(&mut bytes, crc, slot.id, error, &data);
+        }
+        match delay_us {
+            Some(delay_us) => vec![Reply { delay_us, bytes }],
+            None => Vec::new(),
+        }
     }
 
     fn multi_write(&mut self, slots: &[WriteSlot]) {
@@ -427,6 +469,56 @@ mod tests {
         let replies = b.handle(BROADCAST_ID, ins::SYNC_READ, &[0, 0, 2, 0, 3, 9, 1]);
         let got: Vec<(u8, Vec<u8>)> = statuses(&replies).into_iter().map(|(id, _, d)| (id, d)).collect();
         assert_eq!(got, [(3, vec![0x37, 0x01]), (1, vec![0x37, 0x01])]);
+    }
+
+    /// The segments of a Fast Sync Read reply: (id, error, data) each, the whole reply checked.
+    fn fast_segments(replies: &[Reply], ids: &[u8], x: usize) -> Vec<(u8, u8, Vec<u8>)> {
+        let mut out = Vec::new();
+        let bytes = &replies[0].bytes;
+        let whole = protocol2::decode_fast_sync_prefix(bytes, ids, x, |k, e, d| out.push((ids[k], e, d.to_vec()))).unwrap();
+        assert_eq!(bytes.len(), 8 + whole * (4 + x), "no byte beyond the last whole segment");
+        out
+    }
+
+    #[test]
+    fn fast_sync_read_is_one_reply_with_one_return_delay() {
+        let mut b = bus(Protocol::V2, &[1, 2, 3]);
+        b.handle(2, ins::WRITE, &[9, 0, 10]); // ID 2's Return Delay Time 20 µs; the first's counts
+        let replies = b.handle(BROADCAST_ID, ins::FAST_SYNC_READ, &[0, 0, 2, 0, 3, 1, 2]);
+        assert_eq!(replies.len(), 1);
+        assert_eq!(replies[0].delay_us, 500, "the first listed servo's");
+        assert_eq!(replies[0].bytes.len(), protocol2::fast_sync_reply_len(3, 2));
+        let got = fast_segments(&replies, &[3, 1, 2], 2);
+        assert_eq!(got, [(3, 0, vec![0x37, 0x01]), (1, 0, vec![0x37, 0x01]), (2, 0, vec![0x37, 0x01])]);
+        assert!(b.handle(1, ins::FAST_SYNC_READ, &[0, 0, 2, 0, 1])[0].bytes.len() == 11, "to one ID: an Instruction Error status");
+    }
+
+    #[test]
+    fn a_fast_sync_read_reply_ends_at_the_first_servo_that_cannot_send() {
+        let mut b = bus(Protocol::V2, &[1, 2, 3]);
+        let ask = |b: &mut Bus, ids: &[u8]| {
+            let params: Vec<u8> = [132, 0, 4, 0].into_iter().chain(ids.iter().copied()).collect();
+            b.handle(BROADCAST_ID, ins::FAST_SYNC_READ, &params)
+        };
+        let ids_of = |r: &[Reply], ids: &[u8]| fast_segments(r, ids, 4).iter().map(|s| s.0).collect::<Vec<u8>>();
+        assert_eq!(ids_of(&ask(&mut b, &[1, 9, 2]), &[1, 9, 2]), [1], "an absent ID cuts the reply");
+        b.servo_mut(2).unwrap().brown_out(0.2);
+        assert_eq!(ids_of(&ask(&mut b, &[1, 3, 2]), &[1, 3, 2]), [1, 3], "a booting servo");
+        assert!(ask(&mut b, &[2, 1]).is_empty(), "the first silent: nothing at all");
+        b.servo_mut(3).unwrap().spec.fast_sync_read = false;
+        assert!(ask(&mut b, &[3, 1]).is_empty(), "a firmware without it ignores it");
+        let mut p1 = bus(Protocol::V1, &[1]);
+        assert!(p1.handle(BROADCAST_ID, ins::FAST_SYNC_READ, &[36, 2, 1]).is_empty());
+        assert_eq!(p1.counters.unknown_instructions, 1);
+    }
+
+    #[test]
+    fn a_refused_fast_sync_read_segment_keeps_its_length_and_says_why() {
+        let mut b = bus(Protocol::V2, &[1, 2]);
+        let replies = b.handle(BROADCAST_ID, ins::FAST_SYNC_READ, &[0xF0, 0x0F, 4, 0, 1, 2]);
+        let got = fast_segments(&replies, &[1, 2], 4);
+        assert_eq!(got, [(1, 0x07, vec![0; 4]), (2, 0x07, vec![0; 4])], "Access Error, data zeroed");
+        assert!(b.handle(BROADCAST_ID, ins::FAST_SYNC_READ, &[0, 0, 0xFF, 0x7F, 1, 2]).is_empty(), "beyond any packet");
     }
 
     #[test]

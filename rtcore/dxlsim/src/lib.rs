@@ -10,12 +10,14 @@
 //! - `request`, `bus`: packets → requests → replies, with Status Return Level, broadcast and
 //!   error semantics; pure logic, no clock;
 //! - `pty`, `server`: the pseudo-terminal and the thread that times replies and physics;
-//! - `setup`: a bus from a configuration, every value checked first (the binding's entry).
+//! - `setup`: a bus from a configuration, every value checked first (the binding's entry);
+//! - `bus_cycle`: the loop's SyncWrite + read timed on the in-process link (a bench's probe).
 //!
 //! Why a thread in Rust rather than a Python mock: the mock must answer within the SDK's
 //! timeouts while the daemon's RT loop hammers it at 1 kHz, and step physics at 2 kHz; a
 //! Python thread would share the GIL with the very code under test.
 pub mod bus;
+pub mod bus_cycle;
 pub mod catalog;
 pub mod daq;
 pub mod direct;

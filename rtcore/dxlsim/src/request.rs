@@ -36,6 +36,8 @@ pub enum Request {
     ClearTurns,
     /// Sync Read and Bulk Read: replies in listed order.
     MultiRead(Vec<ReadSlot>),
+    /// Fast Sync Read: one combined reply, the listed servos' segments in listed order.
+    FastSyncRead(Vec<ReadSlot>),
     /// Sync Write and Bulk Write: no reply.
     MultiWrite(Vec<WriteSlot>),
 }
@@ -78,7 +80,8 @@ pub fn parse(protocol: Protocol, instruction: u8, params: &[u8]) -> Result<Reque
             CLEAR_TURNS => Ok(Request::ClearTurns),
             _ => Err(ParseError::Malformed),
         },
-        ins::SYNC_READ if wide => sync_read(params),
+        ins::SYNC_READ if wide => sync_read(params).map(Request::MultiRead),
+        ins::FAST_SYNC_READ if wide => sync_read(params).map(Request::FastSyncRead),
         ins::SYNC_WRITE => sync_write(params, wide),
         ins::BULK_READ if wide => bulk_read_p2(params),
         ins::BULK_READ => bulk_read_p1(params),
@@ -110,13 +113,14 @@ fn exact(rest: &[u8], n: usize) -> Result<(), ParseError> {
     }
 }
 
-fn sync_read(params: &[u8]) -> Result<Request, ParseError> {
+/// Sync Read's and Fast Sync Read's parameters (the same bytes): one slot per listed ID.
+fn sync_read(params: &[u8]) -> Result<Vec<ReadSlot>, ParseError> {
     let (address, rest) = field(params, true)?;
     let (length, ids) = field(rest, true)?;
     if ids.is_empty() || length == 0 {
         return Err(ParseError::Malformed);
     }
-    Ok(Request::MultiRead(ids.iter().map(|&id| ReadSlot { id, address, length }).collect()))
+    Ok(ids.iter().map(|&id| ReadSlot { id, address, length }).collect())
 }
 
 fn sync_write(params: &[u8], wide: bool) -> Result<Request, ParseError> {

@@ -65,6 +65,8 @@ pub struct ServoSpec {
     pub reboot_time_s: f64,
     /// Seconds of stall at the duty limit before the overload bit sets (None: never).
     pub overload_time_s: Option<f64>,
+    /// Its firmware answers Fast Sync Read (`setup::ServoConfig::fast_sync_read`).
+    pub fast_sync_read: bool,
 }
 
 /// What Python's `servo_state` reports.

@@ -34,6 +34,9 @@ pub struct ServoConfig {
     pub reboot_time_s: f64,
     /// Seconds of stall at the duty limit before the overload bit sets; None: never.
     pub overload_time_s: Option<f64>,
+    /// Its firmware answers Fast Sync Read (0x8A; Protocol 2.0 only). False: a firmware
+    /// without it, which ignores the broadcast as any unknown instruction.
+    pub fast_sync_read: bool,
 }
 
 impl ServoConfig {
@@ -55,6 +58,7 @@ impl ServoConfig {
             first_order_lag: None,
             reboot_time_s: DEFAULT_REBOOT_TIME_S,
             overload_time_s: None,
+            fast_sync_read: true,
         }
     }
 }
@@ -118,6 +122,7 @@ fn build_servo(config: ServoConfig, baudrate: u32) -> Result<Servo, String> {
         first_order_lag: config.first_order_lag,
         reboot_time_s: config.reboot_time_s,
         overload_time_s: config.overload_time_s,
+        fast_sync_read: config.fast_sync_read && config.protocol == Protocol::V2,
     };
     Ok(Servo::new(spec, table))
 }

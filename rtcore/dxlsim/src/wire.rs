@@ -3,10 +3,11 @@
 //! real wire would; and the physics clock both keep up with.
 //!
 //! Timing (with `wire_delay`): a reply's first byte may start when the instruction's last byte
-//! would have arrived (instruction length × 10 bits / baud after it was read) plus the servo's
-//! Return Delay Time; the reply is due when its own last byte would have arrived. Chained
+//! would have arrived (instruction length × 10 bits / baud after it was read, or after the
+//! wire is free of what was sent or answered before it) plus the servo's Return Delay Time; the reply is due when its own last byte would have arrived. Chained
 //! replies (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its
-//! servo's Return Delay Time. Without `wire_delay` replies are due at once.
+//! servo's Return Delay Time; a Fast Sync Read's one combined reply waits one Return Delay Time
+//! (its first servo's) for all. Without `wire_delay` replies are due at once.
 //!
 //! Times are CLOCK_MONOTONIC nanoseconds (`rt::clock::monotonic_ns`), the loop's own clock,
 //! so the in-process link compares a reply's due time with the loop's read deadline directly.
@@ -209,7 +210,10 @@ impl Answerer {
                     continue;
                 }
             };
-            self.schedule_replies(arrival_ns + self.wire_time_ns(length), replies);
+            // The instruction's bytes follow whatever is still on the wire (a SyncWrite written
+            // just before a Sync Read delays it by its own bytes: one wire, one byte at a time).
+            let sent_ns = arrival_ns.max(self.bus_free_ns) + self.wire_time_ns(length);
+            self.schedule_replies(sent_ns, replies);
         }
     }
 

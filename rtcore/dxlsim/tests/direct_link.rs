@@ -78,3 +78,20 @@ fn unplug_fails_the_link_with_eio_and_replug_brings_it_back() {
     assert!(link_gone(&link.write_all(&[0xFF]).unwrap_err()));
     assert!(link.reconnect());
 }
+
+#[test]
+fn a_fast_sync_read_after_a_sync_write_waits_for_its_bytes_and_one_return_delay() {
+    let mock = running_bus();
+    let mut link = mock.direct_link();
+    let mut bus = JointBus::new(Protocol::V2, regs(), &[1, 2]);
+    bus.choose_read(rt::bus::ReadChoice::Fast, true);
+    let sent = monotonic_ns();
+    bus.write_goals(&mut link, &[2048, 2048]).unwrap();
+    let present = bus.read_present(&mut link, sent + 200_000_000).unwrap().to_vec();
+    let took = monotonic_ns() - sent;
+    assert_eq!((present.len(), bus.read_name()), (2, "fast_sync_read"));
+    // SyncWrite 14 + 2·5 bytes, then the Fast Sync Read 14 + 2 bytes, one after the other on
+    // the wire, then one 500 µs Return Delay Time and the 8 + 2·8-byte combined reply.
+    let wire_ns = (24 + 16 + 24) * 10 * 1_000_000_000 / u64::from(BAUD) + 500_000;
+    assert!(took >= wire_ns, "answered after {took} ns, the wire alone takes {wire_ns} ns");
+}

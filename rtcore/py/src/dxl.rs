@@ -167,6 +167,13 @@ fn encode_sync_read<'py>(py: Python<'py>, address: u16, length: u16, ids: Vec<u8
     encoded(py, |b| p2::encode_sync_read(b, address, length, &ids))
 }
 
+#[pyfunction]
+#[pyo3(signature = (address, length, ids, protocol=2))]
+fn encode_fast_sync_read<'py>(py: Python<'py>, address: u16, length: u16, ids: Vec<u8>, protocol: u8) -> PyResult<Bound<'py, PyBytes>> {
+    p2_only(protocol, "FAST_SYNC_READ")?;
+    encoded(py, |b| p2::encode_fast_sync_read(b, address, length, &ids))
+}
+
 /// Split `[(id, bytes), ...]` into the flat (ids, data) form of the Rust encoders.
 fn flatten_records(data_len: u16, records: Vec<(u8, Vec<u8>)>) -> PyResult<(Vec<u8>, Vec<u8>)> {
     let mut ids = Vec::with_capacity(records.len());
@@ -508,6 +515,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(encode_factory_reset, m)?)?;
     m.add_function(wrap_pyfunction!(encode_reboot, m)?)?;
     m.add_function(wrap_pyfunction!(encode_sync_read, m)?)?;
+    m.add_function(wrap_pyfunction!(encode_fast_sync_read, m)?)?;
     m.add_function(wrap_pyfunction!(encode_sync_write, m)?)?;
     m.add_function(wrap_pyfunction!(encode_bulk_read, m)?)?;
     m.add_function(wrap_pyfunction!(encode_bulk_write, m)?)?;

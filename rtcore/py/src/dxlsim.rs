@@ -17,7 +17,7 @@ use crate::rt::percentiles;
 use crate::errors::{config_error, device_error};
 
 /// The keys a servo dict may have.
-const SERVO_KEYS: [&str; 17] = [
+const SERVO_KEYS: [&str; 18] = [
     "id",
     "model",
     "protocol",
@@ -35,6 +35,7 @@ const SERVO_KEYS: [&str; 17] = [
     "first_order_lag",
     "reboot_time_s",
     "overload_time_s",
+    "fast_sync_read",
 ];
 
 /// `key` of a servo dict as `T`, or `default` when absent.
@@ -94,6 +95,7 @@ fn servo_config(d: &Bound<'_, PyDict>) -> PyResult<ServoConfig> {
         first_order_lag: field(d, "first_order_lag", None)?,
         reboot_time_s: field(d, "reboot_time_s", defaults.reboot_time_s)?,
         overload_time_s: field(d, "overload_time_s", None)?,
+        fast_sync_read: field(d, "fast_sync_read", true)?,
     })
 }
 
@@ -247,6 +249,25 @@ impl PyMockBus {
     fn stop(&self, py: Python<'_>) -> PyResult<()> {
         let inner = &self.inner;
         py.detach(|| inner.stop()).map_err(|e| device_error(py, format!("the mock bus thread failed: {e}")))
+    }
+
+    /// The loop's bus traffic of `cycles` cycles on the in-process link (`bench/wire_limit.py`):
+    /// per cycle, a SyncWrite of every goal then one read of the present positions of `ids`
+    /// with `read` ("fast" or "sync"), timed from the write to the read's last byte. Returns
+    /// (each cycle's bus time in ns, reads that failed). Protocol 2.0 buses only.
+    #[pyo3(signature = (ids, read, cycles, timeout_ms=50.0))]
+    fn time_bus_cycles(&self, py: Python<'_>, ids: Vec<u8>, read: &str, cycles: usize, timeout_ms: f64) -> PyResult<(Vec<u64>, u64)> {
+        let choice = match rt::bus::ReadChoice::parse(read) {
+            Some(c @ (rt::bus::ReadChoice::Fast | rt::bus::ReadChoice::Sync)) => c,
+            _ => return Err(config_error(py, format!("read must be \"fast\" or \"sync\", got {read:?}"))),
+        };
+        if self.inner.lock().bus.protocol() != Protocol::V2 || ids.is_empty() || !(timeout_ms > 0.0 && timeout_ms <= 1e4) {
+            return Err(config_error(py, "a Protocol 2.0 bus, at least one ID and 0 < timeout_ms <= 10000 are needed"));
+        }
+        let mut link = self.inner.direct_link();
+        let timeout_ns = (timeout_ms * 1e6) as u64;
+        let timed = py.detach(|| dxlsim::bus_cycle::time_bus_cycles(&mut link, &ids, choice, cycles.min(1_000_000), timeout_ns));
+        Ok((timed.cycle_ns, timed.failed_reads))
     }
 
     fn __enter__(slf: PyRef<'_, Self>) -> PyResult<PyRef<'_, Self>> {

@@ -10,6 +10,7 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
 use plant::servo::{ServoModel, SERVO_PARAM_DEFAULTS, SERVO_PARAM_NAMES};
+use rt::bus::ReadChoice;
 use rt::fault::{FaultKind, Faults, LoopMode};
 use rt::recovery::{FaultPolicy, OnServoError, OnTorqueOff, StopCause, UNSAFE_HARDWARE_ERRORS};
 use rt::histogram::Percentiles;
@@ -22,10 +23,11 @@ use crate::dict_fields::{first_unknown_key, opt};
 use crate::dxlsim::PyMockBus;
 use crate::errors::{config_error, device_error};
 
-const LOOP_KEYS: [&str; 22] = [
+const LOOP_KEYS: [&str; 23] = [
     "port",
     "baudrate",
     "protocol",
+    "bus_read",
     "rate_hz",
     "rt_policy",
     "rt_priority",
@@ -247,6 +249,11 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let protocol: u8 = opt(d, "protocol", "config")?.unwrap_or(2);
     c.protocol = Protocol::from_number(protocol)
         .ok_or_else(|| config_error(py, format!("config.protocol: must be 1 or 2, got {protocol}")))?;
+    if let Some(read) = opt::<String>(d, "bus_read", "config")? {
+        c.bus_read = ReadChoice::parse(&read).ok_or_else(|| {
+            config_error(py, format!("config.bus_read: must be one of {}, got {read:?}", ReadChoice::NAMES.join(", ")))
+        })?;
+    }
     set(d, "rate_hz", "config", &mut c.rate_hz)?;
     c.rt = rt_request(d)?;
     c.trigger = trigger_mode(d)?;
@@ -582,6 +589,7 @@ impl PyAdmittanceLoop {
         let d = PyDict::new(py);
         d.set_item("state", if l.lost_for_ns.is_some() { "lost" } else { "up" })?;
         d.set_item("link", l.kind)?;
+        d.set_item("read", (!l.read.is_empty()).then_some(l.read))?;
         d.set_item("lost_for_s", l.lost_for_ns.map(|ns| ns as f64 * 1e-9))?;
         d.set_item("losses", l.losses)?;
         d.set_item("loss_errno", l.loss_errno)?;

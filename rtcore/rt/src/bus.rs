@@ -9,8 +9,20 @@
 //! what arrives before this deadline"; the serial port implements it for the bench, and the
 //! tests implement it in memory to check the packets byte by byte.
 //!
-//! Present positions: Protocol 2.0 uses SYNC_READ; Protocol 1.0 has none, so it uses BULK_READ
-//! (which the MX series supports). Replies arrive in request order within one deadline.
+//! Present positions: Protocol 2.0 uses SYNC_READ, or FAST_SYNC_READ where every servo's
+//! firmware has it (`PresentRead`, chosen by `[bus] read`); Protocol 1.0 has neither, so it
+//! uses BULK_READ (which the MX series supports). Replies arrive in request order within one
+//! deadline.
+//!
+//! Fast Sync Read's one combined reply (`dxl::protocol2::fast_sync`) is read into its own slab
+//! up to its length or the deadline, whichever comes first, then checked: every segment that
+//! arrived whole with its running CRC and ID right is a servo's answer. A servo missing from
+//! the reply is a read timeout for it *and every servo listed after it*: the protocol names a
+//! segment only by its place, so a cut reply tells which servos' segments came (the first
+//! ones), never that a later one would have. If a servo's followers sent their segments
+//! without it, the bytes no longer match the listed order: then, as for any wrong byte (a CRC,
+//! an ID, the prefix), the whole read counts as failed (`read_corrupt`) and no position of it
+//! is used, not even those whose CRC held.
 //!
 //! Servo health: every status packet a joint's servo sends carries an error byte, and the bus
 //! keeps per joint the last one and counters (`ServoHealth`): the hardware alert (P2 bit 7;
@@ -18,6 +30,7 @@
 //! itself went. `read_register` reads one item of one servo (Torque Enable, Hardware Error
 //! Status) through the same buffers. This layer only observes: what to do about an alert is
 //! the loop's policy.
+use dxl::protocol2::FastSyncError;
 use dxl::{protocol1, protocol2, AnyDecoder, BulkEntry, DecodeError, EncodeError, Kind, Packet, Protocol, ServoError};
 use std::fmt;
 use std::io;
@@ -83,6 +96,8 @@ pub enum BusError {
     Timeout { missing: usize },
     /// A servo reported that the instruction failed.
     Servo { id: u8, raw: u8 },
+    /// A Fast Sync Read reply that arrived with a wrong byte (see the module doc).
+    FastSync(FastSyncError),
     /// A single-servo read named a joint index the bus does not have, or an item size other
     /// than 1..=4 bytes.
     BadRequest { index: usize, size: u16 },
@@ -96,6 +111,7 @@ impl fmt::Display for BusError {
             BusError::Decode(e) => write!(f, "bad reply: {e}"),
             BusError::Timeout { missing } => write!(f, "{missing} servo(s) did not answer in time"),
             BusError::Servo { id, raw } => write!(f, "servo {id} reported error 0x{raw:02X}"),
+            BusError::FastSync(e) => write!(f, "bad Fast Sync Read reply: {e:?}"),
             BusError::BadRequest { index, size } => write!(f, "no joint {index}, or an item of {size} bytes, to read"),
         }
     }
@@ -144,11 +160,47 @@ impl BusError {
     pub fn read_kind(&self) -> BusErrorKind {
         match self {
             BusError::Timeout { .. } => BusErrorKind::ReadTimeout,
-            BusError::Decode(_) => BusErrorKind::ReadCorrupt,
+            BusError::Decode(_) | BusError::FastSync(_) => BusErrorKind::ReadCorrupt,
             BusError::Servo { .. } => BusErrorKind::ReadServoError,
             BusError::Io(_) | BusError::Encode(_) | BusError::BadRequest { .. } => BusErrorKind::ReadIo,
         }
     }
+}
+
+/// `[bus] read`: how the loop reads the present positions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ReadChoice {
+    /// Fast Sync Read where every joint's model has it (Protocol 2.0), tried at start; Sync
+    /// Read (Bulk Read on Protocol 1.0) otherwise, or when the start's Fast Sync Read goes
+    /// unanswered or garbled.
+    #[default]
+    Auto,
+    /// Fast Sync Read, no fallback: the start fails if it goes unanswered.
+    Fast,
+    /// Sync Read (Bulk Read on Protocol 1.0).
+    Sync,
+}
+
+impl ReadChoice {
+    pub const NAMES: [&'static str; 3] = ["auto", "fast", "sync"];
+
+    pub fn parse(name: &str) -> Option<ReadChoice> {
+        match name {
+            "auto" => Some(ReadChoice::Auto),
+            "fast" => Some(ReadChoice::Fast),
+            "sync" => Some(ReadChoice::Sync),
+            _ => None,
+        }
+    }
+}
+
+/// The read the bus uses now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PresentRead {
+    /// One status packet per servo: SYNC_READ (P2) or BULK_READ (P1).
+    PerServo,
+    /// One combined status packet: FAST_SYNC_READ (P2 only).
+    Fast,
 }
 
 /// Hardware Error Status on every Protocol 2.0 model of the table (MX(2.0), XM430, XL330).
@@ -205,6 +257,12 @@ pub struct JointBus {
     read_ids: Vec<u8>,
     read_entries: Vec<BulkEntry>,
     read_joints: Vec<usize>,
+    read: PresentRead,
+    /// `ReadChoice::Auto` chose Fast Sync Read: the first read may still fall back.
+    may_fall_back: bool,
+    fell_back: bool,
+    /// A whole Fast Sync Read reply for every joint.
+    fast_rx: Vec<u8>,
 }
 
 /// Little-endian two's complement of `value` in `out` (1, 2 or 4 bytes).
@@ -245,7 +303,52 @@ impl JointBus {
             read_ids: Vec::with_capacity(n),
             read_entries: Vec::with_capacity(n),
             read_joints: Vec::with_capacity(n),
+            read: PresentRead::PerServo,
+            may_fall_back: false,
+            fell_back: false,
+            fast_rx: vec![0; protocol2::fast_sync_reply_len(n, usize::from(regs.present_size))],
         }
+    }
+
+    /// Sets the read from `[bus] read` and whether every joint's model has Fast Sync Read:
+    /// `Fast` only on Protocol 2.0 (the configuration checks it asked for no more).
+    pub fn choose_read(&mut self, choice: ReadChoice, models_have_fast: bool) {
+        let fast = self.protocol == Protocol::V2 && models_have_fast && choice != ReadChoice::Sync;
+        self.read = if fast { PresentRead::Fast } else { PresentRead::PerServo };
+        self.may_fall_back = fast && choice == ReadChoice::Auto;
+        self.fell_back = false;
+    }
+
+    /// The start's first read: with `auto`'s Fast Sync Read, one read before `deadline_ns`;
+    /// if it is not answered whole and right, the bus reads with Sync Read from then on
+    /// (`fell_back`). A lost link is an error; anything else is left to the start's own reads.
+    pub fn settle_read(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> Result<(), BusError> {
+        if !std::mem::take(&mut self.may_fall_back) {
+            return Ok(());
+        }
+        match self.read_present_of(t, deadline_ns, |_| true) {
+            Err(e) if e.link_gone() => Err(e),
+            Err(_) => {
+                self.read = PresentRead::PerServo;
+                self.fell_back = true;
+                Ok(())
+            }
+            Ok(()) => Ok(()),
+        }
+    }
+
+    /// The read in use, by its instruction's name: "fast_sync_read", "sync_read" or "bulk_read".
+    pub fn read_name(&self) -> &'static str {
+        match (self.read, self.protocol) {
+            (PresentRead::Fast, _) => "fast_sync_read",
+            (PresentRead::PerServo, Protocol::V2) => "sync_read",
+            (PresentRead::PerServo, Protocol::V1) => "bulk_read",
+        }
+    }
+
+    /// `auto`'s Fast Sync Read went unanswered at start and the bus fell back to Sync Read.
+    pub fn fell_back(&self) -> bool {
+        self.fell_back
     }
 
     pub fn ids(&self) -> &[u8] {
@@ -312,6 +415,9 @@ impl JointBus {
             return Ok(());
         }
         self.discard_input(t)?;
+        if self.read == PresentRead::Fast {
+            return self.fast_sync_read(t, deadline_ns);
+        }
         let n = match self.protocol {
             Protocol::V1 => protocol1::encode_bulk_read(&mut self.packet, &self.read_entries),
             Protocol::V2 => protocol2::encode_sync_read(
@@ -347,6 +453,46 @@ impl JointBus {
         }
         match first_error {
             Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// The selected joints' present positions in one FAST_SYNC_READ (see the module doc for
+    /// what a cut or garbled reply means). Allocates nothing; never indexes past its slabs.
+    fn fast_sync_read(&mut self, t: &mut dyn Transport, deadline_ns: u64) -> Result<(), BusError> {
+        let (x, n) = (usize::from(self.regs.present_size), self.read_ids.len());
+        let (address, size) = (self.regs.present_address, self.regs.present_size);
+        let length = protocol2::encode_fast_sync_read(&mut self.packet, address, size, &self.read_ids).map_err(BusError::Encode)?;
+        t.write_all(&self.packet[..length]).map_err(BusError::Io)?;
+        let want = protocol2::fast_sync_reply_len(n, x).min(self.fast_rx.len());
+        let prefix = protocol2::fast_sync_reply_prefix(n, x);
+        let mut have = 0;
+        while have < want {
+            let got = t.read_until(&mut self.fast_rx[have..want], deadline_ns).map_err(BusError::Io)?;
+            if got == 0 {
+                break;
+            }
+            have = skip_to_prefix(&mut self.fast_rx, have + got, &prefix);
+        }
+        let (health, answered, present, joints, ids) = (&mut self.health, &mut self.answered, &mut self.present, &self.read_joints, &self.read_ids);
+        let mut refused = None;
+        let whole = protocol2::decode_fast_sync_prefix(&self.fast_rx[..have], ids, x, |r, raw, data| {
+            let (Some(&k), Some(&id)) = (joints.get(r), ids.get(r)) else { return };
+            let error = ServoError::V2(protocol2::StatusError::from_raw(raw));
+            if let Some(h) = health.get_mut(k) {
+                h.note(error);
+            }
+            if error.is_failure() {
+                refused.get_or_insert((id, raw));
+            } else if let (Some(a), Some(p)) = (answered.get_mut(k), present.get_mut(k)) {
+                *a = true;
+                *p = get_le(data);
+            }
+        })
+        .map_err(BusError::FastSync)?;
+        match refused {
+            Some((id, raw)) => Err(BusError::Servo { id, raw }),
+            None if whole < n => Err(BusError::Timeout { missing: n - whole }),
             None => Ok(()),
         }
     }
@@ -467,6 +613,20 @@ impl JointBus {
     }
 }
 
+/// Drops the bytes before the first place `buf[..have]` could start `prefix` (a late reply,
+/// line noise); the bytes kept.
+fn skip_to_prefix(buf: &mut [u8], have: usize, prefix: &[u8]) -> usize {
+    let have = have.min(buf.len());
+    let start = (0..have)
+        .find(|&i| {
+            let m = (have - i).min(prefix.len());
+            buf[i..i + m] == prefix[..m]
+        })
+        .unwrap_or(have);
+    buf.copy_within(start..have, 0);
+    have - start
+}
+
 /// Notes the error byte of a status packet from one of our servos in its joint's health.
 fn note_status(health: &mut [ServoHealth], ids: &[u8], item: &Result<Packet<'_>, DecodeError>) {
     if let Ok(Packet { id, kind: Kind::Status(error), .. }) = item {
@@ -538,6 +698,11 @@ pub(crate) mod memory {
         pub late: Vec<u8>,
         /// Encoder glitches: (id, offset) added to that servo's next present-position reply only.
         pub glitches: Vec<(u8, i64)>,
+        /// The servos' firmware lacks FAST_SYNC_READ: they ignore it.
+        pub no_fast_sync_read: bool,
+        /// A Fast Sync Read's reply as the host receives it: `Some(f)` passes the servos'
+        /// reply through `f` (a flipped byte, a cut, noise before it).
+        pub garble_fast: Option<fn(Vec<u8>) -> Vec<u8>>,
     }
 
     impl Wire {
@@ -680,6 +845,26 @@ pub(crate) mod memory {
                 let silence = wire.reboot_silence;
                 wire.rebooting.retain(|r| r.0 != id);
                 wire.rebooting.push((id, silence));
+            }
+            0x8A if !wire.no_fast_sync_read => {
+                // One combined reply, cut at the first listed servo that does not answer.
+                let mut out = protocol2::fast_sync_reply_prefix(params.len() - 4, 4).to_vec();
+                let mut crc = dxl::crc16(&out);
+                for &id in &params[4..] {
+                    if !wire.answers(id) {
+                        break;
+                    }
+                    let tick = wire.present_reply(id) as i32;
+                    let error = wire.error | if wire.hardware_of(id) != 0 { 0x80 } else { 0 };
+                    crc = protocol2::push_fast_sync_segment(&mut out, crc, id, error, &tick.to_le_bytes());
+                }
+                if out.len() > 8 {
+                    let out = match wire.garble_fast {
+                        Some(f) => f(out),
+                        None => out,
+                    };
+                    wire.replies.extend(out);
+                }
             }
             0x82 | 0x92 => {
                 let listed: Vec<u8> = if instruction == 0x82 {
@@ -908,6 +1093,152 @@ mod tests {
                 proptest::prop_assert_eq!(bus.health()[0].alert(protocol), error.alert());
             }
         }
+    }
+
+    fn fast_bus(ids: &[u8], choice: ReadChoice) -> JointBus {
+        let mut bus = JointBus::new(Protocol::V2, regs2(), ids);
+        bus.choose_read(choice, true);
+        bus
+    }
+
+    #[test]
+    fn fast_sync_read_brings_every_position_in_one_reply() {
+        let mut t = MemoryTransport::new(true, &[(2, 1000), (1, -5), (3, 7)]);
+        let mut bus = fast_bus(&[1, 2, 3], ReadChoice::Fast);
+        assert_eq!(bus.read_name(), "fast_sync_read");
+        assert_eq!(bus.read_present(&mut t, 0).unwrap(), &[-5, 1000, 7]);
+        let mut want = [0u8; 32];
+        let n = protocol2::encode_fast_sync_read(&mut want, 132, 4, &[1, 2, 3]).unwrap();
+        assert_eq!(t.written(), vec![want[..n].to_vec()]);
+        assert_eq!(bus.health()[2].statuses, 1, "each segment's error byte is noted");
+        // Noise before the reply (a late byte, line noise) is skipped.
+        t.wire().garble_fast = Some(|r| [vec![0xFF, 0x00, 0xFF, 0xFF, 0xFD], r].concat());
+        assert_eq!(bus.read_present(&mut t, 0).unwrap(), &[-5, 1000, 7]);
+    }
+
+    #[test]
+    fn a_servo_missing_from_a_fast_sync_read_takes_the_ones_after_it_with_it() {
+        let mut t = MemoryTransport::new(true, &[(1, 10), (2, 20), (3, 30)]);
+        let mut bus = fast_bus(&[1, 2, 3], ReadChoice::Fast);
+        t.wire().silent = vec![3];
+        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Timeout { missing: 1 })));
+        assert_eq!(bus.answered(), &[true, true, false], "the last one alone");
+        t.wire().silent = vec![2];
+        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Timeout { missing: 2 })));
+        assert_eq!(bus.answered(), &[true, false, false], "a cut reply cannot vouch for 3");
+        // Left out of the read (a servo known silent), the others answer whole.
+        assert!(bus.read_present_of(&mut t, 0, |k| k != 1).is_ok());
+        assert_eq!(bus.answered(), &[true, false, true]);
+        assert_eq!(bus.present(), &[10, 20, 30]);
+    }
+
+    #[test]
+    fn a_garbled_fast_sync_read_reply_fails_the_whole_read() {
+        let mut t = MemoryTransport::new(true, &[(1, 10), (2, 20)]);
+        let mut bus = fast_bus(&[1, 2], ReadChoice::Fast);
+        t.wire().garble_fast = Some(|mut r| {
+            r[19] ^= 0x40; // the second segment's data
+            r
+        });
+        let error = bus.read_present(&mut t, 0).unwrap_err();
+        assert!(matches!(error, BusError::FastSync(FastSyncError::Crc(1))), "{error}");
+        assert_eq!(error.read_kind(), BusErrorKind::ReadCorrupt);
+        assert_eq!(bus.answered(), &[false, false], "not even the first, whose CRC held");
+        // Servo 1 silent and servo 2 answering in its place (the e-manual does not say a
+        // follower waits): its ID is not the one listed first, so the whole read fails.
+        t.wire().garble_fast = Some(|_| {
+            let mut out = protocol2::fast_sync_reply_prefix(2, 4).to_vec();
+            let crc = dxl::crc16(&out);
+            protocol2::push_fast_sync_segment(&mut out, crc, 2, 0, &20i32.to_le_bytes());
+            out
+        });
+        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::FastSync(FastSyncError::Id(0)))));
+        assert_eq!(bus.answered(), &[false, false]);
+        t.wire().garble_fast = None;
+        // A segment that reports a failure: that servo refused; the other's position arrives.
+        t.wire().silent.clear();
+        t.wire().error = 0x07;
+        assert!(matches!(bus.read_present(&mut t, 0), Err(BusError::Servo { id: 1, raw: 0x07 })));
+        assert_eq!(bus.answered(), &[false, false]);
+    }
+
+    #[test]
+    fn auto_falls_back_to_sync_read_when_fast_sync_read_goes_unanswered_and_fast_does_not() {
+        let mut t = MemoryTransport::new(true, &[(1, 10), (2, 20)]);
+        t.wire().no_fast_sync_read = true;
+        let mut bus = fast_bus(&[1, 2], ReadChoice::Auto);
+        assert_eq!(bus.read_name(), "fast_sync_read");
+        bus.settle_read(&mut t, 0).unwrap();
+        assert!(bus.fell_back());
+        assert_eq!((bus.read_name(), bus.read_present(&mut t, 0).unwrap()), ("sync_read", &[10, 20][..]));
+        let mut forced = fast_bus(&[1, 2], ReadChoice::Fast);
+        forced.settle_read(&mut t, 0).unwrap();
+        assert!(!forced.fell_back() && forced.read_present(&mut t, 0).is_err(), "fast means fast");
+        // Where it is answered, auto keeps it; a later failure is a failed read, not a fallback.
+        t.wire().no_fast_sync_read = false;
+        let mut kept = fast_bus(&[1, 2], ReadChoice::Auto);
+        kept.settle_read(&mut t, 0).unwrap();
+        t.wire().silent = vec![2];
+        assert!(kept.read_present(&mut t, 0).is_err());
+        kept.settle_read(&mut t, 0).unwrap();
+        assert_eq!((kept.read_name(), kept.fell_back()), ("fast_sync_read", false));
+        // Sync, Protocol 1.0, or a model without it: never fast.
+        assert_eq!(fast_bus(&[1], ReadChoice::Sync).read_name(), "sync_read");
+        let mut p1 = JointBus::new(Protocol::V1, regs1(), &[1]);
+        p1.choose_read(ReadChoice::Fast, true);
+        assert_eq!(p1.read_name(), "bulk_read");
+        let mut unsupported = JointBus::new(Protocol::V2, regs2(), &[1]);
+        unsupported.choose_read(ReadChoice::Auto, false);
+        assert_eq!(unsupported.read_name(), "sync_read");
+    }
+
+    proptest::proptest! {
+        /// Whatever arrives for a Fast Sync Read (a flipped byte, a cut, noise): no panic, and a
+        /// position is handed on only from a segment the servo really sent.
+        #[test]
+        fn no_garbled_fast_sync_read_reply_passes_a_wrong_position(
+            ticks in proptest::collection::vec(-100_000i64..100_000, 1..12),
+            mangle in 0u8..3,
+            at in proptest::prelude::any::<proptest::sample::Index>(),
+            flip in 1u8..=255,
+            noise in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..64),
+        ) {
+            let ids: Vec<u8> = (1..=ticks.len() as u8).collect();
+            let present: Vec<(u8, i64)> = ids.iter().copied().zip(ticks.iter().copied()).collect();
+            let mut t = MemoryTransport::new(true, &present);
+            let mut bus = fast_bus(&ids, ReadChoice::Fast);
+            let good = {
+                let mut probe = MemoryTransport::new(true, &present);
+                fast_bus(&ids, ReadChoice::Fast).read_present(&mut probe, 0).is_ok()
+            };
+            proptest::prop_assert!(good);
+            let full = protocol2::fast_sync_reply_len(ids.len(), 4);
+            let index = at.index(full);
+            STATE.with(|s| *s.borrow_mut() = (mangle, index, flip, noise.clone()));
+            t.wire().garble_fast = Some(|r| STATE.with(|s| {
+                let (mangle, index, flip, noise) = s.borrow().clone();
+                match mangle {
+                    0 => { let mut r = r; r[index] ^= flip; r }
+                    1 => r[..index].to_vec(),
+                    _ => noise,
+                }
+            }));
+            let result = bus.read_present_of(&mut t, 0, |_| true);
+            for (k, &answered) in bus.answered().iter().enumerate() {
+                if answered {
+                    proptest::prop_assert_eq!(bus.present()[k], ticks[k]);
+                }
+            }
+            match mangle {
+                0 => proptest::prop_assert!(result.is_err() && !bus.answered().contains(&true)),
+                1 => proptest::prop_assert_eq!(bus.answered().iter().filter(|a| **a).count(), index.saturating_sub(8) / 8),
+                _ => {}
+            }
+        }
+    }
+
+    std::thread_local! {
+        static STATE: std::cell::RefCell<(u8, usize, u8, Vec<u8>)> = const { std::cell::RefCell::new((0, 0, 0, Vec::new())) };
     }
 
     #[test]

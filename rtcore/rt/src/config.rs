@@ -5,7 +5,7 @@
 //! goal 116/4, present 132/4, torque enable 64; MX Protocol 1.0 goal 30/2, present 36/2, torque
 //! enable 24), so a bare configuration works on the usual bench. Gains default to the MX-64's
 //! fitted plant (thesis table 3.3) so that the joint feels like the passive servo.
-use crate::bus::Registers;
+use crate::bus::{ReadChoice, Registers};
 use crate::cycle::JointWiring;
 use crate::joint::TickMap;
 use crate::passivity::PassivityParams;
@@ -63,6 +63,8 @@ pub struct LoopConfig {
     pub port: String,
     pub baudrate: u32,
     pub protocol: Protocol,
+    /// How the present positions are read (`[bus] read`).
+    pub bus_read: ReadChoice,
     pub rate_hz: f64,
     pub rt: RtRequest,
     /// What starts a cycle: a force sample's arrival (default) or the fixed schedule.
@@ -91,6 +93,7 @@ impl Default for LoopConfig {
             port: String::new(),
             baudrate: 1_000_000,
             protocol: Protocol::V2,
+            bus_read: ReadChoice::default(),
             rate_hz: 1000.0,
             rt: RtRequest::default(),
             trigger: TriggerMode::default(),
@@ -109,6 +112,12 @@ impl Default for LoopConfig {
 }
 
 impl LoopConfig {
+    /// Every joint's model (on this protocol) answers Fast Sync Read (`dxl::models`).
+    pub fn models_have_fast_sync_read(&self) -> bool {
+        let has = |j: &JointConfig| dxl::models::find_by_name(&j.model, self.protocol).is_some_and(|m| m.fast_sync_read());
+        self.joints.iter().all(has)
+    }
+
     pub fn ids(&self) -> Vec<u8> {
         self.joints.iter().map(|j| j.id).collect()
     }
@@ -172,6 +181,11 @@ impl LoopConfig {
             return Err(format!("start_timeout_ms must be > 0, got {}", self.start_timeout_ms));
         }
         self.faults.validate()?;
+        if self.bus_read == ReadChoice::Fast && !self.models_have_fast_sync_read() {
+            return Err("bus_read \"fast\" needs Protocol 2.0 and models that have Fast Sync Read (every joint's); \
+                        \"auto\" uses it where they do"
+                .into());
+        }
         let ids = self.ids();
         for (k, j) in self.joints.iter().enumerate() {
             validate_joint(j, self.protocol).map_err(|e| format!("joints[{k}] (id {}): {e}", j.id))?;
@@ -234,6 +248,21 @@ mod tests {
     fn the_defaults_are_valid() {
         assert_eq!(config(3).validate(), Ok(()));
         assert!(config(0).validate().unwrap_err().contains("at least one joint"));
+    }
+
+    #[test]
+    fn fast_sync_read_is_asked_for_only_where_every_model_has_it() {
+        let mut c = config(2);
+        c.bus_read = ReadChoice::Fast;
+        assert_eq!(c.validate(), Ok(()));
+        c.joints[1].model = "a servo not in the table".into();
+        assert!(c.validate().unwrap_err().contains("Fast Sync Read"));
+        assert!(!c.models_have_fast_sync_read());
+        c.bus_read = ReadChoice::Auto;
+        assert_eq!(c.validate(), Ok(()), "auto reads with Sync Read there");
+        let mut p1 = LoopConfig { protocol: Protocol::V1, joints: vec![JointConfig::new(1, Protocol::V1)], ..Default::default() };
+        p1.bus_read = ReadChoice::Fast;
+        assert!(p1.validate().unwrap_err().contains("Protocol 2.0"));
     }
 
     #[test]

@@ -209,6 +209,11 @@ impl Controller {
         }
     }
 
+    /// The bus (which read it uses, its servos' health).
+    pub fn bus(&self) -> &JointBus {
+        &self.bus
+    }
+
     pub fn period_ns(&self) -> u64 {
         self.period_ns
     }
@@ -231,6 +236,9 @@ impl Controller {
     /// With `enable_torque`, the goals are first set to those positions and only then is
     /// torque enabled, so a servo never lunges towards a goal left over from before.
     pub fn start_at_present<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64, enable_torque: bool) -> Result<(), StartRefusal> {
+        // `auto`'s Fast Sync Read gets half the time to show it is answered (else Sync Read).
+        let now_ns = clock.now_ns();
+        self.bus.settle_read(t, now_ns + deadline_ns.saturating_sub(now_ns) / 2).map_err(StartRefusal::Bus)?;
         let speed = self.recovery.policy().horn_speed_max;
         let mut refusals: Vec<Option<AnchorRefusal>> = vec![Some(AnchorRefusal::Unconfirmed); self.joints.len()];
         for _ in 0..START_READS {

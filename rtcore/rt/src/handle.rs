@@ -154,11 +154,13 @@ impl LoopHandle {
         let (params_in, params_out) = triple_buffer::triple_buffer(&initial);
         let ids = config.ids();
         let bell = Arc::new(Doorbell::default());
+        let mut bus = JointBus::new(config.protocol, config.registers(), &ids);
+        bus.choose_read(config.bus_read, config.models_have_fast_sync_read());
         let mut controller = Controller::new(ControllerParts {
             rate_hz: config.rate_hz,
             joints: config.wiring(),
             initial: initial.clone(),
-            bus: JointBus::new(config.protocol, config.registers(), &ids),
+            bus,
             sync_read_divisor: config.sync_read_divisor,
             force_ring: force_rx,
             params: params_out,
@@ -184,6 +186,19 @@ impl LoopHandle {
         &self.config
     }
 
+    /// The present-position read the start settled on, for the stats and the start line; a
+    /// line when `auto` had to fall back.
+    fn note_bus_read(&self, bus: &JointBus) {
+        if let Ok(mut read) = self.shared.link.read.lock() {
+            *read = bus.read_name();
+        }
+        if bus.fell_back() {
+            self.shared.warn(
+                "Fast Sync Read went unanswered at start (a firmware without it?): the loop reads with Sync Read".into(),
+            );
+        }
+    }
+
     /// Opens the configured serial port and starts the loop on it.
     pub fn start(&self) -> Result<(), StartError> {
         if self.running() {
@@ -207,6 +222,7 @@ impl LoopHandle {
         }
         let deadline = monotonic_ns() + (self.config.start_timeout_ms * 1e6) as u64;
         let started = controller.start_at_present(transport.as_mut(), &MonotonicClock, deadline, self.config.torque_on_start);
+        self.note_bus_read(controller.bus());
         if let Err(refusal) = started {
             *idle = Some(controller);
             return Err(match refusal {
@@ -369,6 +385,7 @@ impl LoopHandle {
             reopen_failures: l.reopen_failures.load(Ordering::Relaxed),
             last_error: l.last_error(),
             kind: l.kind.lock().map(|k| *k).unwrap_or_default(),
+            read: l.read.lock().map(|r| *r).unwrap_or_default(),
         }
     }
 
@@ -391,6 +408,8 @@ pub struct LinkSnapshot {
     pub last_error: String,
     /// The transport (`Transport::kind`; empty before the first start).
     pub kind: &'static str,
+    /// The present-position read (`JointBus::read_name`; empty before the first start).
+    pub read: &'static str,
 }
 
 impl Drop for LoopHandle {

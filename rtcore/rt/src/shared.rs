@@ -55,6 +55,8 @@ pub struct LinkStats {
     pub last_error: Mutex<String>,
     /// The transport the loop started on (`Transport::kind`).
     pub kind: Mutex<&'static str>,
+    /// The present-position read the loop uses (`JointBus::read_name`; empty before a start).
+    pub read: Mutex<&'static str>,
 }
 
 impl LinkStats {

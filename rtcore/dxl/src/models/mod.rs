@@ -101,6 +101,14 @@ impl Model {
         })
     }
 
+    /// Whether its firmware answers Fast Sync Read (0x8A): the Protocol 2.0 firmwares of the
+    /// table (X series, MX(2.0)); Protocol 1.0 has no such instruction. The e-manual lists the
+    /// X series; for MX(2.0) it is not confirmed (protocols.md §8), which is why the loop's
+    /// `auto` read tries it at start and falls back to Sync Read when it goes unanswered.
+    pub fn fast_sync_read(&self) -> bool {
+        self.protocol == Protocol::V2
+    }
+
     /// One past the highest address of the table (the size of a byte image of it).
     pub fn table_len(&self) -> u16 {
         self.items.iter().map(Item::end).max().unwrap_or(0)

@@ -59,18 +59,36 @@ pub enum FastSyncError {
 
 /// Check a whole reply for `ids` (listed order) of `x` bytes each; `segment(k, error, data)` is
 /// called for each servo once every CRC holds (nothing is handed on from a bad reply).
-pub fn decode_fast_sync_reply(reply: &[u8], ids: &[u8], x: usize, mut segment: impl FnMut(usize, u8, &[u8])) -> Result<(), FastSyncError> {
-    let expected = fast_sync_reply_len(ids.len(), x);
-    if reply.len() < expected {
+pub fn decode_fast_sync_reply(reply: &[u8], ids: &[u8], x: usize, segment: impl FnMut(usize, u8, &[u8])) -> Result<(), FastSyncError> {
+    if reply.len() < fast_sync_reply_len(ids.len(), x) {
         return Err(FastSyncError::Length);
     }
-    if reply[..PREFIX_LEN + 1] != fast_sync_reply_prefix(ids.len(), x) {
-        let same_head = reply[..5] == [HEADER[0], HEADER[1], HEADER[2], HEADER[3], BROADCAST_ID] && reply[7] == ins::STATUS;
+    decode_fast_sync_prefix(reply, ids, x, segment).map(drop)
+}
+
+/// Check the part of a reply that arrived: `reply` holds its first bytes (bytes beyond the
+/// reply's length are ignored). Returns how many segments (the first listed servos') arrived
+/// whole with their running CRC and ID right, after handing each to `segment(k, error, data)`.
+///
+/// Why a cut reply still says something: each segment's CRC covers every byte before it, so
+/// the segments that arrived are certain, and the servos whose segments did not come are the
+/// listed ones after them. A wrong byte anywhere (prefix, a whole segment's CRC or ID) is an
+/// error, and then nothing is handed on.
+pub fn decode_fast_sync_prefix(reply: &[u8], ids: &[u8], x: usize, mut segment: impl FnMut(usize, u8, &[u8])) -> Result<usize, FastSyncError> {
+    let reply = &reply[..reply.len().min(fast_sync_reply_len(ids.len(), x))];
+    let prefix = fast_sync_reply_prefix(ids.len(), x);
+    let head = reply.len().min(PREFIX_LEN + 1);
+    if reply[..head] != prefix[..head] {
+        let same_head = head == PREFIX_LEN + 1
+            && reply[..5] == [HEADER[0], HEADER[1], HEADER[2], HEADER[3], BROADCAST_ID]
+            && reply[7] == ins::STATUS;
         return Err(if same_head { FastSyncError::Length } else { FastSyncError::Header });
     }
-    let mut crc = crc16_update(0, &reply[..PREFIX_LEN + 1]);
-    for (k, &id) in ids.iter().enumerate() {
-        let at = PREFIX_LEN + 1 + k * (4 + x);
+    let stride = 4 + x;
+    let whole = reply.len().saturating_sub(PREFIX_LEN + 1) / stride;
+    let mut crc = crc16_update(0, &reply[..head]);
+    for (k, &id) in ids.iter().enumerate().take(whole) {
+        let at = PREFIX_LEN + 1 + k * stride;
         let body = &reply[at..at + 2 + x];
         crc = crc16_update(crc, body);
         let stated = u16::from_le_bytes([reply[at + 2 + x], reply[at + 3 + x]]);
@@ -82,11 +100,11 @@ pub fn decode_fast_sync_reply(reply: &[u8], ids: &[u8], x: usize, mut segment: i
         }
         crc = crc16_update(crc, &reply[at + 2 + x..at + 4 + x]);
     }
-    for (k, _) in ids.iter().enumerate() {
-        let at = PREFIX_LEN + 1 + k * (4 + x);
+    for k in 0..whole {
+        let at = PREFIX_LEN + 1 + k * stride;
         segment(k, reply[at], &reply[at + 2..at + 2 + x]);
     }
-    Ok(())
+    Ok(whole)
 }
 
 #[cfg(test)]
@@ -137,5 +155,54 @@ mod tests {
         assert_eq!(decode_fast_sync_reply(&good, &[2, 1], 4, |_, _, _| calls += 1), Err(FastSyncError::Id(0)));
         assert_eq!(calls, 0);
         assert_eq!(fast_sync_reply_len(6, 4), good.len() - 2 * 8 + 6 * 8);
+    }
+
+    #[test]
+    fn a_cut_reply_hands_on_the_segments_that_arrived_whole() {
+        let good = reply(&[1, 2, 3], &[10, 20, 30]);
+        let mut got = Vec::new();
+        // Cut inside the third segment: the first two are certain, the third missing.
+        let whole = decode_fast_sync_prefix(&good[..good.len() - 3], &[1, 2, 3], 4, |k, _, d| got.push((k, d[0]))).unwrap();
+        assert_eq!((whole, got), (2, vec![(0, 10), (1, 20)]));
+        assert_eq!(decode_fast_sync_prefix(&good[..5], &[1, 2, 3], 4, |_, _, _| {}), Ok(0), "a prefix's start");
+        assert_eq!(decode_fast_sync_prefix(&[], &[1, 2, 3], 4, |_, _, _| {}), Ok(0));
+        assert_eq!(decode_fast_sync_prefix(&[0xFF, 0xFF, 0xFD, 0x00, 0x01], &[1], 4, |_, _, _| {}), Err(FastSyncError::Header));
+        assert_eq!(decode_fast_sync_reply(&good[..good.len() - 3], &[1, 2, 3], 4, |_, _, _| {}), Err(FastSyncError::Length));
+    }
+
+    proptest::proptest! {
+        /// Any corruption of a whole reply, any cut, any bytes at all: no panic, and nothing
+        /// handed on that the servos did not send.
+        #[test]
+        fn corrupt_or_cut_replies_never_pass_for_what_was_sent(
+            values in proptest::collection::vec(proptest::prelude::any::<u32>(), 1..13),
+            flip_at in proptest::prelude::any::<proptest::sample::Index>(),
+            flip in 1u8..=255,
+            cut in proptest::prelude::any::<proptest::sample::Index>(),
+            noise in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..120),
+        ) {
+            let ids: Vec<u8> = (1..=values.len() as u8).collect();
+            let good = reply(&ids, &values);
+            let mut bad = good.clone();
+            let at = flip_at.index(bad.len());
+            bad[at] ^= flip;
+            // A flipped byte is always caught (a CRC-16 catches every error burst of 16 bits or
+            // fewer), unless it falls in a segment that did not arrive.
+            let rejected = decode_fast_sync_reply(&bad, &ids, 4, |_, _, _| {}).is_err();
+            proptest::prop_assert!(rejected);
+            let cut = cut.index(good.len() + 1);
+            let mut seen = Vec::new();
+            let whole = decode_fast_sync_prefix(&good[..cut], &ids, 4, |k, e, d| seen.push((k, e, d.to_vec()))).unwrap();
+            proptest::prop_assert_eq!(whole, cut.saturating_sub(8) / 8);
+            for (k, e, d) in seen {
+                proptest::prop_assert_eq!((e, d), (0, values[k].to_le_bytes().to_vec()));
+            }
+            let mut calls = 0;
+            let result = decode_fast_sync_prefix(&bad[..cut], &ids, 4, |_, _, _| calls += 1);
+            if at < cut && at < 8 + 8 * (cut.saturating_sub(8) / 8) {
+                proptest::prop_assert!(result.is_err() && calls == 0, "a bad byte inside what arrived: {result:?}");
+            }
+            let _ = decode_fast_sync_prefix(&noise, &ids, 4, |_, _, _| {});
+        }
     }
 }

@@ -9,7 +9,7 @@ pub mod stuffing;
 
 pub use decode::Decoder;
 pub use fast_sync::{
-    decode_fast_sync_reply, encode_fast_sync_read, fast_sync_reply_len, fast_sync_reply_prefix, push_fast_sync_segment, FastSyncError,
+    decode_fast_sync_prefix, decode_fast_sync_reply, encode_fast_sync_read, fast_sync_reply_len, fast_sync_reply_prefix, push_fast_sync_segment, FastSyncError,
 };
 pub use encode::{
     encode_action, encode_addressed, encode_bulk_read, encode_bulk_write, encode_clear, encode_factory_reset,
