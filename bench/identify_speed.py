@@ -8,7 +8,9 @@ from) and once with this tree's, both on the same compiled extension (this tree'
 the simulator and plant are the same code; only the identification's Python differs). The order
 alternates from set to set so that a change in the machine's load does not favour one side.
 
-Printed per set: both wall times (identify_dataset only, the data loaded), their ratio, and
+Printed per set: both wall times (identify_dataset only, the data loaded) and both CPU times (all
+threads of the process: on a machine shared with other jobs the work done, which the load
+changes far less than the wall time), their ratios, and
 whether the results agree: the same effects named, the same stand-ins, and every fitted
 parameter within the larger of the two σ. Then the median ratio over the sets, with the load
 average before and after. A figure is what one run measured: nothing is extrapolated.
@@ -39,10 +41,10 @@ import json, sys, time
 from admittance.formats.dataset import load_dataset
 from admittance.ident.identify import identify_dataset
 dataset = load_dataset(sys.argv[1])
-start = time.perf_counter()
+start, cpu = time.perf_counter(), time.process_time()
 result = identify_dataset(dataset).to_json()
-seconds = time.perf_counter() - start
-print(json.dumps({"seconds": seconds, "effects": result["effects"], "stand_ins": result.get("stand_ins", []),
+seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "effects": result["effects"], "stand_ins": result.get("stand_ins", []),
                   "params": result["params"], "sigma": result.get("sigma", {}), "timings": result.get("timings", {})}))
 """
 
@@ -116,19 +118,26 @@ def main() -> None:
                 order.reverse()
             results = {label: run_identify(tree, folder) for label, tree in order}
             b, t = results["baseline"], results["this"]
-            rows.append((effect, size, b, t, b["seconds"] / t["seconds"], agreement(b, t)))
-            print(f"| {effect}={size:g} | {b['seconds']:.1f} s | {t['seconds']:.1f} s | {rows[-1][4]:.1f}× | "
-                  f"{', '.join(b['effects']) or '–'} | {', '.join(t['effects']) or '–'} | {rows[-1][5]} |", flush=True)
+            rows.append((effect, size, b, t, agreement(b, t)))
+            print(_row(rows[-1]) + f" load {_load().split()[0]}", flush=True)
     print(f"/proc/loadavg at the end: {_load()}")
-    print("\n| set | baseline | this | ratio | baseline names | this names | results |")
-    print("|---|---|---|---|---|---|---|")
-    for effect, size, b, t, ratio, agree in rows:
-        print(f"| {effect}={size:g} | {b['seconds']:.1f} s | {t['seconds']:.1f} s | {ratio:.1f}× | "
-              f"{', '.join(b['effects']) or '–'} | {', '.join(t['effects']) or '–'} | {agree} |")
-    ratios = [r[4] for r in rows]
-    print(f"\nmedian ratio baseline / this: {statistics.median(ratios):.1f}× over {len(ratios)} sets "
-          f"(min {min(ratios):.1f}×, max {max(ratios):.1f}×)")
-    print(f"results agree on {sum(r[5] == 'same' for r in rows)} of {len(rows)} sets")
+    print("\n| set | wall baseline | wall this | wall ratio | CPU baseline | CPU this | CPU ratio | "
+          "baseline names | this names | results |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for row in rows:
+        print(_row(row))
+    for kind, key in (("wall", "seconds"), ("CPU", "cpu_seconds")):
+        ratios = [b[key] / t[key] for _, _, b, t, _ in rows]
+        print(f"{'' if kind == 'CPU' else chr(10)}median {kind} ratio baseline / this: {statistics.median(ratios):.1f}× "
+              f"over {len(ratios)} sets (min {min(ratios):.1f}×, max {max(ratios):.1f}×)")
+    print(f"results agree on {sum(r[4] == 'same' for r in rows)} of {len(rows)} sets")
+
+
+def _row(row) -> str:
+    effect, size, b, t, agree = row
+    return (f"| {effect}={size:g} | {b['seconds']:.1f} s | {t['seconds']:.1f} s | {b['seconds'] / t['seconds']:.1f}× | "
+            f"{b['cpu_seconds']:.1f} s | {t['cpu_seconds']:.1f} s | {b['cpu_seconds'] / t['cpu_seconds']:.1f}× | "
+            f"{', '.join(b['effects']) or '–'} | {', '.join(t['effects']) or '–'} | {agree} |")
 
 
 if __name__ == "__main__":
