@@ -38,13 +38,14 @@ DEFAULT_SETS = "stribeck=0.04,quadratic_drag=0.002,cogging=0.01"
 # Run in a child process whose PYTHONPATH puts one tree's ``admittance`` first.
 RUNNER = """
 import json, sys, time
+import admittance
 from admittance.formats.dataset import load_dataset
 from admittance.ident.identify import identify_dataset
 dataset = load_dataset(sys.argv[1])
 start, cpu = time.perf_counter(), time.process_time()
 result = identify_dataset(dataset).to_json()
 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
-print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "effects": result["effects"], "stand_ins": result.get("stand_ins", []),
+print(json.dumps({"package": admittance.__file__, "seconds": seconds, "cpu_seconds": cpu, "effects": result["effects"], "stand_ins": result.get("stand_ins", []),
                   "params": result["params"], "sigma": result.get("sigma", {}), "timings": result.get("timings", {})}))
 """
 
@@ -66,11 +67,16 @@ def baseline_tree(ref: str, into: Path) -> Path:
 
 def run_identify(tree: Path, dataset: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
+    # ``python -c`` puts the working directory first on sys.path: run from the data's folder, so
+    # that a checkout in the caller's directory cannot stand in for ``tree`` (checked below).
     done = subprocess.run([sys.executable, "-c", RUNNER, str(dataset)], env=env, capture_output=True, text=True,
-                          check=False)
+                          check=False, cwd=dataset)
     if done.returncode != 0:
         raise RuntimeError(f"identify failed in {tree}: {done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    if not Path(result["package"]).resolve().is_relative_to(tree.resolve()):
+        raise RuntimeError(f"identify ran {result['package']}, not the tree {tree}")
+    return result
 
 
 def agreement(a: dict, b: dict) -> str:
