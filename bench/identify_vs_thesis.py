@@ -16,7 +16,10 @@ then each method's parameter errors against the truth, on the oracle's data and,
 comparison, on data from the core's own synthetic generator (the Rust plant at a 10× finer
 step), so no accuracy figure rests on identify's own simulator alone.
 
-Usage: ``.venv/bin/python bench/identify_vs_thesis.py [--trials 30] [--duration 10] [--seed S]``
+With ``--effect NAME=SIZE`` the oracle's drops hold one undeclared library effect (the thesis
+method has no term for it; its parameter errors then show what that costs).
+
+Usage: ``.venv/bin/python bench/identify_vs_thesis.py [--trials 30] [--duration 10] [--seed S] [--effect stribeck=0.04]``
 (``--baseline-trials N`` runs the pure-Python baseline on N spread trials only, and then
 prints no speed ratio: a figure on part of the data is not the figure.)
 """
@@ -53,12 +56,16 @@ def main() -> None:
     parser.add_argument("--baseline-trials", type=int, default=None,
                         help="run the pure-Python baseline on this many trials only (no speed ratio then)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--effect", default="", metavar="NAME=SIZE",
+                        help="one undeclared library effect in the oracle's data, e.g. stribeck=0.04 (default: clean)")
     args = parser.parse_args()
+    effect, size = (args.effect.split("=") + ["0"])[:2] if args.effect else ("", "0")
 
     print(f"machine: {os.cpu_count()} cpus, load average at start {_load()}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = oracle.generate(Path(tmp) / "oracle", oracle.OracleSpec(
-            n_trials=args.trials, duration=args.duration, distances=(0.20, 0.25, 0.30, 0.35, 0.40), seed=args.seed))
+            n_trials=args.trials, duration=args.duration, distances=(0.20, 0.25, 0.30, 0.35, 0.40), seed=args.seed,
+            effect=effect, size=float(size)))
         dataset = load_dataset(folder)
         truth = json.loads((folder / "truth.json").read_text())["params"]
         timed = _time_all(dataset, args.baseline_trials)

@@ -281,9 +281,25 @@ def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
     )
 
 
+def explore_linearised(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float,
+                       x0_starts: Sequence[np.ndarray] = ()) -> list[list]:
+    """The first stage of :func:`refit_candidate`: its starts from the linear test (the
+    linearised size and twice it, or the next grid variants of a shape effect), each after
+    :data:`EXPLORE_ITERATIONS` LM iterations; [] when the linear test gave the wrong sign."""
+    sim = sim.with_tau_scale(current.tau_scale)
+    starts: list[tuple[str, dict[str, float]]] = []
+    if evidence.plausible:
+        starts.append(("linearised", evidence.start))
+        if SHAPE_PARAMS.get(evidence.effect, ()):
+            starts += [("linearised (next grid variant)", alt) for alt in evidence.alternatives]
+        else:
+            starts.append(("grown", grown(evidence.start, [evidence.effect])))
+    return _explore(sim, current, evidence, starts, torque_scale, x0_starts)
+
+
 def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float,
                     scales: dict[str, float], done, whole_trials=None, fallbacks: bool = True,
-                    x0_starts: Sequence[np.ndarray] = ()) -> FitResult | None:
+                    x0_starts: Sequence[np.ndarray] = (), explored: list[list] | None = None) -> FitResult | None:
     """Fit the current model plus ``evidence``'s parameters; keep the best of its starts.
 
     Starts: the linearised size (and twice it, or the next-best grid variants for a shape
@@ -294,17 +310,12 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
     parameters still compensating in a wrong basin (a quadratic drag on three long swings
     stopped at 6 mrad that way, against 2 mrad from a start that moved damping into drag).
     ``fallbacks=False`` skips them (another candidate already leaves nothing but noise: this
-    one can at best tie, which its linearised refit shows); None when nothing was refitted."""
+    one can at best tie, which its linearised refit shows); None when nothing was refitted.
+    ``explored``: the result of :func:`explore_linearised` when the caller already ran it."""
     sim = sim.with_tau_scale(current.tau_scale)
     shape = SHAPE_PARAMS.get(evidence.effect, ())
-    starts: list[tuple[str, dict[str, float]]] = []
-    if evidence.plausible:
-        starts.append(("linearised", evidence.start))
-        if shape:
-            starts += [("linearised (next grid variant)", alt) for alt in evidence.alternatives]
-        else:
-            starts.append(("grown", grown(evidence.start, [evidence.effect])))
-    explored = _explore(sim, current, evidence, starts, torque_scale, x0_starts)
+    if explored is None:
+        explored = explore_linearised(sim, current, evidence, torque_scale, x0_starts)
     best, label = _settle(sim, explored, torque_scale, evidence)
     if fallbacks and (best is None or not done(best)):
         fallback = [("fallback", s) for s in fallback_starts(evidence, current, scales)]

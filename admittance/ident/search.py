@@ -64,6 +64,7 @@ from typing import Sequence
 
 import numpy as np
 
+from admittance.ident.candidate_screen import explore_round, judging_order
 from admittance.ident.crossval import Folds, PairedGain, paired_gain, segment
 from admittance.ident.effects import (
     FREED_SHAPES,
@@ -263,10 +264,12 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
         rounds.append(ranking)
         admissible = []
         at_floor: FitResult | None = None  # the first admissible refit that leaves only sensor noise
-        for number, evidence in enumerate(ranking, 1):
+        explored = explore_round(ctx, current.full, ranking)  # judged best first (candidate_screen.py)
+        for number, index in enumerate(judging_order(explored), 1):
+            evidence = ranking[index]
             ctx.say(f"effect search round {len(rounds)}: candidate {number}/{len(ranking)} "
                     f"{evidence.effect} ({evidence.variant})")
-            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor)
+            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor, explored[index])
             if scored is not None:
                 admissible.append((evidence, scored))
                 if at_floor is None and nothing_left(ctx.sim, scored.full, ctx.sensor):
@@ -305,25 +308,28 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
 
 
 def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: bool,
-           at_floor: FitResult | None = None) -> Scored | None:
+           at_floor: FitResult | None = None, explored: list[list] | None = None) -> Scored | None:
     """Refit one candidate and put it through every test; its cross-validated model if it passes.
 
     ``at_floor``: an earlier candidate of the round whose model leaves nothing but sensor noise.
     This one can then at best tie with it: it gets only the starts its linear test suggests,
     and it is not cross-validated when it fits the training data materially worse (by more
-    than a tenth of the noise variance), which would lose it any tie."""
-    refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None)
+    than a tenth of the noise variance), which would lose it any tie. ``explored``: its
+    linearised starts already run (candidate_screen.py)."""
+    refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None, explored=explored)
     if refit is None:
         return _refuse(evidence, "not refitted: its linear test gave the wrong sign, and another candidate "
                                  "already leaves nothing but sensor noise")
     return assess(ctx, current, evidence, refit, stand_ins, at_floor)
 
 
-def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fallbacks: bool = True) -> FitResult | None:
+def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fallbacks: bool = True,
+                 explored: list[list] | None = None) -> FitResult | None:
     """The current model plus ``evidence``'s effect, fitted on all units from its best start."""
     sim = ctx.sim
     refit = refit_candidate(sim, current, evidence, ctx.torque_scale, _scales(ctx, current),
-                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials, fallbacks, ctx.x0_starts)
+                            lambda fit: nothing_left(sim, fit, ctx.sensor), ctx.whole_trials, fallbacks, ctx.x0_starts,
+                            explored)
     if refit is None:
         return None
     return without_weak_optional(sim, current, refit, evidence, ctx.settings.min_sigma, ctx.torque_scale)
