@@ -22,14 +22,14 @@ class _Boundary(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields
     """What crosses to the core: immutable, and every field named at construction."""
 
 
-class RtLimits(_Boundary):
+class RtLimits(_Boundary, frozen=True):
     position_min: float | UnsetType = UNSET  # rad
     position_max: float | UnsetType = UNSET  # rad
     velocity_max: float | UnsetType = UNSET  # rad/s
     acceleration_max: float | UnsetType = UNSET  # rad/s²
 
 
-class RtServo(_Boundary):
+class RtServo(_Boundary, frozen=True):
     """A parameter file's ``[servo]`` (plant::servo::SERVO_PARAM_NAMES): all five, or none."""
 
     time_constant: float  # s
@@ -39,7 +39,7 @@ class RtServo(_Boundary):
     deadband: float  # rad
 
 
-class RtJoint(_Boundary):
+class RtJoint(_Boundary, frozen=True):
     id: int
     model: str | UnsetType = UNSET
     goal_address: int | UnsetType = UNSET
@@ -65,7 +65,7 @@ class RtJoint(_Boundary):
     passivity_damping_max: float | UnsetType = UNSET  # N·m·s/rad
 
 
-class RtFaultPolicy(_Boundary):
+class RtFaultPolicy(_Boundary, frozen=True):
     servo_error: str | UnsetType = UNSET  # "reboot" or "stop"
     torque_off: str | UnsetType = UNSET  # "reenable" or "stop"
     bus_lost_timeout_s: float | UnsetType = UNSET
@@ -76,7 +76,7 @@ class RtFaultPolicy(_Boundary):
     horn_speed_max: float | UnsetType = UNSET  # rad/s
 
 
-class RtLoopConfig(_Boundary):
+class RtLoopConfig(_Boundary, frozen=True):
     port: str  # the Dynamixel bus device
     joints: tuple[RtJoint, ...]
     baudrate: int | UnsetType = UNSET

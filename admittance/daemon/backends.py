@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
 from admittance.daemon.loopconfig import rt_loop_config
-from admittance.daemon.supervisor import Backends, BenchPorts
+from admittance.daemon.supervisor import Backends, BenchPorts, GatedSink
 from admittance.daemon.telemetry import TICKS_PER_REV
 from admittance.errors import DeviceError
 
@@ -214,7 +214,7 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
             bus.set_torque(joint.id, False)
 
 
-def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
+def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a ForceSensor or a NativeForceReader
     from admittance.drivers.force_reader import create_sensor
     from admittance.drivers.native_sensor import NativeForceReader, choose_reader, reader_priority
 
