@@ -146,10 +146,11 @@ __all__ = ["__version__", "build_profile", "PARAM_NAMES", "PARAM_DEFAULTS", "Tri
     "encode_action", "encode_factory_reset", "encode_reboot", "encode_sync_read", "encode_sync_write",
     "encode_bulk_read", "encode_bulk_write", "model_table", "Decoder", "DxlClient", "motor_constants",
     "baud_code", "MockBus", "AdmittanceLoop", "ForceSink", "LOOP_MODES", "FAULT_KINDS", "MAX_CATCH_UP_STEPS",
-    "MAX_JOINT_ID", "split_param_name", "LOOP_DEFAULTS", "STOP_CAUSES", "UNSAFE_HARDWARE_ERRORS",
+    "MAX_JOINT_ID", "split_param_name", "LOOP_DEFAULTS", "LOOP_BOUNDS", "STOP_CAUSES", "UNSAFE_HARDWARE_ERRORS",
     "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader"]
 
 FAULT_KINDS: Final[list[str]]
+LOOP_BOUNDS: Final[dict[str, tuple[float, float]]]  # (low, high) of keys whose limits the loop sets
 LOOP_DEFAULTS: Final[_LoopDefaults]  # the loop's defaults the daemon's configuration shares
 LOOP_MODES: Final[list[str]]
 MAX_CATCH_UP_STEPS: Final[int]

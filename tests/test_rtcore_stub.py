@@ -83,6 +83,18 @@ def test_the_daemon_takes_the_loops_defaults_from_the_core():
     assert set(_rtcore.LOOP_DEFAULTS) <= set(declared) - set(DAEMON_OWN_DEFAULTS)
 
 
+def test_the_daemon_takes_the_fault_policys_bounds_from_the_core():
+    """The bounds the loop itself sets (a fixed ring of recoveries, a glitch check that means
+    something) are read from LOOP_BOUNDS, not restated; the configuration refuses past them."""
+    tree = ast.parse((REPO / "admittance" / "daemon" / "config.py").read_text())
+    keys = {node.target.id: {k.arg: ast.unparse(k.value) for k in node.value.keywords}
+            for node in ast.walk(tree) if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+            and isinstance(node.value, ast.Call) and node.target.id in _rtcore.LOOP_BOUNDS}
+    assert set(keys) == set(_rtcore.LOOP_BOUNDS)
+    for name, keywords in keys.items():
+        assert (keywords["lo"], keywords["hi"]) == (f"LOOP_BOUNDS[{name!r}][0]", f"LOOP_BOUNDS[{name!r}][1]"), name
+
+
 def test_the_daemons_defaults_equal_the_loops():
     from admittance.daemon import config
 

@@ -34,8 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from admittance import data
-# The loop's defaults and ID range are the Rust core's (rt::config, rt::params): one source.
-from admittance._rtcore import LOOP_DEFAULTS, MAX_JOINT_ID
+# The loop's defaults, the fault policy's bounds and the ID range are the Rust core's (rt::config,
+# rt::recovery, rt::params): one source.
+from admittance._rtcore import LOOP_BOUNDS, LOOP_DEFAULTS, MAX_JOINT_ID
 from admittance.daemon import endpoints
 from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
 from admittance.drivers.force_reader import READER_CLASSES
@@ -184,14 +185,16 @@ class FaultsConfig:
                                         "long: stop, exit 75 (systemd restarts the daemon)")
     servo_silent_ms: float = key("float", LOOP_DEFAULTS["servo_silent_ms"], unit="ms", lo=5.0, hi=10_000.0,
                                  doc="a servo that does not answer for this long is silent: its joint holds")
-    max_recoveries: int = key("int", LOOP_DEFAULTS["max_recoveries"], lo=0, hi=16,
+    max_recoveries: int = key("int", LOOP_DEFAULTS["max_recoveries"], lo=LOOP_BOUNDS["max_recoveries"][0],
+                              hi=LOOP_BOUNDS["max_recoveries"][1],
                               doc="reboots and re-enables allowed per servo within recovery_window_s; one more "
                                   "stops (exit 69); 0 = never recover")
     recovery_window_s: float = key("float", LOOP_DEFAULTS["recovery_window_s"], unit="s", lo=1.0, hi=86_400.0,
                                    doc="the window of max_recoveries, and in which a second overload stops")
     check_period_ms: float = key("float", LOOP_DEFAULTS["check_period_ms"], unit="ms", lo=10.0, hi=10_000.0,
                                  doc="one servo's Torque Enable is read this often, in turn (torque found off)")
-    horn_speed_max: float = key("float", LOOP_DEFAULTS["horn_speed_max"], unit="rad/s", lo=1.0, hi=1000.0,
+    horn_speed_max: float = key("float", LOOP_DEFAULTS["horn_speed_max"], unit="rad/s",
+                                lo=LOOP_BOUNDS["horn_speed_max"][0], hi=LOOP_BOUNDS["horn_speed_max"][1],
                                 doc="the fastest a horn can turn: a position read implying more is a glitch, kept "
                                     "out of the model, the goal and the recording until a second read confirms it; "
                                     "the start and every re-anchor need two agreeing reads within the limits")

@@ -656,6 +656,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_JOINT_ID", rt::params::MAX_JOINT_ID)?;
     m.add_function(wrap_pyfunction!(split_param_name, m)?)?;
     m.add("LOOP_DEFAULTS", loop_defaults(m.py())?)?;
+    m.add("LOOP_BOUNDS", loop_bounds(m.py())?)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
@@ -669,6 +670,16 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 #[pyfunction]
 fn split_param_name(name: &str) -> PyResult<(Option<u8>, String)> {
     rt::params::split_name(name).map(|(id, key)| (id, key.to_string())).map_err(PyValueError::new_err)
+}
+
+/// The (low, high) bounds of the fault policy's keys whose limits the loop itself sets (a fixed
+/// ring of recoveries, a glitch check that means something), by the daemon's key names: the
+/// daemon's configuration takes its bounds for them from here.
+fn loop_bounds(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("max_recoveries", (0, rt::recovery::MAX_RECOVERIES_LIMIT))?;
+    d.set_item("horn_speed_max", rt::recovery::HORN_SPEED_MAX_RANGE)?;
+    Ok(d)
 }
 
 /// The loop's own defaults (rt::config, rt::recovery, rt::passivity), by the daemon's key names
