@@ -39,6 +39,8 @@ CASES = [
     ("simulated_bench.py", ["--burners", "0", "--runs", "1", "--duration", "1", "--test-burners", "0", "--tests",
                             "tests/test_mockbus_sdk.py::test_ping_answers_model_311_and_absent_ids_stay_silent"],
      r"^\| this \| 1 \| [1-9]\d* \| \d+ \| \d+ \|"),
+    # One short daemon run per simulated DAQ stream, no burners.
+    ("sensor_stream.py", ["--duration", "2", "--burners", "0"], r"^stale holds per stream: python \d+ in 1 runs, rust \d+ in 1 runs$"),
     ("slcan_reader_cpu.py", ["--window", "1"], r"^slcan / serial CPU: \d+\.\d+x$"),
     ("reader_stalls.py", ["--window", "0.5", "--burners", "0"], r"^switch\+freeze / default: p99 \d+\.\d+, p99\.9 \d+\.\d+"),
     # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.

@@ -99,7 +99,11 @@ def test_dfki_identify_weighs_the_torque_gain_on_two_runs(real_data, tmp_path):
     if gain["accepted"]:
         assert result["effects"] == ["torque_gain"] and gain["crossval"]["folds_supporting"] == 2
     else:
-        assert result["effects"] == [] and "σ from its off value" in gain["reason"]
+        # At the edge either rule may be the one that declines: the significance asked of a
+        # parameter, or the cross-validated gain against its spread over the two folds (1 of 2
+        # improves). Which one moved between numpy/scipy releases without the data changing.
+        assert result["effects"] == []
+        assert "σ from its off value" in gain["reason"] or "within its uncertainty" in gain["reason"], gain["reason"]
     assert tried["time_delay"]["reason"].startswith("not physical") and "motor_inertia" in tried["time_delay"]["reason"]
     assert "σ from its off value" in tried["torque_bias"]["reason"]
 

@@ -29,8 +29,9 @@ PRESS_PEAK = 0.8  # N·m at the top of the press (7.6 N at 0.105 m)
 def simulated_bench(**options: Any) -> MockBench:
     """The bench the wizard rehearses on: one MX-64 with a hanging arm and a still hand, set to
     ROBOTIS's factory 57 600 bit/s. (A pty has no baud rate: the simulated wire keeps 1 Mbit/s
-    timing, the rate the wizard moves the servo to.)"""
-    settings = dict(gravity_torque=GRAVITY_TORQUE, load_inertia=LOAD_INERTIA, profile="still",
+    timing, the rate the wizard moves the servo to.) The simulated person scripts the hand in
+    Python as the wizard asks, so the sensor's stream is Python's."""
+    settings = dict(gravity_torque=GRAVITY_TORQUE, load_inertia=LOAD_INERTIA, profile="still", sensor_stream="python",
                     effects={"angle_offset": HANGING_OFFSET_RAD}, baudrate=1_000_000,
                     servos=[{"id": 1, "registers": {"Baud Rate": FACTORY_BAUD_CODE}}])
     return MockBench(**(settings | options))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
@@ -53,7 +53,7 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
     if cfg.bus.port != MOCK_PORT:
         yield BenchPorts(cfg.bus.port, cfg.sensor.port, lambda: None)
         return
-    bench, hand = _make_bench(cfg)
+    bench, go = _make_bench(cfg)
     bench.start()
     try:
         # The stable links, as udev's by-id paths: a replugged pty comes back under another
@@ -61,7 +61,7 @@ def start_bench(cfg: DaemonConfig) -> Iterator[BenchPorts]:
         links = bench.links
         pty_sensor = links["sensor"] or bench.sensor_port
         sensor_port = pty_sensor or bench.can_channel if cfg.sensor.port == MOCK_PORT else cfg.sensor.port
-        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, hand.go, bench.stats, bench.bus)
+        yield BenchPorts(links["bus"] or bench.bus_port, sensor_port, go, bench.stats, bench.bus)
     finally:
         bench.stop()
 
@@ -88,7 +88,7 @@ class DelayedHand:
         return 0.0 if start is None or t < start else self.profile(t - start)
 
 
-def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
+def _make_bench(cfg: DaemonConfig) -> tuple[Any, Callable[[], None]]:
     """The simulated bench matching the configuration: same IDs, models, plant files and sensor."""
     from admittance.mockbench.bench import BenchConfig, MockBench
 
@@ -101,10 +101,21 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, DelayedHand]:
         sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
         counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
         hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None,
-        rt_priority=cfg.loop.rt_priority))  # the loop's scheduling: the mock is not late where a servo is not
-    hand = DelayedHand(bench.profile, cfg.bench.hand_delay_s)
+        rt_priority=cfg.loop.rt_priority, sensor_stream=b.sensor_stream))  # the loop's scheduling: the mock is not late where a servo is not
+    return bench, _hand_held_until_go(bench, cfg.bench.hand_delay_s)
+
+
+def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
+    """Holds the bench's hand off the joint; the returned ``go`` starts its profile after ``delay``."""
+    from admittance.mockbench.simulated_sensor import NativeOptoForce
+
+    sensor = bench.sensor
+    if isinstance(sensor, NativeOptoForce):  # the stream's own clock, in Rust
+        sensor.hold_hand()
+        return lambda: sensor.start_hand(delay)
+    hand = DelayedHand(bench.profile, delay)
     bench.profile = hand
-    return bench, hand
+    return hand.go
 
 
 PTY_REPLY_SLACK_MS = 200.0

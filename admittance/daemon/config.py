@@ -261,6 +261,9 @@ class BenchConfig:
     hand_delay_s: float = key("float", 0.5, unit="s", lo=0.0, hi=3600.0,
                               doc="the hand starts this long after the loop runs (it keeps off during the tare)")
     noise_std_n: float = key("float", 0.0, unit="N", lo=0.0, hi=10.0, doc="sensor noise of the simulated sensor")
+    sensor_stream: str = key("str", "rust", choices=("rust", "python"),
+                             doc="the embedded bench's OptoForce stream: a Rust thread beside the simulated bus, or "
+                                 "the Python one (a comparison: it waits for the daemon's interpreter)")
     servo_lag_s: float = key("float", 0.0, unit="s", lo=0.0, hi=10.0,
                              doc="0: the BAM-style MX firmware and motor; > 0: a horn that lags its goal by this "
                                  "time constant instead (embedded bench only)")

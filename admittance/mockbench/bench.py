@@ -38,6 +38,7 @@ from admittance.mockbench.hand import Profile, make_profile
 from admittance.mockbench.simulated_sensor import (
     DEFAULT_COUNTS_PER_NEWTON,
     ForceModel,
+    NativeOptoForce,
     SimulatedCanOptoForce,
     SimulatedOptoForce,
     SimulatedSlcanOptoForce,
@@ -45,6 +46,7 @@ from admittance.mockbench.simulated_sensor import (
 
 SENSOR_CORRECTIONS = frozenset({"torque_gain", "torque_bias", "torque_drift"})
 SIMULATED_SENSOR_KINDS = ("optoforce", "can", "slcan")  # slcan: the CAN frames through a simulated USB-CAN adapter on a pty
+SENSOR_STREAMS = ("rust", "python")  # the OptoForce sensor's stream (the CAN ones are Python's)
 # Per-servo keys handed to MockBus unchanged (motor constants of models without built-in ones,
 # start angle, register presets...).
 MOCKBUS_PASSTHROUGH_KEYS = ("kt", "resistance", "input_voltage", "initial_theta", "ambient_temperature", "registers", "name",
@@ -85,6 +87,9 @@ class BenchConfig:
     # The bus thread's SCHED_FIFO priority (0 = SCHED_OTHER; None = MockBus's default, the RT
     # loop's): the simulated servos must not answer late where real ones never would.
     rt_priority: int | None = None
+    # The OptoForce sensor's stream: "rust" (a thread of the simulated bus's crate, at the bus's
+    # priority: never waits for the interpreter) or "python" (any callable profile, scripted live).
+    sensor_stream: str = "rust"
 
 
 def params_path(model: str) -> Path:
@@ -164,7 +169,9 @@ class MockBench:
         self.hand_servo_id = cfg.hand_servo_id if cfg.hand_servo_id is not None else self.servo_ids[0]
         if self.hand_servo_id not in self.servo_ids:
             raise ConfigError(f"the hand pushes on servo {self.hand_servo_id}, which is not on the bus {self.servo_ids}")
-        self.profile: Profile = make_profile(cfg.profile)
+        if cfg.sensor_stream not in SENSOR_STREAMS:
+            raise ConfigError(f"the mock bench's sensor_stream is one of {', '.join(SENSOR_STREAMS)}, not '{cfg.sensor_stream}'")
+        self._profile: Profile = make_profile(cfg.profile)
         self.force_model = ForceModel(
             lever_arm=cfg.lever_arm,
             axis=cfg.axis,
@@ -203,11 +210,25 @@ class MockBench:
                 rate_hz=cfg.sensor_rate_hz,
                 seed=cfg.seed,
             )
+        if cfg.sensor_stream == "rust":
+            return NativeOptoForce(self.bus, self.hand_servo_id, self._profile, self.force_model,
+                                   rate_hz=cfg.sensor_rate_hz, seed=cfg.seed, link=link, rt_priority=cfg.rt_priority)
         return SimulatedOptoForce(self._hand_torque, self.force_model, rate_hz=cfg.sensor_rate_hz, seed=cfg.seed, link=link)
+
+    @property
+    def profile(self) -> Profile:
+        """The hand: read at every sensor sample, so it may be replaced while the bench runs."""
+        return self._profile
+
+    @profile.setter
+    def profile(self, profile: Profile) -> None:
+        if isinstance(self.sensor, NativeOptoForce):
+            self.sensor.set_profile(profile)
+        self._profile = profile
 
     def _hand_torque(self, t: float) -> float:
         """The torque the sensor reads: the profile's, or with a gripping hand what it transmits."""
-        tau = self.profile(t)
+        tau = self._profile(t)
         self.bus.set_external_torque(self.hand_servo_id, tau)
         if self.config.hand is None:
             return tau

@@ -112,6 +112,37 @@ class TabulatedProfile:
         return float(np.interp(t, self.t, self.tau))
 
 
+# A table has at most this many points (the Rust stream's own bound, dxlsim::daq).
+MAX_TABLE_POINTS = 1_000_000
+
+
+def period_of(profile: Profile) -> float | None:
+    """The period after which a built-in profile repeats; None for one that does not."""
+    if isinstance(profile, PushRelease | Ramp):
+        return profile.period + (profile.rest if isinstance(profile, Ramp) else 0.0)
+    if isinstance(profile, Sine):
+        return 1.0 / profile.frequency
+    if isinstance(profile, Steps):
+        return 5 * profile.step
+    return None
+
+
+def tabulate(profile: Profile, step_s: float) -> tuple[list[float], list[float], float | None] | None:
+    """(t, τ, period) that reproduce ``profile`` by linear interpolation at the times a stream
+    samples it (multiples of ``step_s``), for a stream outside Python (dxlsim's simulated DAQ);
+    None for a callable this module did not make (only Python can evaluate it)."""
+    if isinstance(profile, TabulatedProfile):
+        return list(profile.t), list(profile.tau), None
+    if isinstance(profile, Still):
+        return [0.0], [profile.torque], None
+    period = period_of(profile)
+    if period is None:
+        return None
+    n = min(max(math.ceil(period / step_s), 1), MAX_TABLE_POINTS - 1)
+    t = [period * k / n for k in range(n + 1)]
+    return t, [profile(x) for x in t], period
+
+
 BUILTIN_PROFILES: dict[str, type] = {
     "push-release": PushRelease,
     "sine": Sine,

@@ -56,7 +56,7 @@ from admittance.drivers.can_sensor import split_into_can_payloads
 from admittance.drivers.force_reader import AXES, ForceSensor, Sink, counts_per_unit
 from admittance.errors import ConfigError, DeviceError
 from admittance.mockbench import slcan
-from admittance.mockbench.hand import Profile, make_profile
+from admittance.mockbench.hand import Profile, make_profile, tabulate
 
 log = logging.getLogger(__name__)
 
@@ -444,6 +444,84 @@ class SimulatedOptoForce(_PtyOutput, _StreamingSensor):
 
     def stats(self) -> dict[str, Any]:
         return super().stats() | self._port_stats()
+
+
+class NativeOptoForce:
+    """:class:`SimulatedOptoForce`'s behaviour with its stream in a Rust thread (``_rtcore.SimulatedDaq``,
+    dxlsim/src/daq.rs), beside the simulated bus: the bench's default sensor.
+
+    Why: the daemon reads its sensor and runs its loop without the GIL, so a DAQ simulated by a
+    Python thread was the one part of the embedded bench that waited for the interpreter, and a
+    loaded machine's late bursts made the loop hold the joint. The profile must be one
+    :func:`~admittance.mockbench.hand.tabulate` can hand over (the built-ins, a CSV); a hand
+    scripted as any Python callable needs :class:`SimulatedOptoForce`.
+    """
+
+    def __init__(self, bus: Any, hand_servo: int, profile: Profile, model: ForceModel, *, rate_hz: float = 1000.0,
+                 seed: int = 0, link: str | None = None, rt_priority: int | None = None):
+        from admittance import _rtcore
+
+        self._step_s = 1.0 / max(rate_hz, 1000.0)
+        t, tau, period = self._table(profile)
+        priority = {} if rt_priority is None else {"rt_priority": rt_priority}  # None: the bus thread's default
+        self._daq = _rtcore.SimulatedDaq(
+            bus, hand_servo, t, tau, period, model.lever_arm, model.axis_index, list(model.counts_per_newton),
+            bias_n=model.bias_n, noise_std_n=model.noise_std_n, rate_hz=rate_hz, seed=seed, link=link, **priority)
+        self.model = model
+
+    def _table(self, profile: Profile) -> tuple[list[float], list[float], float | None]:
+        table = tabulate(profile, self._step_s)
+        if table is None:
+            raise ConfigError("the Rust-paced simulated sensor takes the built-in or CSV hand profiles; a hand "
+                              "scripted in Python needs the bench's sensor_stream = 'python'")
+        return table
+
+    def set_profile(self, profile: Profile) -> None:
+        """A new hand profile, on the stream's time base (as replacing a Python stream's source)."""
+        self._daq.set_profile(*self._table(profile))
+
+    def hold_hand(self) -> None:
+        self._daq.hold_hand()
+
+    def start_hand(self, delay: float) -> None:
+        self._daq.start_hand(delay)
+
+    port_path = property(lambda self: self._daq.port_path, doc="The pty a host opens now.")
+    link_path = property(lambda self: self._daq.link_path, doc="The stable path to it.")
+    silent = property(lambda self: self._daq.stats()["silent"])
+    saturated = property(lambda self: self._daq.stats()["saturated"])
+    fault_status = property(lambda self: self._daq.stats()["fault_status"])
+    last_torque = property(lambda self: self._daq.stats()["last_torque"])
+
+    def start(self) -> None:
+        self._daq.start()
+
+    def stop(self) -> None:
+        self._daq.close()
+
+    def unplug(self) -> bool:
+        return self._daq.unplug()
+
+    def replug(self) -> bool:
+        return self._daq.replug()
+
+    def silence(self, on: bool = True) -> None:
+        self._daq.silence(bool(on))
+
+    def saturate(self, on: bool = True) -> None:
+        self._daq.saturate(bool(on))
+
+    def set_status(self, bits: int) -> None:
+        self._daq.set_status(bits)
+
+    def inject_garbage(self, n_bytes: int) -> None:
+        self._daq.inject_garbage(n_bytes)
+
+    def corrupt(self, n_frames: int) -> None:
+        self._daq.corrupt(n_frames)
+
+    def stats(self) -> dict[str, Any]:
+        return dict(self._daq.stats())
 
 
 class SimulatedSlcanOptoForce(_PtyOutput, _StreamingSensor):

@@ -17,6 +17,7 @@
 //! Python thread would share the GIL with the very code under test.
 pub mod bus;
 pub mod catalog;
+pub mod daq;
 pub mod direct;
 pub mod firmware;
 pub mod hand;

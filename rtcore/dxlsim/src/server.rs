@@ -278,6 +278,12 @@ impl MockBus {
         Ok(())
     }
 
+    /// The servos' shared state, for another simulated device that acts on them (the bench's
+    /// force sensor: `daq`).
+    pub fn servos(&self) -> Arc<Mutex<Shared>> {
+        self.shared.clone()
+    }
+
     /// An in-process link to these servos for one client (the embedded bench's loop): see `direct`.
     pub fn direct_link(&self) -> DirectLink {
         DirectLink::new(self.port.clone(), self.shared.clone(), self.config)
@@ -330,7 +336,7 @@ impl Drop for MockBus {
 
 /// Points the symlink `link` at `target`, atomically (a new link renamed over the old one), so
 /// a client never finds the path missing while the bus is plugged in.
-fn point_link(link: &Path, target: &str) -> io::Result<()> {
+pub(crate) fn point_link(link: &Path, target: &str) -> io::Result<()> {
     let mut temporary = link.as_os_str().to_owned();
     temporary.push(format!(".{}.new", std::process::id()));
     let temporary = PathBuf::from(temporary);

@@ -145,6 +145,11 @@ impl PyMockBus {
         self.inner.direct_link()
     }
 
+    /// The servos' shared state (the simulated sensor pushes the hand on them).
+    pub(crate) fn servos(&self) -> std::sync::Arc<std::sync::Mutex<dxlsim::server::Shared>> {
+        self.inner.servos()
+    }
+
     fn with_servo<T>(&self, py: Python<'_>, id: u8, f: impl FnOnce(&mut dxlsim::Servo) -> T) -> PyResult<T> {
         let mut shared = self.inner.lock();
         match shared.bus.servo_mut(id) {
@@ -372,7 +377,7 @@ impl PyMockBus {
 
 /// The bus thread's SCHED_FIFO priority unless told otherwise: the RT loop's own default
 /// (`AdmittanceLoop`'s `rt_priority`), so that a loop and a mock built with defaults are equals.
-const DEFAULT_RT_PRIORITY: i64 = ::rt::sched::DEFAULT_PRIORITY as i64;
+pub(crate) const DEFAULT_RT_PRIORITY: i64 = ::rt::sched::DEFAULT_PRIORITY as i64;
 
 /// The motor constants the simulated servos of `model` use: `kt` (N·m/A at the output shaft),
 /// `resistance` (Ω) and `max_pwm` (the duty cap); None for a model without them. The bring-up

@@ -6,11 +6,13 @@
 //! - `servo.rs`: the servo's tracking dynamics (`ServoTrial`, `servo_simulate_batch`, `servo_lead`)
 //! - `dxl.rs`: Dynamixel codec, model table, serial port
 //! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
+//! - `daq.rs`: the mock bench's simulated force sensor, streaming from a Rust thread
 //! - `rt.rs`: the real-time admittance loop
 //! - `sensor.rs`: the Rust force-sensor readers feeding the loop
 //! - `dict_fields.rs`: the configuration-dict rules `dxlsim.rs` and `rt.rs` share
 use pyo3::prelude::*;
 
+mod daq;
 mod dict_fields;
 mod dxl;
 mod dxlsim;
@@ -27,6 +29,7 @@ fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     plant::register(m)?;
     dxl::register(m)?;
     dxlsim::register(m)?;
+    daq::register(m)?;
     rt::register(m)?;
     servo::register(m)?;
     sensor::register(m)?;

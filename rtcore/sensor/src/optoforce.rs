@@ -59,6 +59,9 @@ pub struct Sample {
 pub enum Record {
     Sample(Sample),
     Ack(u8),
+    /// A host's configuration packet (raw codes: `RATE_CODES`, `FILTER_CODES`, zero 255 = tare,
+    /// 0 = clear the tare): what the simulated DAQ answers.
+    Config { speed: u8, filter: u8, zero: u8 },
     Other,
 }
 
@@ -171,7 +174,7 @@ impl Parser {
         match record {
             Record::Sample(_) => self.stats.samples += 1,
             Record::Ack(_) => self.stats.acks += 1,
-            Record::Other => {}
+            Record::Config { .. } | Record::Other => {}
         }
     }
 
@@ -207,7 +210,8 @@ fn decode(kind: Kind, frame: &[u8]) -> Record {
             Record::Sample(Sample { counter: word(4), status: word(6), counts, n })
         }
         Kind::Ack => Record::Ack(frame[4]),
-        Kind::Config | Kind::SerialNumber => Record::Other,
+        Kind::Config => Record::Config { speed: frame[4], filter: frame[5], zero: frame[6] },
+        Kind::SerialNumber => Record::Other,
     }
 }
 
@@ -447,5 +451,12 @@ mod tests {
         // admittance.drivers.optoforce.DaqSettings(1000, 15, True).packet()
         assert_eq!(config_packet(1000, 15.0, true).unwrap(), vec![0xAA, 0x00, 0x32, 0x03, 1, 4, 255, 0x01, 0xE3]);
         assert!(config_packet(500, 0.0, false).is_err());
+    }
+
+    #[test]
+    fn a_config_packet_parses_back_to_its_codes() {
+        let mut p = Parser::default();
+        let packet = config_packet(100, 50.0, false).unwrap();
+        assert_eq!(parse(&mut p, &packet), vec![Record::Config { speed: 10, filter: 3, zero: 0 }]);
     }
 }
