@@ -33,10 +33,10 @@ run: setup
 test: setup test-rust test-stub test-python
 
 # The typed boundary: the stub admittance/_rtcore.pyi against the built extension (every name and
-# signature), and the loop's configuration builder against the stub's types.
+# signature), and the loop's configuration builder and the supervisor against the stub's types.
 test-stub: setup
 	$(BIN)/python -m mypy.stubtest admittance._rtcore
-	$(BIN)/python -m mypy --follow-imports=silent --ignore-missing-imports admittance/daemon/loopconfig.py admittance/loop_config.py
+	$(BIN)/python -m mypy --follow-imports=silent --ignore-missing-imports admittance/daemon/loopconfig.py admittance/loop_config.py admittance/daemon/supervisor.py
 
 test-rust:
 	cargo test --manifest-path $(CARGO_MANIFEST) --workspace --exclude admittance-py

@@ -78,3 +78,36 @@ def test_an_unknown_trigger_is_a_config_error(tmp_path):
                                    "loop": {"trigger": "sometimes"}}))
     with pytest.raises(ConfigError, match=r"loop.*trigger"):
         config.load_config(path)
+
+
+def test_the_typed_configuration_and_its_dict_make_the_same_loop(tmp_path):
+    """The daemon hands the core the typed object (backends.make_loop); the core converts it at
+    that call. Its dict (the benches' and tests' form) builds the very same loop."""
+    from admittance.daemon.loopconfig import rt_loop_config
+
+    cfg = cfg_for(tmp_path, 2, direction=-1)
+    typed = _rtcore.AdmittanceLoop(rt_loop_config(cfg, "/dev/null"))
+    plain = _rtcore.AdmittanceLoop(loop_config(cfg, "/dev/null"))
+    assert typed.params() == plain.params() and typed.stats()["trigger"] == plain.stats()["trigger"]
+
+
+def test_an_unset_field_takes_the_loops_own_default():
+    from admittance.loop_config import RtJoint, RtLoopConfig
+
+    loop = _rtcore.AdmittanceLoop(RtLoopConfig(port="/dev/null", joints=(RtJoint(id=3),)))
+    assert list(loop.ids) == [3]
+    assert loop.params()["3.velocity_max"] == _rtcore.LOOP_DEFAULTS["velocity_max"]
+    assert loop.params()["ramp_time_s"] == _rtcore.LOOP_DEFAULTS["ramp_time_s"]
+
+
+def test_the_typed_configuration_is_frozen_and_names_its_fields(tmp_path):
+    from admittance.daemon.loopconfig import rt_loop_config
+    from admittance.loop_config import RtJoint
+
+    built = rt_loop_config(cfg_for(tmp_path, 2), "/dev/null")
+    with pytest.raises(AttributeError):
+        built.rate_hz = 1.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        RtJoint(id=1, velocity_max=6.0)  # type: ignore[call-arg]  # a limit, not a joint key
+    with pytest.raises(ConfigError, match="expected a LoopConfig or a dict"):
+        _rtcore.AdmittanceLoop([("port", "/dev/null")])  # type: ignore[arg-type]

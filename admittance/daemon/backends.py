@@ -12,13 +12,16 @@ import contextlib
 import os
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from admittance.daemon.config import MOCK_PORT, DaemonConfig
-from admittance.daemon.loopconfig import loop_config
-from admittance.daemon.supervisor import Backends, BenchPorts
+from admittance.daemon.loopconfig import rt_loop_config
+from admittance.daemon.supervisor import Backends, BenchPorts, GatedSink
 from admittance.daemon.telemetry import TICKS_PER_REV
 from admittance.errors import DeviceError
+
+if TYPE_CHECKING:
+    from admittance._rtcore import AdmittanceLoop
 
 
 def real_backends() -> Backends:
@@ -222,7 +225,7 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
             bus.set_torque(joint.id, False)
 
 
-def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
+def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a ForceSensor or a NativeForceReader
     from admittance.drivers.force_reader import create_sensor
     from admittance.drivers.native_sensor import NativeForceReader, choose_reader, reader_priority
 
@@ -239,10 +242,10 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: Any) -> Any:
     return create_sensor(section, sink)
 
 
-def make_loop(cfg: DaemonConfig, bus_port: str) -> Any:
+def make_loop(cfg: DaemonConfig, bus_port: str) -> AdmittanceLoop:
     from admittance import _rtcore
 
     try:
-        return _rtcore.AdmittanceLoop(loop_config(cfg, bus_port))
+        return _rtcore.AdmittanceLoop(rt_loop_config(cfg, bus_port))
     except (ValueError, TypeError) as exc:  # the loop's own check of its configuration
         raise DeviceError(f"RT loop: {exc}") from None

@@ -34,8 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from admittance import data
-# The loop's defaults and ID range are the Rust core's (rt::config, rt::params): one source.
-from admittance._rtcore import LOOP_DEFAULTS, MAX_JOINT_ID
+# The loop's defaults, the fault policy's bounds and the ID range are the Rust core's (rt::config,
+# rt::recovery, rt::params): one source.
+from admittance._rtcore import LOOP_BOUNDS, LOOP_DEFAULTS, MAX_JOINT_ID
 from admittance.daemon import endpoints
 from admittance.daemon.schema import build, check_value, clip, did_you_mean, key, shown
 from admittance.drivers.force_reader import READER_CLASSES
@@ -51,6 +52,8 @@ _KEY_CHUNK = re.compile(r"^[^*$?#/]+$")
 # mode (set up by the servo checks) takes goals of one turn.
 TICKS_PER_REV = 4096
 GOAL_TICKS = (0, TICKS_PER_REV - 1)
+# [loop].rt_priority's default: the daemon asks for more than a bare loop (LOOP_DEFAULTS has none).
+DAEMON_RT_PRIORITY = 80
 # The default position limits: a turn, clipped to what the joint's goal range reaches.
 DEFAULT_POSITION_LIMIT = 3.1  # rad
 
@@ -59,7 +62,7 @@ DEFAULT_POSITION_LIMIT = 3.1  # rad
 class BusConfig:
     port: str = key("str", doc='serial device, or "mock" for the embedded simulated bench')
     baudrate: int = key("int", LOOP_DEFAULTS["baudrate"], unit="bit/s", lo=9600, hi=10_500_000, doc="bus baud rate")
-    protocol: int = key("int", 2, choices=(1, 2), doc="Dynamixel protocol")
+    protocol: int = key("int", LOOP_DEFAULTS["protocol"], choices=(1, 2), doc="Dynamixel protocol")
     read: str = key("str", "auto", choices=("auto", "fast", "sync"),
                     doc="how the loop reads the present positions: Fast Sync Read (one reply for all servos; "
                         "Protocol 2.0), Sync Read, or auto: fast where every joint's model has it and the "
@@ -104,13 +107,13 @@ class JointConfig:
                                            doc="weight of the servo compensation: 1 = on, 0 = off; "
                                                "default 1 when `params` has a [servo] model, else 0")
     # The passivity guard (docs/fidelity.md, "The passivity guard"; rtcore/rt/src/passivity.rs).
-    passivity_guard: float = key("float", 1.0, choices=(0.0, 1.0), live=True,
+    passivity_guard: float = key("float", LOOP_DEFAULTS["passivity_guard"], choices=(0.0, 1.0), live=True,
                                doc="passivity guard: 1 = on (a damping added while the joint generates energy "
                                    "beyond passivity_margin), 0 = off (observed only)")
-    passivity_margin: float = key("float", 0.002, unit="J", lo=1e-5, hi=10.0, live=True,
+    passivity_margin: float = key("float", LOOP_DEFAULTS["passivity_margin"], unit="J", lo=1e-5, hi=10.0, live=True,
                                   doc="energy the joint may give the hand beyond what the hand put in before "
                                       "the guard acts")
-    passivity_damping_max: float = key("float", 1.0, unit="N·m·s/rad", lo=0.0, lo_open=True, hi=100.0, live=True,
+    passivity_damping_max: float = key("float", LOOP_DEFAULTS["passivity_damping_max"], unit="N·m·s/rad", lo=0.0, lo_open=True, hi=100.0, live=True,
                                        doc="the most damping the passivity guard adds")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")
     # Filled by resolve(): the parsed limits and the loaded parameter file.
@@ -130,14 +133,14 @@ class SensorConfig:
     bitrate: int = key("int", 1_000_000, unit="bit/s", lo=10_000, hi=8_000_000, doc="CAN bit rate (can only)")
     counts_per_newton: list = key("float_list", [451.89, 451.89, 451.89], unit="count/N", lo=0.0, lo_open=True,
                                   doc="OptoForce scale per axis")
-    axis: str = key("str", "x", choices=AXES, doc="force axis that drives the joints")
+    axis: str = key("str", LOOP_DEFAULTS["axis"], choices=AXES, doc="force axis that drives the joints")
     lever_arm: float = key("float", unit="m", lo=-2.0, hi=2.0, min_abs=1e-3,
                            doc="torque = force × lever_arm (negative flips the direction)")
     deadband: float = key("float", LOOP_DEFAULTS["deadband"], unit="N", lo=0.0, hi=100.0, live=True,
                           doc="half-width of the smooth dead zone on the force")
     lowpass_hz: float = key("float", LOOP_DEFAULTS["lowpass_hz"], unit="Hz", lo=0.0, hi=2000.0, live=True,
                             doc="first-order low-pass on the torque; 0 = off")
-    bias: list = key("float_list", [0.0] * 6, unit="N, N·m", lo=-2000.0, hi=2000.0, length=6, live=True,
+    bias: list = key("float_list", LOOP_DEFAULTS["bias"], unit="N, N·m", lo=-2000.0, hi=2000.0, length=6, live=True,
                      doc="offset the loop subtracts (fx fy fz tx ty tz) after the start-up tare")
     tare_samples: int = key("int", 100, lo=0, hi=100_000, doc="samples averaged at start as the zero; 0 = no tare")
     saturation: str = key("str", "hold", choices=("hold", "pass"),
@@ -150,16 +153,18 @@ class SensorConfig:
 @dataclass(frozen=True, kw_only=True)
 class LoopConfig:
     rate_hz: float = key("float", LOOP_DEFAULTS["rate_hz"], unit="Hz", lo=10.0, hi=4000.0, doc="control rate")
-    rt_priority: int = key("int", 80, lo=0, hi=99, doc="SCHED_FIFO priority asked for; 0 = stay SCHED_OTHER")
-    lock_memory: bool = key("bool", True, doc="mlockall the process (falls back, and reports, when refused)")
+    # The daemon's own choice, above the bare loop's 50 (docs/realtime.md): its one default for a
+    # key the loop also reads that is not the loop's (tests/test_rtcore_stub.py names it).
+    rt_priority: int = key("int", DAEMON_RT_PRIORITY, lo=0, hi=99, doc="SCHED_FIFO priority asked for; 0 = stay SCHED_OTHER")
+    lock_memory: bool = key("bool", LOOP_DEFAULTS["lock_memory"], doc="mlockall the process (falls back, and reports, when refused)")
     sync_read_divisor: int = key("int", LOOP_DEFAULTS["sync_read_divisor"], lo=0, hi=10_000, doc="read present positions every N cycles; 0 = never")
     stale_timeout_ms: float = key("float", LOOP_DEFAULTS["stale_timeout_ms"], unit="ms", lo=0.0, lo_open=True, hi=500.0, live=True,
                                   doc="no force sample for this long: hold position")
     ramp_time_s: float = key("float", LOOP_DEFAULTS["ramp_time_s"], unit="s", lo=0.0, hi=10.0, live=True,
                              doc="a live parameter change blends in over this time (no jump)")
-    trigger: str = key("str", "sample", choices=("sample", "schedule"),
+    trigger: str = key("str", LOOP_DEFAULTS["trigger"], choices=("sample", "schedule"),
                        doc="what starts a cycle: a force sample's arrival in the period's window, or the fixed schedule")
-    phase_lock: bool = key("bool", True, doc="with trigger = sample: move the cycle grid (≤ period/500 per cycle) "
+    phase_lock: bool = key("bool", LOOP_DEFAULTS["phase_lock"], doc="with trigger = sample: move the cycle grid (≤ period/500 per cycle) "
                                              "so a sensor at the loop's rate arrives mid-window")
 
 
@@ -172,26 +177,28 @@ class StopConfig:
 class FaultsConfig:
     """What the daemon does about servo, bus and sensor faults (docs/faults.md has the table)."""
 
-    servo_error: str = key("str", "reboot", choices=("reboot", "stop"),
+    servo_error: str = key("str", LOOP_DEFAULTS["servo_error"], choices=("reboot", "stop"),
                            doc="a servo that shut down on a hardware error: reboot it where safe (not overheating, "
                                "encoder or electrical shock; not a second overload in the window) and turn torque "
                                "on again at its present position, or stop (exit 69)")
-    torque_off: str = key("str", "reenable", choices=("reenable", "stop"),
+    torque_off: str = key("str", LOOP_DEFAULTS["torque_off"], choices=("reenable", "stop"),
                           doc="a servo found with torque off and no error (a brown-out): torque on again at its "
                               "present position, or stop (exit 69)")
-    bus_lost_timeout_s: float = key("float", 5.0, unit="s", lo=0.1, hi=600.0,
+    bus_lost_timeout_s: float = key("float", LOOP_DEFAULTS["bus_lost_timeout_s"], unit="s", lo=0.1, hi=600.0,
                                     doc="the bus's port failed (unplugged), or a servo does not answer, for this "
                                         "long: stop, exit 75 (systemd restarts the daemon)")
-    servo_silent_ms: float = key("float", 100.0, unit="ms", lo=5.0, hi=10_000.0,
+    servo_silent_ms: float = key("float", LOOP_DEFAULTS["servo_silent_ms"], unit="ms", lo=5.0, hi=10_000.0,
                                  doc="a servo that does not answer for this long is silent: its joint holds")
-    max_recoveries: int = key("int", LOOP_DEFAULTS["max_recoveries"], lo=0, hi=16,
+    max_recoveries: int = key("int", LOOP_DEFAULTS["max_recoveries"], lo=LOOP_BOUNDS["max_recoveries"][0],
+                              hi=LOOP_BOUNDS["max_recoveries"][1],
                               doc="reboots and re-enables allowed per servo within recovery_window_s; one more "
                                   "stops (exit 69); 0 = never recover")
-    recovery_window_s: float = key("float", 60.0, unit="s", lo=1.0, hi=86_400.0,
+    recovery_window_s: float = key("float", LOOP_DEFAULTS["recovery_window_s"], unit="s", lo=1.0, hi=86_400.0,
                                    doc="the window of max_recoveries, and in which a second overload stops")
-    check_period_ms: float = key("float", 100.0, unit="ms", lo=10.0, hi=10_000.0,
+    check_period_ms: float = key("float", LOOP_DEFAULTS["check_period_ms"], unit="ms", lo=10.0, hi=10_000.0,
                                  doc="one servo's Torque Enable is read this often, in turn (torque found off)")
-    horn_speed_max: float = key("float", LOOP_DEFAULTS["horn_speed_max"], unit="rad/s", lo=1.0, hi=1000.0,
+    horn_speed_max: float = key("float", LOOP_DEFAULTS["horn_speed_max"], unit="rad/s",
+                                lo=LOOP_BOUNDS["horn_speed_max"][0], hi=LOOP_BOUNDS["horn_speed_max"][1],
                                 doc="the fastest a horn can turn: a position read implying more is a glitch, kept "
                                     "out of the model, the goal and the recording until a second read confirms it; "
                                     "the start and every re-anchor need two agreeing reads within the limits")

@@ -1,5 +1,5 @@
-"""The RT loop's configuration (docs/realtime.md; typed: ``admittance.loop_config``), built from a
-validated daemon config.
+"""The RT loop's configuration (docs/realtime.md), built from a validated daemon config as the
+typed object the Rust core takes (``admittance.loop_config.RtLoopConfig``).
 
 The daemon's TOML speaks the user's language (a model name, a lever arm, limits in rad); the
 loop wants register addresses and tick ranges. The addresses come from the one model table
@@ -10,9 +10,13 @@ limits lie within what that range reaches from the joint's zero tick (config.py 
 
 from __future__ import annotations
 
+from typing import Any
+
+import msgspec
+
 from admittance.daemon.config import GOAL_TICKS, TICKS_PER_REV, DaemonConfig, JointConfig
 from admittance.errors import ConfigError
-from admittance.loop_config import FaultPolicyDict, JointDict, LoopConfigDict
+from admittance.loop_config import RtFaultPolicy, RtJoint, RtLimits, RtLoopConfig, RtServo
 
 GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Torque Enable"
 # The loop's first read of the present positions. The servos answered the setup checks a
@@ -21,40 +25,47 @@ GOAL_ITEM, PRESENT_ITEM, TORQUE_ITEM = "Goal Position", "Present Position", "Tor
 START_TIMEOUT_MS = 2000.0
 
 
-def loop_config(cfg: DaemonConfig, bus_port: str) -> LoopConfigDict:
+def rt_loop_config(cfg: DaemonConfig, bus_port: str) -> RtLoopConfig:
+    """What ``_rtcore.AdmittanceLoop`` takes (backends.make_loop)."""
     s, lp = cfg.sensor, cfg.loop
-    return {
-        "port": bus_port,
-        "baudrate": cfg.bus.baudrate,
-        "protocol": cfg.bus.protocol,
-        "bus_read": cfg.bus.read,
-        "rate_hz": lp.rate_hz,
-        "rt_priority": lp.rt_priority,
-        "lock_memory": lp.lock_memory,
-        "sync_read_divisor": lp.sync_read_divisor,
-        "start_timeout_ms": START_TIMEOUT_MS,
-        "deadband": s.deadband,
-        "lowpass_hz": s.lowpass_hz,
-        "stale_timeout_ms": lp.stale_timeout_ms,
-        "ramp_time_s": lp.ramp_time_s,
-        "trigger": lp.trigger,
-        "phase_lock": lp.phase_lock,
-        "bias": list(s.bias),
-        "joints": [joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints],
-        "faults": fault_policy(cfg),
-    }
+    return RtLoopConfig(
+        port=bus_port,
+        baudrate=cfg.bus.baudrate,
+        protocol=cfg.bus.protocol,
+        bus_read=cfg.bus.read,
+        rate_hz=lp.rate_hz,
+        rt_priority=lp.rt_priority,
+        lock_memory=lp.lock_memory,
+        sync_read_divisor=lp.sync_read_divisor,
+        start_timeout_ms=START_TIMEOUT_MS,
+        deadband=s.deadband,
+        lowpass_hz=s.lowpass_hz,
+        stale_timeout_ms=lp.stale_timeout_ms,
+        ramp_time_s=lp.ramp_time_s,
+        trigger=lp.trigger,
+        phase_lock=lp.phase_lock,
+        bias=tuple(float(b) for b in s.bias),
+        joints=tuple(joint_entry(j, cfg.bus.protocol, s.axis) for j in cfg.joints),
+        faults=fault_policy(cfg),
+    )
 
 
-def fault_policy(cfg: DaemonConfig) -> FaultPolicyDict:
+def loop_config(cfg: DaemonConfig, bus_port: str) -> dict[str, Any]:
+    """The same as the plain keys the core reads from it (its unset fields left out)."""
+    built: dict[str, Any] = msgspec.to_builtins(rt_loop_config(cfg, bus_port))
+    return built
+
+
+def fault_policy(cfg: DaemonConfig) -> RtFaultPolicy:
     """The loop's part of [faults] (the sensor's timeout is the supervisor's)."""
     f = cfg.faults
-    return {"servo_error": f.servo_error, "torque_off": f.torque_off, "bus_lost_timeout_s": f.bus_lost_timeout_s,
-            "servo_silent_ms": f.servo_silent_ms, "max_recoveries": f.max_recoveries,
-            "recovery_window_s": f.recovery_window_s, "check_period_ms": f.check_period_ms,
-            "horn_speed_max": f.horn_speed_max}
+    return RtFaultPolicy(servo_error=f.servo_error, torque_off=f.torque_off, bus_lost_timeout_s=f.bus_lost_timeout_s,
+                         servo_silent_ms=f.servo_silent_ms, max_recoveries=f.max_recoveries,
+                         recovery_window_s=f.recovery_window_s, check_period_ms=f.check_period_ms,
+                         horn_speed_max=f.horn_speed_max)
 
 
-def joint_entry(joint: JointConfig, protocol: int, axis: str) -> JointDict:
+def joint_entry(joint: JointConfig, protocol: int, axis: str) -> RtJoint:
     from admittance.drivers.control_table import table_for_name
 
     table = table_for_name(joint.model, protocol)
@@ -68,32 +79,33 @@ def joint_entry(joint: JointConfig, protocol: int, axis: str) -> JointDict:
     limits, plant = joint.resolved_limits, joint.plant
     if limits is None or plant is None:  # a JointConfig not through config.resolve
         raise ConfigError(f"[joints.{joint.id}]: its limits and parameter file are not resolved")
-    return {
-        "id": joint.id,
-        "model": table.name,
-        "goal_address": goal.address, "goal_size": goal.size,
-        "present_address": present.address, "present_size": present.size,
-        "torque_enable_address": torque.address,
-        "zero_tick": joint.zero_tick, "direction": joint.direction, "ticks_per_rev": float(TICKS_PER_REV),
-        "tick_min": tick_min, "tick_max": tick_max,
-        "axis": axis,
-        "virtual_inertia": _resolved(joint, "virtual_inertia"),
-        "virtual_damping": _resolved(joint, "virtual_damping"),
-        "virtual_coulomb": _resolved(joint, "virtual_coulomb"),
-        "lever_arm": _resolved(joint, "lever_arm"),
-        "servo": plant.get("servo"),
-        "servo_compensation": _resolved(joint, "servo_compensation"),
-        "passivity_guard": joint.passivity_guard,
-        "passivity_margin": joint.passivity_margin,
-        "passivity_damping_max": joint.passivity_damping_max,
-        "limits": {
+    servo = plant.get("servo")  # validated by formats.paramfile: the five names, finite
+    return RtJoint(
+        id=joint.id,
+        model=table.name,
+        goal_address=goal.address, goal_size=goal.size,
+        present_address=present.address, present_size=present.size,
+        torque_enable_address=torque.address,
+        zero_tick=joint.zero_tick, direction=joint.direction, ticks_per_rev=float(TICKS_PER_REV),
+        tick_min=tick_min, tick_max=tick_max,
+        axis=axis,
+        virtual_inertia=_resolved(joint, "virtual_inertia"),
+        virtual_damping=_resolved(joint, "virtual_damping"),
+        virtual_coulomb=_resolved(joint, "virtual_coulomb"),
+        lever_arm=_resolved(joint, "lever_arm"),
+        servo=None if servo is None else RtServo(**servo),
+        servo_compensation=_resolved(joint, "servo_compensation"),
+        passivity_guard=joint.passivity_guard,
+        passivity_margin=joint.passivity_margin,
+        passivity_damping_max=joint.passivity_damping_max,
+        limits=RtLimits(
             # Within what the tick range reaches: the configuration checked (or clipped) them.
-            "position_min": _resolved(limits, "position_min", joint.id),
-            "position_max": _resolved(limits, "position_max", joint.id),
-            "velocity_max": limits.velocity_max,
-            "acceleration_max": limits.acceleration_max,
-        },
-    }
+            position_min=_resolved(limits, "position_min", joint.id),
+            position_max=_resolved(limits, "position_max", joint.id),
+            velocity_max=limits.velocity_max,
+            acceleration_max=limits.acceleration_max,
+        ),
+    )
 
 
 def _resolved(table: object, name: str, joint_id: int | None = None) -> float:

@@ -49,9 +49,11 @@ import contextlib
 import json
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from admittance.daemon import endpoints, interpreter, telemetry
@@ -70,7 +72,8 @@ from admittance.errors import EXIT_TEMPFAIL, AdmittanceError, DeviceError, Fault
 from admittance.logs import RateLimitedLog
 
 if TYPE_CHECKING:
-    from admittance._rtcore import AdmittanceLoop, MockBus
+    from admittance._rtcore import AdmittanceLoop, ForceSink, MockBus
+    from admittance.daemon.messages import State
     from admittance.daemon.zenoh_iface import DaemonInterface
     from admittance.drivers.force_reader import ForceSensor
 
@@ -113,14 +116,14 @@ class BenchPorts(NamedTuple):
 class Backends:
     """Factories for the other parts of the project (the real ones are in admittance.daemon.backends)."""
 
-    start_bench: Callable[[DaemonConfig], Any]  # -> context manager of BenchPorts (or a tuple of its fields)
+    start_bench: Callable[[DaemonConfig], AbstractContextManager[BenchPorts]]
     check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
-    make_sensor: Callable[[DaemonConfig, str, Any], ForceSensor]  # (cfg, port, sink)
+    make_sensor: Callable[[DaemonConfig, str, GatedSink], ForceSensor]  # (cfg, port, sink)
     make_loop: Callable[[DaemonConfig, str], AdmittanceLoop]  # (cfg, bus_port)
     make_interface: Callable[..., DaemonInterface] | None  # (zenoh cfg, codec, handler)
     # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
-    claim_devices: Callable[[DaemonConfig], Any] = lambda cfg: contextlib.nullcontext()
+    claim_devices: Callable[[DaemonConfig], AbstractContextManager[object]] = lambda cfg: contextlib.nullcontext()
 
 
 class GatedSink:
@@ -130,9 +133,9 @@ class GatedSink:
     must only see tared samples taken after it started.
     """
 
-    def __init__(self, target: Any) -> None:
+    def __init__(self, target: ForceSink) -> None:
         self._target = target
-        self._push = None
+        self._push: Callable[[int, Sequence[float]], bool] | None = None
         self._on_open: list[Callable[[], None]] = []
         self.dropped_before_open = 0
 
@@ -141,7 +144,7 @@ class GatedSink:
         for opened in self._on_open:
             opened()
 
-    def native_target(self) -> Any:
+    def native_target(self) -> ForceSink:
         """The loop's own sink, for a Rust reader that pushes past Python; it keeps its own
         gate and opens it with this one (``on_open``)."""
         return self._target
@@ -149,7 +152,7 @@ class GatedSink:
     def on_open(self, opened: Callable[[], None]) -> None:
         self._on_open.append(opened)
 
-    def push(self, t_ns: int, forces) -> bool:
+    def push(self, t_ns: int, forces: Sequence[float]) -> bool:
         push = self._push
         if push is None:
             self.dropped_before_open += 1
@@ -204,8 +207,20 @@ class Supervisor:
         self._write_stats()
         return 0
 
-    def request_stop(self, signum: int | None = None, _frame: Any = None) -> None:
+    def request_stop(self, signum: int | None = None, _frame: FrameType | None = None) -> None:
         self.stop_event.set(signum)
+
+    def _made_loop(self) -> AdmittanceLoop:
+        """The RT loop, which ``_start`` makes before any step that uses it."""
+        if self.loop is None:
+            raise RuntimeError("the RT loop is not made yet")
+        return self.loop
+
+    def _opened_sensor(self) -> ForceSensor:
+        """The force sensor, which ``_start`` opens before any step that uses it."""
+        if self.sensor is None:
+            raise RuntimeError("the force sensor is not open yet")
+        return self.sensor
 
     def _note_unexpected_signal(self) -> None:
         """A stop by SIGHUP or SIGUSR1/2 is clean, but nobody asked for it: exit 75, so that
@@ -220,6 +235,7 @@ class Supervisor:
     def _start(self, stack: contextlib.ExitStack) -> None:
         self._step("starting: devices")
         stack.enter_context(self.backends.claim_devices(self.cfg))  # before any device is opened
+        # BenchPorts(*...): a fake bench (tests, bench/loop_timing.py) may yield its first fields as a tuple.
         ports = BenchPorts(*stack.enter_context(self.backends.start_bench(self.cfg)))
         bus_port, sensor_port, start_hand = ports.bus, ports.sensor, ports.start_hand
         self._bench_stats, self._simulated_bus = ports.stats, ports.simulated_bus
@@ -276,12 +292,12 @@ class Supervisor:
         self._t0 = time.monotonic()  # the recording's t = 0: the loop's first cycle follows
         if self.recorder is not None:
             self.recorder.t0 = self._t0
-            self._record(lambda recorder: recorder.set_targets(self.loop.params()))  # what the first segment runs
+            self._record(lambda recorder: recorder.set_targets(self._made_loop().params()))  # what the first segment runs
         try:
             if self._simulated_bus is not None:
-                self.loop.start(simulated_bus=self._simulated_bus)
+                self._made_loop().start(simulated_bus=self._simulated_bus)
             else:
-                self.loop.start()
+                self._made_loop().start()
         except (OSError, RuntimeError, ValueError) as exc:  # the port, the servos' first read, threads
             raise DeviceError(f"RT loop: cannot start on {bus_port}: {exc}") from None
         stack.callback(self._stop_loop)
@@ -293,7 +309,7 @@ class Supervisor:
             return
         # The daemon does not set the DAQ's rate, so the sensor may stream as slowly as 30 Hz
         # (OptoForce's slower settings); a start-up tare is not time-critical, so wait for that.
-        result = self.sensor.tare(n, timeout=max(5.0, n / TARE_MIN_RATE_HZ))
+        result = self._opened_sensor().tare(n, timeout=max(5.0, n / TARE_MIN_RATE_HZ))
         if not result.accepted:
             raise DeviceError(f"sensor: tare refused: {result.reason}")
 
@@ -309,7 +325,7 @@ class Supervisor:
                                  gap_s=gap_seconds(lp.rate_hz, lp.sync_read_divisor), period_s=1.0 / lp.rate_hz)
         stack.callback(self._record, lambda recorder: recorder.close())
 
-    def _record(self, write: Callable[[Recorder], Any]) -> None:
+    def _record(self, write: Callable[[Recorder], object]) -> None:
         """One write to the CSV recording. A write that fails (a full disk) stops the recording
         with one line; what was written stays readable, and the loop runs on."""
         if self.recorder is None or self.recorder.stopped:
@@ -366,14 +382,14 @@ class Supervisor:
     def _stop(self) -> None:
         self.notifier.stopping(f"stopping: {self.cfg.stop.torque_policy}")
         self._drain()
-        self.final_stats = self.loop.stats()
+        self.final_stats = self._made_loop().stats()
         try:
-            self.loop.stop(torque_policy=self.cfg.stop.torque_policy)
+            self._made_loop().stop(torque_policy=self.cfg.stop.torque_policy)
         except DeviceError as exc:
             if self.fault_stop is None:
                 raise
             self._event(f"{exc} (the fault's stop goes on)")  # a torque off the lost bus cannot carry
-        self.final_stats = self.loop.stats() or self.final_stats  # final counts, if still reported
+        self.final_stats = self._made_loop().stats() or self.final_stats  # final counts, if still reported
         self._drain()
         self.final_stats = {**self.final_stats, "rendering_rms": self.rendering.by_joint(),
                             "bench": self.bench_report()}
@@ -382,12 +398,13 @@ class Supervisor:
     def bench_report(self) -> dict[str, Any]:
         """The stats' ``bench``: whether the bus and the sensor are simulated and, on the simulated
         bench, its own counters (the bus thread's lateness and scheduling, the sensor's)."""
-        simulated = self._bench_stats is not None
+        bench_stats = self._bench_stats
+        simulated = bench_stats is not None
         report: dict[str, Any] = {"simulated": simulated,
                                   "simulated_sensor": simulated or self.cfg.sensor.kind == "mock"}
-        if simulated:
+        if bench_stats is not None:
             try:
-                report.update(self._bench_stats())
+                report.update(bench_stats())
             except Exception as exc:  # the bench's counters must not cost the run its stats
                 report["error"] = clip(f"{type(exc).__name__}: {exc}", 200)
         return report
@@ -418,7 +435,8 @@ class Supervisor:
             self.stop_event.wait(max(wait, 0.0))
 
     def _tick(self) -> None:
-        self.watchdog.poll()
+        if self.watchdog is not None:  # made by _start, before the first tick
+            self.watchdog.poll()
         latest = self._drain()
         if self.interface is not None:
             if latest is not None:
@@ -430,16 +448,16 @@ class Supervisor:
 
     def _watch_faults(self) -> None:
         """Tell the faults since the last look, mark the sensor's, judge health and the stop."""
-        stats, sensor = self.loop.stats(), self.sensor.stats()
+        stats, sensor = self._made_loop().stats(), self._opened_sensor().stats()
         stop = self.faults.poll(stats, sensor, self.loop)
         self._healthy = self.faults.health(stats, sensor, self.loop)
         if stop is not None:
             self.fault_stop = stop
             self._event(f"stopping on a fault: {stop} (exit {stop.exit_code})")
 
-    def _drain(self):
+    def _drain(self) -> State | None:
         """Drain the loop's telemetry into the recorder; return the latest State message."""
-        records = self.loop.drain_telemetry()
+        records = self._made_loop().drain_telemetry()
         if len(records) == 0:
             return None
         self.rendering.update(records)
@@ -450,13 +468,13 @@ class Supervisor:
         return telemetry.latest_state(records, self.cfg, self.rendering)
 
     def _publish_stats(self) -> None:
-        for warning in self.loop.warnings():
+        for warning in self._made_loop().warnings():
             self._warn(warning, source="loop")
         for warning in self._bench_warnings():
             self._warn(warning, source="bench")
-        if not self.loop.running():
+        if not self._made_loop().running():
             raise DeviceError("the RT loop thread ended on its own (see the warnings above); stopping")
-        stats = {**self.loop.stats(), "rendering_rms": self.rendering.by_joint()}
+        stats = {**self._made_loop().stats(), "rendering_rms": self.rendering.by_joint()}
         self._step(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                    f"{stats['sensor_stale_events']} {NAMES['sensor_stale_events']}")
         if self.interface is not None:
@@ -486,27 +504,27 @@ class Supervisor:
     # -- the Zenoh handler: parameters and tare (called from the main thread's poll) ---------
 
     def get_params(self) -> dict[str, float | list[float]]:
-        return telemetry.params_values(self.loop.params())
+        return telemetry.params_values(self._made_loop().params())
 
-    def set_params(self, request: dict[str, Any]) -> tuple[bool, str]:
+    def set_params(self, request: dict[str, object]) -> tuple[bool, str]:
         """Check a live set as the configuration would be checked (liveparams), then hand it to
         the loop, whose own gate checks it again; all or nothing."""
         try:
             request = self.live.check(request, self.get_params())
         except AdmittanceError as exc:
             return False, str(exc)
-        accepted, reason = self.loop.set_params(request)
+        accepted, reason = self._made_loop().set_params(request)
         if accepted:
             who = getattr(self.interface, "requester", None)  # set while a Zenoh query is answered
             self._params_log("params", f"params set{' by ' + who if who else ''}: "
                                        f"{clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
-            self._record(lambda recorder: recorder.set_targets(self.loop.params()))
+            self._record(lambda recorder: recorder.set_targets(self._made_loop().params()))
             self.ecosystem.record("params", self.get_params(), request)
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
-        self.loop.tare(samples)
+        self._made_loop().tare(samples)
         log.info("tare requested over the next %d samples", samples)
         self.ecosystem.record("event", f"tare over the next {samples} samples")
         return True, ""
@@ -514,7 +532,7 @@ class Supervisor:
     # -- exit ----------------------------------------------------------------------------------
 
     def _status_line(self, stats: dict[str, Any] | None = None) -> str:
-        stats = stats or self.loop.stats()
+        stats = stats or self._made_loop().stats()
         rt = stats.get("rt", {})
         joints = ", ".join(f"{j.model}#{j.id}" for j in self.cfg.joints)
         reader = getattr(self.sensor, "reader_path", None)

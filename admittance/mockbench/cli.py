@@ -23,11 +23,13 @@ import sys
 import threading
 import time
 
+from admittance.daemon.config import DAEMON_RT_PRIORITY
 from admittance.errors import ConfigError
 from admittance.logs import add_verbosity_args, configure
 
 log = logging.getLogger(__name__)
-DEFAULT_RT_PRIORITY = 80  # the daemon's default [loop].rt_priority: a daemon driving this bench is its equal
+# The daemon's default [loop].rt_priority: a daemon driving this bench is its equal.
+DEFAULT_RT_PRIORITY = DAEMON_RT_PRIORITY
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -398,7 +398,7 @@ impl PyMockBus {
 
 /// The bus thread's SCHED_FIFO priority unless told otherwise: the RT loop's own default
 /// (`AdmittanceLoop`'s `rt_priority`), so that a loop and a mock built with defaults are equals.
-pub(crate) const DEFAULT_RT_PRIORITY: i64 = 50;
+pub(crate) const DEFAULT_RT_PRIORITY: i64 = ::rt::sched::DEFAULT_PRIORITY as i64;
 
 /// The motor constants the simulated servos of `model` use: `kt` (N·m/A at the output shaft),
 /// `resistance` (Ω) and `max_pwm` (the duty cap); None for a model without them. The bring-up

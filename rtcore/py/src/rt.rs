@@ -199,25 +199,34 @@ fn duration_ns(d: &Bound<'_, PyDict>, key: &str, scale: f64, slot: &mut u64) -> 
     Ok(())
 }
 
+/// The `faults` table's choices by name: the parser and the exported defaults share them.
+const SERVO_ERROR_CHOICES: [(&str, OnServoError); 2] = [("reboot", OnServoError::Reboot), ("stop", OnServoError::Stop)];
+const TORQUE_OFF_CHOICES: [(&str, OnTorqueOff); 2] = [("reenable", OnTorqueOff::Reenable), ("stop", OnTorqueOff::Stop)];
+
+/// The name of `value` in `choices` ("" if absent, which the tables above rule out).
+fn choice_name<T: PartialEq>(choices: &[(&'static str, T)], value: &T) -> &'static str {
+    choices.iter().find(|(_, v)| v == value).map_or("", |(name, _)| name)
+}
+
+/// `d[key]`, one of `choices` by name, into `slot` when present.
+fn set_choice<T: Copy>(d: &Bound<'_, PyDict>, key: &str, choices: &[(&str, T)], slot: &mut T) -> PyResult<()> {
+    let Some(name) = opt::<String>(d, key, "config.faults")? else { return Ok(()) };
+    match choices.iter().find(|(n, _)| *n == name) {
+        Some((_, value)) => *slot = *value,
+        None => {
+            let known: Vec<String> = choices.iter().map(|(n, _)| format!("\"{n}\"")).collect();
+            return Err(config_error(d.py(), format!("config.faults.{key}: {name:?} is not {}", known.join(" or "))));
+        }
+    }
+    Ok(())
+}
+
 /// The `faults` table: the servo and bus fault policy (docs/faults.md).
 fn fault_policy(d: &Bound<'_, PyDict>) -> PyResult<FaultPolicy> {
-    let py = d.py();
     check_keys(d, &FAULT_KEYS, "config.faults")?;
     let mut p = FaultPolicy::default();
-    if let Some(name) = opt::<String>(d, "servo_error", "config.faults")? {
-        p.servo_error = match name.as_str() {
-            "reboot" => OnServoError::Reboot,
-            "stop" => OnServoError::Stop,
-            _ => return Err(config_error(py, format!("config.faults.servo_error: {name:?} is not \"reboot\" or \"stop\""))),
-        };
-    }
-    if let Some(name) = opt::<String>(d, "torque_off", "config.faults")? {
-        p.torque_off = match name.as_str() {
-            "reenable" => OnTorqueOff::Reenable,
-            "stop" => OnTorqueOff::Stop,
-            _ => return Err(config_error(py, format!("config.faults.torque_off: {name:?} is not \"reenable\" or \"stop\""))),
-        };
-    }
+    set_choice(d, "servo_error", &SERVO_ERROR_CHOICES, &mut p.servo_error)?;
+    set_choice(d, "torque_off", &TORQUE_OFF_CHOICES, &mut p.torque_off)?;
     duration_ns(d, "bus_lost_timeout_s", 1.0, &mut p.lost_timeout_ns)?;
     duration_ns(d, "servo_silent_ms", 1e-3, &mut p.silent_after_ns)?;
     duration_ns(d, "recovery_window_s", 1.0, &mut p.recovery_window_ns)?;
@@ -227,16 +236,37 @@ fn fault_policy(d: &Bound<'_, PyDict>) -> PyResult<FaultPolicy> {
     Ok(p)
 }
 
+/// Whether `mode` moves its grid onto the sensor (only `sample` can).
+fn phase_lock_of(mode: &TriggerMode) -> bool {
+    matches!(mode, TriggerMode::Sample { phase_lock: true })
+}
+
 /// `trigger` ("sample" or "schedule") and `phase_lock` (sample only).
 fn trigger_mode(d: &Bound<'_, PyDict>) -> PyResult<TriggerMode> {
     let py = d.py();
-    let phase_lock: bool = opt(d, "phase_lock", "config")?.unwrap_or(true);
-    let name: String = opt(d, "trigger", "config")?.unwrap_or_else(|| "sample".into());
+    let default = TriggerMode::default();
+    let phase_lock: bool = opt(d, "phase_lock", "config")?.unwrap_or(phase_lock_of(&default));
+    let name: String = opt(d, "trigger", "config")?.unwrap_or_else(|| default.name().into());
     match name.as_str() {
         "sample" => Ok(TriggerMode::Sample { phase_lock }),
         "schedule" => Ok(TriggerMode::Schedule),
         _ => Err(config_error(py, format!("config.trigger: {name:?} is not \"sample\" or \"schedule\""))),
     }
+}
+
+/// The configuration as a dict: the daemon's typed `admittance.loop_config.LoopConfig` (a frozen
+/// msgspec Struct, converted here by `msgspec.to_builtins`, which leaves its unset fields out so
+/// they take the loop's defaults), or a dict of the same keys (the benches and tests).
+fn config_dict<'py>(config: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+    if let Ok(d) = config.cast::<PyDict>() {
+        return Ok(d.clone());
+    }
+    let py = config.py();
+    let builtins = py.import("msgspec")?.call_method1("to_builtins", (config,))?;
+    builtins.cast_into::<PyDict>().map_err(|_| {
+        let kind = config.get_type().name().map(|n| n.to_string()).unwrap_or_default();
+        config_error(py, format!("config: expected a LoopConfig or a dict, got {kind}"))
+    })
 }
 
 fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
@@ -246,7 +276,7 @@ fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let port = port.ok_or_else(|| config_error(py, "config: \"port\" (the Dynamixel bus device) is required"))?;
     let mut c = LoopConfig { port, ..Default::default() };
     set(d, "baudrate", "config", &mut c.baudrate)?;
-    let protocol: u8 = opt(d, "protocol", "config")?.unwrap_or(2);
+    let protocol: u8 = opt(d, "protocol", "config")?.unwrap_or(c.protocol.number());
     c.protocol = Protocol::from_number(protocol)
         .ok_or_else(|| config_error(py, format!("config.protocol: must be 1 or 2, got {protocol}")))?;
     if let Some(read) = opt::<String>(d, "bus_read", "config")? {
@@ -365,9 +395,9 @@ pub struct PyAdmittanceLoop {
 #[pymethods]
 impl PyAdmittanceLoop {
     #[new]
-    fn new(config: &Bound<'_, PyDict>) -> PyResult<Self> {
+    fn new(config: &Bound<'_, PyAny>) -> PyResult<Self> {
         let py = config.py();
-        let inner = LoopHandle::new(loop_config(config)?).map_err(|e| config_error(py, e))?;
+        let inner = LoopHandle::new(loop_config(&config_dict(config)?)?).map_err(|e| config_error(py, e))?;
         Ok(PyAdmittanceLoop { inner })
     }
 
@@ -606,7 +636,7 @@ fn trigger_dict<'py>(py: Python<'py>, inner: &LoopHandle) -> PyResult<Bound<'py,
     let (mode, s) = inner.trigger_stats();
     let d = PyDict::new(py);
     d.set_item("mode", mode.name())?;
-    d.set_item("phase_lock", matches!(mode, TriggerMode::Sample { phase_lock: true }))?;
+    d.set_item("phase_lock", phase_lock_of(&mode))?;
     let starts = PyDict::new(py);
     starts.set_item("schedule", s.schedule)?;
     starts.set_item("open", s.open)?;
@@ -635,6 +665,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_JOINT_ID", rt::params::MAX_JOINT_ID)?;
     m.add_function(wrap_pyfunction!(split_param_name, m)?)?;
     m.add("LOOP_DEFAULTS", loop_defaults(m.py())?)?;
+    m.add("LOOP_BOUNDS", loop_bounds(m.py())?)?;
     // Why the loop may ask to be stopped (`stop_request()["cause"]`), and the hardware errors
     // it never reboots for (the daemon's start-up check applies the same rule).
     m.add("STOP_CAUSES", StopCause::ALL.iter().map(|c| c.name()).collect::<Vec<_>>())?;
@@ -650,24 +681,51 @@ fn split_param_name(name: &str) -> PyResult<(Option<u8>, String)> {
     rt::params::split_name(name).map(|(id, key)| (id, key.to_string())).map_err(PyValueError::new_err)
 }
 
-/// The loop's own defaults (rt::config), by the daemon's key names: the daemon's configuration
-/// reads its defaults for the same keys from here, so the two cannot differ.
+/// The (low, high) bounds of the fault policy's keys whose limits the loop itself sets (a fixed
+/// ring of recoveries, a glitch check that means something), by the daemon's key names: the
+/// daemon's configuration takes its bounds for them from here.
+fn loop_bounds(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("max_recoveries", (0, rt::recovery::MAX_RECOVERIES_LIMIT))?;
+    d.set_item("horn_speed_max", rt::recovery::HORN_SPEED_MAX_RANGE)?;
+    Ok(d)
+}
+
+/// The loop's own defaults (rt::config, rt::recovery, rt::passivity), by the daemon's key names
+/// and units: the daemon's configuration reads its defaults for the same keys from here, so the
+/// two cannot differ (tests/test_rtcore_stub.py holds every shared key to it).
 fn loop_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let c = LoopConfig::default();
-    let j = JointConfig::new(1, Protocol::V2);
+    let j = JointConfig::new(1, c.protocol);
     let f = FaultPolicy::default();
     let d = PyDict::new(py);
     d.set_item("baudrate", c.baudrate)?;
+    d.set_item("protocol", c.protocol.number())?;
     d.set_item("rate_hz", c.rate_hz)?;
+    d.set_item("lock_memory", c.rt.lock_memory)?;
+    d.set_item("trigger", c.trigger.name())?;
+    d.set_item("phase_lock", phase_lock_of(&c.trigger))?;
     d.set_item("sync_read_divisor", c.sync_read_divisor)?;
     d.set_item("ramp_time_s", c.ramp_time_s)?;
     d.set_item("stale_timeout_ms", c.sensor.stale_timeout_ms)?;
     d.set_item("deadband", c.sensor.deadband)?;
     d.set_item("lowpass_hz", c.sensor.lowpass_hz)?;
+    d.set_item("bias", c.bias.to_vec())?;
+    d.set_item("axis", AXES[j.axis.min(AXES.len() - 1)])?;
     d.set_item("zero_tick", j.ticks.zero_tick)?;
     d.set_item("direction", j.ticks.direction)?;
     d.set_item("velocity_max", j.limits.velocity_max)?;
     d.set_item("acceleration_max", j.limits.acceleration_max)?;
+    d.set_item("passivity_guard", j.passivity.guard)?;
+    d.set_item("passivity_margin", j.passivity.margin)?;
+    d.set_item("passivity_damping_max", j.passivity.damping_max)?;
+    d.set_item("servo_error", choice_name(&SERVO_ERROR_CHOICES, &f.servo_error))?;
+    d.set_item("torque_off", choice_name(&TORQUE_OFF_CHOICES, &f.torque_off))?;
+    // The durations in the units of their keys (the loop keeps nanoseconds).
+    d.set_item("bus_lost_timeout_s", f.lost_timeout_ns as f64 / 1e9)?;
+    d.set_item("servo_silent_ms", f.silent_after_ns as f64 / 1e6)?;
+    d.set_item("recovery_window_s", f.recovery_window_ns as f64 / 1e9)?;
+    d.set_item("check_period_ms", f.check_period_ns as f64 / 1e6)?;
     d.set_item("max_recoveries", f.max_recoveries)?;
     d.set_item("horn_speed_max", f.horn_speed_max)?;
     Ok(d)

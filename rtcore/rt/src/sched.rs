@@ -32,9 +32,12 @@ pub struct RtRequest {
     pub cpu: Option<usize>,
 }
 
+/// The SCHED_FIFO priority a loop asks for unless told otherwise (the simulated bus's too).
+pub const DEFAULT_PRIORITY: i32 = 50;
+
 impl Default for RtRequest {
     fn default() -> Self {
-        RtRequest { policy: Policy::Fifo, priority: 50, lock_memory: true, cpu: None }
+        RtRequest { policy: Policy::Fifo, priority: DEFAULT_PRIORITY, lock_memory: true, cpu: None }
     }
 }
 
