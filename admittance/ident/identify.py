@@ -52,7 +52,7 @@ from admittance.ident.residual import analyse
 from admittance.ident.search import SearchOutcome, SearchSettings, nothing_left, search_effects
 from admittance.ident.angle_sensor import Sensor, sensor_for
 from admittance.ident.split import stratified_pick
-from admittance.ident.uncertainty import Uncertainty, jackknife
+from admittance.ident.uncertainty import Uncertainty, reported_uncertainty
 from admittance.ident.unexplained import describe_unexplained
 
 # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM
@@ -320,8 +320,8 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
             sim_held, final.vector, [screen_starts(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
                                      before.x0], tau_scale=final.tau_scale, progress=progress, label="scoring")
     with _timed(timings, "uncertainty"):
-        progress("uncertainty: refits without each group of trials")
-        uncertainty = jackknife(sim_train, final, torque_scale)
+        progress("uncertainty: refits at half the step and without each group of trials")
+        uncertainty = reported_uncertainty(sim_train, final, torque_scale)
     with _timed(timings, "residual_analysis"):
         progress("residual analysis")
         residual = analyse(sim_train, final, sensor)
