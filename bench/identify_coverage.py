@@ -95,16 +95,16 @@ def main() -> int:
                                   for r in rows if r["kind"] == kind and r["seed"] == seed),
                       flush=True)
     print(f"load after: {Path('/proc/loadavg').read_text().strip()}")
-    print("\n| set | intervals | fit σ ±1.96σ (admission σ) | reported interval (jackknife) | max |z| (fit σ) |"
-          "\n|---|---|---|---|---|")
+    print("\n| set | intervals | fit σ ±1.96σ: covering | coverage | reported interval: covering | coverage "
+          "| max |z| (fit σ) |\n|---|---|---|---|---|---|---|")
     for kind in args.kinds.split(",") + ["all"]:
         sel = [r for r in rows if kind in ("all", r["kind"])]
         if sel:
             covered = sum(r["covered"] for r in sel)
             judged = [r for r in sel if r["covered_reported"] is not None]
             held = sum(r["covered_reported"] for r in judged)
-            after = f"{held} of {len(judged)} ({100 * held / len(judged):.0f} %)" if judged else "not reported"
-            print(f"| {kind} | {len(sel)} | {covered} of {len(sel)} ({100 * covered / len(sel):.0f} %) | {after} | "
+            after = f"{held} of {len(judged)} | {100 * held / len(judged):.0f} %" if judged else "– | not reported"
+            print(f"| {kind} | {len(sel)} | {covered} | {100 * covered / len(sel):.0f} % | {after} | "
                   f"{max(abs(r['z']) for r in sel):.1f} |")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
