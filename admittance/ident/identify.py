@@ -101,10 +101,13 @@ class IdentifyResult:
         :attr:`params` (``sigma`` in the JSON is the fit's own σ, the one admission tests use)."""
         if self.uncertainty is None:
             return None
-        sigma = self.sigma(replace(self.final, sigma=self.uncertainty.sigma))
-        half = self.uncertainty.multiplier
+        unc = self.uncertainty
+        sigma = self.sigma(replace(self.final, sigma=unc.sigma))
+        half = unc.multiplier
         params = self.params
-        return {**self.uncertainty.describe(), "sigma": sigma,
+        return {**unc.describe(), "sigma": sigma,
+                "sigma_jackknife": self.sigma(replace(self.final, sigma=unc.sigma_jackknife)),
+                "integration_bias": self.sigma(replace(self.final, sigma=unc.integration)),
                 "interval95": {k: [params[k] - half * s, params[k] + half * s] for k, s in sigma.items() if k in params}}
 
     @property
