@@ -16,9 +16,12 @@ with stick events, not the Rust plant that identify fits with):
 - equivalent: a torque bias on driven trials only, where it is the same equation as an
   asymmetric Coulomb level (no name is the honest answer; with free swings in the set, the
   library row, the data decide);
+- regime: the effects issue 19 found fitted right but not named (a load-dependent Coulomb
+  level, a torque bias on driven and free trials, Stribeck at 1.5× the Coulomb level), each on
+  a 4096-tick encoder and with 30 trials: what the regime test's floor (ident/regime.py) is for;
 - real: the measured sets of ../shared/data/real (XL330 free swings, DFKI swing-ups), when present.
 
-A row passes when: clean → no effect; library → exactly that effect, I/B/F within 5/10/15 %;
+A row passes when: clean → no effect; library and regime → exactly that effect, I/B/F within 5/10/15 %;
 unnamed → no library name; equivalent → no name. Real rows show held-out before → after (no
 truth to compare).
 
@@ -55,6 +58,8 @@ LONG = {"motor_inertia": 0.002, "damping": 0.002, "coulomb": 0.004}
 LIGHT = {"motor_inertia": 0.004, "damping": 0.006, "coulomb": 0.015}
 LIGHT_UNNAMED = [("backlash", 0.004), ("dahl", 0.01), ("position_damping", 0.01), ("speed_ripple", 0.005),
                  ("friction_warmup", 0.4), ("eccentric_encoder", 0.02)]
+# The regime family: (effect, size, driven); Stribeck at 1.5× the MX-64's Coulomb level.
+REGIME = [("load_dependent_coulomb", 0.1, False), ("torque_bias", 0.02, "mixed"), ("stribeck", 1.5 * 0.084, False)]
 TOLERANCE = {"motor_inertia": 0.05, "damping": 0.10, "coulomb": 0.15}
 
 
@@ -91,6 +96,12 @@ def families(seed: int) -> list[tuple[str, str, oracle.OracleSpec]]:
     rows.append(("long", "quadratic_drag, 3 long swings, encoder",
                  oracle.OracleSpec(n_trials=3, duration=20.0, rate=100.0, params=dict(LONG), release=1.2,
                                    effect="quadratic_drag", size=0.003, noise=0.0, ticks=4096, seed=s)))
+    for effect, size, torque in REGIME:
+        driven = dict(with_torque=bool(torque), mixed=torque == "mixed")
+        rows.append(("regime", f"{effect}, encoder 4096", oracle.OracleSpec(
+            effect=effect, size=size, noise=0.0, ticks=4096, declare_ticks=True, seed=s, **driven)))
+        rows.append(("regime", f"{effect}, 30 trials", oracle.OracleSpec(effect=effect, size=size, n_trials=30, seed=s,
+                                                                         **driven)))
     return rows
 
 
@@ -172,7 +183,7 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
-    parser.add_argument("--only", default="clean,library,equivalent,unnamed,light,long,real")
+    parser.add_argument("--only", default="clean,library,equivalent,unnamed,light,long,regime,real")
     parser.add_argument("--match", default="", help="only the sets whose label contains this")
     parser.add_argument("--json", help="also write the rows as JSON here")
     args = parser.parse_args()

@@ -84,7 +84,7 @@ class Variant:
 class StandIn(enum.Enum):
     """Why an admitted effect is a stand-in (helps predict, not claimed as the effect)."""
 
-    REGIMES = "not one model across the operating regimes"  # search.regime_inconsistency said so
+    REGIMES = "not one model across the operating regimes"  # regime.regime_inconsistency said so
     BESIDE = "judged beside a stand-in"  # search.BESIDE_REASON
     FLEXIBLE = "a periodic term that leaves more than sensor noise"  # search.FLEXIBLE_REASON
 

@@ -23,7 +23,7 @@ import datetime as _dt
 import sys
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +52,7 @@ from admittance.ident.residual import analyse
 from admittance.ident.search import SearchOutcome, SearchSettings, nothing_left, search_effects
 from admittance.ident.angle_sensor import Sensor, sensor_for
 from admittance.ident.split import stratified_pick
+from admittance.ident.uncertainty import Uncertainty, reported_uncertainty
 from admittance.ident.unexplained import describe_unexplained
 
 # s: semi-implicit Euler error is < 0.1 mrad for these pendulums at 1 ms; 2 ms was slower (more LM
@@ -93,6 +94,21 @@ class IdentifyResult:
     base_starts: list[dict] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     data_checks: list[Finding] = field(default_factory=list)  # what the data checks found (and dropped)
+    uncertainty: Uncertainty | None = None  # the reported intervals (uncertainty.py), not the admission σ
+
+    def intervals(self) -> dict | None:
+        """The reported uncertainty of the final model: its σ and 95 % intervals, in the units of
+        :attr:`params` (``sigma`` in the JSON is the fit's own σ, the one admission tests use)."""
+        if self.uncertainty is None:
+            return None
+        unc = self.uncertainty
+        sigma = self.sigma(replace(self.final, sigma=unc.sigma))
+        half = unc.multiplier
+        params = self.params
+        return {**unc.describe(), "sigma": sigma,
+                "sigma_jackknife": self.sigma(replace(self.final, sigma=unc.sigma_jackknife)),
+                "integration_bias": self.sigma(replace(self.final, sigma=unc.integration)),
+                "interval95": {k: [params[k] - half * s, params[k] + half * s] for k, s in sigma.items() if k in params}}
 
     @property
     def mode(self) -> str:
@@ -175,6 +191,7 @@ class IdentifyResult:
             "training": [trials[i].name for i in self.training],
             "sensor": self.sensor.as_dict(),
             "sigma": self.sigma(self.final),
+            "uncertainty": self.intervals(),
             "training_rmse": {"base": self.base.rmse, "final": self.final.rmse},
             "heldout_rmse_per_trial": {
                 trials[i].name: {"before": rmse([rb]), "after": rmse([ra])}
@@ -305,6 +322,9 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
         after = before if final is base else fit_initial_states_multi(
             sim_held, final.vector, [screen_starts(sim_held.with_tau_scale(final.tau_scale), final.vector, held_starts),
                                      before.x0], tau_scale=final.tau_scale, progress=progress, label="scoring")
+    with _timed(timings, "uncertainty"):
+        progress("uncertainty: refits at half the step and without each group of trials")
+        uncertainty = reported_uncertainty(sim_train, final, torque_scale)
     with _timed(timings, "residual_analysis"):
         progress("residual analysis")
         residual = analyse(sim_train, final, sensor)
@@ -316,7 +336,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
                                                                             dataset.mode), torque_scale)
             unexplained = describe_unexplained(residual, search, remaining)
     return IdentifyResult(dataset, settings, heldout, training, base, final, before, after, search,
-                          remaining, residual, sensor, unexplained, base_starts, timings, findings)
+                          remaining, residual, sensor, unexplained, base_starts, timings, findings, uncertainty)
 
 
 def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale: float,
