@@ -4,7 +4,8 @@
 //!
 //! Timing (with `wire_delay`): a reply's first byte may start when the instruction's last byte
 //! would have arrived (instruction length × 10 bits / baud after it was read, or after the
-//! wire is free of what was sent or answered before it) plus the servo's Return Delay Time; the reply is due when its own last byte would have arrived. Chained
+//! host's previous instruction has left) plus the servo's Return Delay Time; the reply is due
+//! when its own last byte would have arrived, and not before the replies ahead of it. Chained
 //! replies (broadcast PING, Sync/Bulk Read) follow each other the same way, each after its
 //! servo's Return Delay Time; a Fast Sync Read's one combined reply waits one Return Delay Time
 //! (its first servo's) for all. Without `wire_delay` replies are due at once.
@@ -137,13 +138,17 @@ pub struct Answerer {
     schedule: VecDeque<(u64, Vec<u8>)>,
     /// When the bus is free again (the last scheduled reply's end).
     bus_free_ns: u64,
+    /// When the host's last instruction has left its adapter: the host's bytes go out one at a
+    /// time, so an instruction written right after another follows it on the wire.
+    host_free_ns: u64,
     /// When the last bytes arrived (for the inter-byte timeout).
     last_rx_ns: u64,
 }
 
 impl Answerer {
     pub fn new(protocol: Protocol, config: BusConfig, now_ns: u64) -> Answerer {
-        Answerer { decoder: Decoder::new(protocol), config, schedule: VecDeque::new(), bus_free_ns: now_ns, last_rx_ns: now_ns }
+        let schedule = VecDeque::new();
+        Answerer { decoder: Decoder::new(protocol), config, schedule, bus_free_ns: now_ns, host_free_ns: now_ns, last_rx_ns: now_ns }
     }
 
     /// A new wire (an unplug or replug): what was in flight on the old one is gone.
@@ -151,6 +156,7 @@ impl Answerer {
         self.decoder.clear();
         self.schedule.clear();
         self.bus_free_ns = now_ns;
+        self.host_free_ns = now_ns;
     }
 
     /// Forgets a partial packet once the inter-byte timeout has passed.
@@ -210,9 +216,13 @@ impl Answerer {
                     continue;
                 }
             };
-            // The instruction's bytes follow whatever is still on the wire (a SyncWrite written
-            // just before a Sync Read delays it by its own bytes: one wire, one byte at a time).
-            let sent_ns = arrival_ns.max(self.bus_free_ns) + self.wire_time_ns(length);
+            // The instruction's bytes follow the host's earlier ones (a SyncWrite written just
+            // before a Sync Read delays it by its own bytes), but not a servo's reply still on
+            // the wire: a host that does not wait for it collides with it on a real bus, and
+            // queueing behind replies made late by a late simulation thread (which a real
+            // servo never is) put every later reply behind them, cycle after cycle.
+            let sent_ns = arrival_ns.max(self.host_free_ns) + self.wire_time_ns(length);
+            self.host_free_ns = sent_ns;
             self.schedule_replies(sent_ns, replies);
         }
     }
