@@ -37,7 +37,7 @@ use rt::clock::{monotonic_ns, Clock, MonotonicClock};
 use rt::sched::{self, Policy, RtReport, RtRequest};
 
 use crate::pty::Pty;
-use crate::server::{lock, point_link, Shared};
+use crate::server::{lock, open_linked, point_link, Shared};
 
 /// Behind by more than this, the stream skips ahead instead of sending the backlog.
 const MAX_CATCH_UP: Duration = Duration::from_millis(100);
@@ -390,10 +390,7 @@ impl SimulatedDaq {
         if port.pty.is_some() {
             return Ok(false);
         }
-        let pty = Pty::open()?;
-        if let Some(link) = &port.link {
-            point_link(link, pty.path())?;
-        }
+        let pty = open_linked(port.link.as_deref())?;
         port.path = pty.path().to_string();
         port.pty = Some(pty);
         port.replugs += 1;

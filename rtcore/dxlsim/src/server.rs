@@ -244,10 +244,7 @@ impl MockBus {
         if port.pty.is_some() {
             return Ok(false);
         }
-        let pty = Pty::open()?;
-        if let Some(link) = &port.link {
-            point_link(link, pty.path())?;
-        }
+        let pty = open_linked(port.link.as_deref())?;
         port.path = pty.path().to_string();
         port.pty = Some(Arc::new(pty));
         port.generation += 1;
@@ -332,6 +329,15 @@ impl Drop for MockBus {
             let _ = std::fs::remove_file(link);
         }
     }
+}
+
+/// A new pty, with `link` (if any) pointed at it: a replugged adapter, bus or sensor.
+pub(crate) fn open_linked(link: Option<&Path>) -> io::Result<Pty> {
+    let pty = Pty::open()?;
+    if let Some(link) = link {
+        point_link(link, pty.path())?;
+    }
+    Ok(pty)
 }
 
 /// Points the symlink `link` at `target`, atomically (a new link renamed over the old one), so
