@@ -4,7 +4,7 @@ compensation does to the horn error, side by side in one run.
 For each servo truth of tests/oracles/servo.py (test oracles written from each servo's physics:
 a first-order lag, BAM's MX-64, the same motor behind a gear with 0.5° of backlash, and a
 slew-limited servo that the form does not describe), a loop oracle renders a virtual joint
-under a multi-sine hand (0.3–3 Hz) through the daemon's own Recorder:
+under a multi-sine hand (0.3–3 Hz; or a push-pull one) through the daemon's own Recorder:
 
 1. a session without compensation → `admittance fidelity`'s analysis (fit, verdict, notes);
 2. a session with the fitted model's lead (``_rtcore.servo_lead``, the function the RT loop's
@@ -15,7 +15,12 @@ under a multi-sine hand (0.3–3 Hz) through the daemon's own Recorder:
 All data are synthetic (oracles in Python, not the simulated bench's dxlsim servo, and not the
 RT loop's `Compensation` filter). Usage::
 
-    .venv/bin/python bench/servo_forms.py [--seconds 12] [--forms lag,bam,geared,slew] [--json FILE]
+    .venv/bin/python bench/servo_forms.py [--seconds 12] [--forms lag,bam,geared,slew] [--hand multisine]
+        [--json FILE]
+
+(``--forms`` also takes geared-0.25 and geared-1, the same motor behind a play of 0.25° and 1°;
+``--hand pushpull`` is a hand that pushes and pulls at 0.7 Hz with 60 ms reversals instead of
+the multi-sine.)
 
 takes about 2 minutes per form on a quiet machine.
 """
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -31,10 +37,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from oracles.servo import RATE, BamOracle, GearedOracle, LagOracle, SlewOracle, session  # noqa: E402
+from oracles.servo import HANDS, RATE, BamOracle, GearedOracle, LagOracle, SlewOracle, session  # noqa: E402
 
 FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOracle),
-         "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle)}
+         "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle),
+         # Other plays, so that the play's inverse is not judged on one servo only (not in the default run).
+         "geared-0.25": ("MX-64 geared, 0.25° backlash", lambda: GearedOracle(backlash=math.radians(0.25))),
+         "geared-1": ("MX-64 geared, 1° backlash", lambda: GearedOracle(backlash=math.radians(1.0)))}
+DEFAULT_FORMS = ("lag", "bam", "geared", "slew")
 
 
 def lead_of(params):
@@ -43,17 +53,17 @@ def lead_of(params):
     return lambda w, a, q: _rtcore.servo_lead(params, w, a, q, h=1.0 / RATE)
 
 
-def measure(work: Path, key: str, seconds: float) -> dict:
+def measure(work: Path, key: str, seconds: float, hand: str) -> dict:
     from admittance.fidelity.recording import load_recording
     from admittance.fidelity.report import analyse
 
     label, truth = FORMS[key]
-    off = session(work / f"{key}-off", truth(), seconds=seconds)
+    off = session(work / f"{key}-off", truth(), seconds=seconds, hand=HANDS[hand])
     result = analyse(load_recording(work / f"{key}-off"))
     fit = result.pop("_servo_fit")
-    forced = session(work / f"{key}-forced", truth(), seconds=seconds, lead=lead_of(fit.params.copy()))
+    forced = session(work / f"{key}-forced", truth(), seconds=seconds, lead=lead_of(fit.params.copy()), hand=HANDS[hand])
     gated = forced if result["servo_verdict"]["passed"] else off
-    row = {"form": label, "off": off, "forced": forced, "gated": gated, "servo": result["servo"],
+    row = {"form": label, "hand": hand, "off": off, "forced": forced, "gated": gated, "servo": result["servo"],
            "verdict": result["servo_verdict"]}
     print(f"| {label} | {1e3 * off:.3f} | {1e3 * forced:.3f} ({off / forced:.1f}×) | "
           f"{'on' if row['verdict']['passed'] else 'off'}: {1e3 * gated:.3f} ({off / gated:.1f}×) | "
@@ -69,19 +79,20 @@ def measure(work: Path, key: str, seconds: float) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=12.0, help="length of each session")
-    parser.add_argument("--forms", default=",".join(FORMS), help=f"comma-separated, of {', '.join(FORMS)}")
+    parser.add_argument("--forms", default=",".join(DEFAULT_FORMS), help=f"comma-separated, of {', '.join(FORMS)}")
+    parser.add_argument("--hand", default="multisine", choices=sorted(HANDS), help="the hand's torque profile")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     args = parser.parse_args()
     forms = [f for f in args.forms.split(",") if f]
     unknown = [f for f in forms if f not in FORMS]
     if unknown:
         parser.error(f"unknown form {unknown[0]!r} (known: {', '.join(FORMS)})")
-    print(f"load before: {os.getloadavg()}", flush=True)
+    print(f"load before: {os.getloadavg()}, hand: {args.hand}", flush=True)
     print("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
           "held-out gain | residual/noise | Ljung–Box p |")
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
-        rows = [measure(Path(tmp), key, args.seconds) for key in forms]
+        rows = [measure(Path(tmp), key, args.seconds, args.hand) for key in forms]
     print(f"load after: {os.getloadavg()}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1, default=str) + "\n")

@@ -39,6 +39,25 @@ def multisine(t: float) -> float:
         + 0.05 * math.sin(2 * math.pi * 1.7 * t + 2.0) + 0.06 * math.sin(2 * math.pi * 3.0 * t + 0.5)
 
 
+def pushpull(t: float) -> float:
+    """A hand that pushes and pulls (N·m): ±0.15 at 0.7 Hz, reversing over 60 ms, with a 2.3 Hz
+    tremor of 0.03 on top: reversals faster and rarer than the multi-sine's."""
+    phase = (t * 0.7) % 1.0
+    ramp = 0.06 * 0.7
+    if phase < ramp:
+        level = -1 + 2 * phase / ramp
+    elif phase < 0.5:
+        level = 1.0
+    elif phase < 0.5 + ramp:
+        level = 1 - 2 * (phase - 0.5) / ramp
+    else:
+        level = -1.0
+    return 0.15 * level + 0.03 * math.sin(2 * math.pi * 2.3 * t)
+
+
+HANDS = {"multisine": multisine, "pushpull": pushpull}
+
+
 class LagOracle:
     def __init__(self, time_constant=0.025):
         self.tc, self.theta = time_constant, 0.0
