@@ -543,8 +543,8 @@ mod tests {
         // A hand that leans on the horn (|τ| well beyond its friction), and one that never does.
         for (name, tau) in [("motor", (|_: f64| 0.0) as fn(f64) -> f64), ("hand", |t: f64| 0.3 * (2.0 * t).cos())] {
             let (without, with) = play_errors(&GEARED, tau);
-            // Measured 15.9× and 9.4× (a crossing shaped and driven by the servo's own inverse,
-            // decided play_ahead early); the ramp of PLAY_CROSS_S before it gave under 5×.
+            // Measured 15.9× and 9.4× (the crossing shaped and driven by the servo's own inverse,
+            // decided play_ahead early); without the drive, or decided on the present torque, < 8×.
             assert!(with < without / 8.0, "{name}: {without} → {with}");
         }
     }
