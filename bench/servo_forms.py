@@ -53,6 +53,33 @@ def lead_of(params):
     return lambda w, a, q: _rtcore.servo_lead(params, w, a, q, h=1.0 / RATE)
 
 
+def play_phases(cols: dict, free: float) -> list[tuple[str, float, float]]:
+    """Where a geared servo's horn error is: the reads while the hand's torque leaves the horn free
+    (|τ| ≤ the horn's friction, the truth's), then, outside that band, by the time since the
+    torque last entered or left it and until it next does (the only moments the horn can change
+    sides); (phase, share of the mean square, RMS)."""
+    import numpy as np
+
+    tau, read = cols["tau"], ~np.isnan(cols["theta_present"])
+    error = np.where(read, cols["theta_present"] - cols["theta_model"], 0.0)
+    state = np.sign(np.where(np.abs(tau) > free, tau, 0.0))
+    idx = np.arange(len(tau))
+    event = np.r_[False, state[1:] != state[:-1]]
+    since = idx - np.maximum.accumulate(np.where(event, idx, -10**9))
+    until = np.minimum.accumulate(np.where(event, idx, 10**9)[::-1])[::-1] - idx
+    band = state == 0
+    total = float(np.sum(error ** 2))
+    out = []
+    for name, mask in (("hand within the horn's friction", band),
+                       ("0–30 ms after the torque left or entered that band", ~band & (since < 30)),
+                       ("30–60 ms after", ~band & (since >= 30) & (since < 60)),
+                       ("0–30 ms before it next does", ~band & (since >= 60) & (until < 30)),
+                       ("elsewhere", ~band & (since >= 60) & (until >= 30))):
+        sel = mask & read
+        out.append((name, float(np.sum(error[sel] ** 2)) / total, float(np.sqrt(np.mean(error[sel] ** 2)))))
+    return out
+
+
 def measure(work: Path, key: str, seconds: float, hand: str) -> dict:
     from admittance.fidelity.recording import load_recording
     from admittance.fidelity.report import analyse
@@ -61,14 +88,19 @@ def measure(work: Path, key: str, seconds: float, hand: str) -> dict:
     off = session(work / f"{key}-off", truth(), seconds=seconds, hand=HANDS[hand])
     result = analyse(load_recording(work / f"{key}-off"))
     fit = result.pop("_servo_fit")
-    forced = session(work / f"{key}-forced", truth(), seconds=seconds, lead=lead_of(fit.params.copy()), hand=HANDS[hand])
+    trace: dict = {}
+    forced = session(work / f"{key}-forced", truth(), seconds=seconds, lead=lead_of(fit.params.copy()), hand=HANDS[hand],
+                     trace=trace)
+    phases = play_phases(trace, truth().free) if isinstance(truth(), GearedOracle) else None
     gated = forced if result["servo_verdict"]["passed"] else off
     row = {"form": label, "hand": hand, "off": off, "forced": forced, "gated": gated, "servo": result["servo"],
-           "verdict": result["servo_verdict"]}
+           "verdict": result["servo_verdict"], "phases": phases}
     print(f"| {label} | {1e3 * off:.3f} | {1e3 * forced:.3f} ({off / forced:.1f}×) | "
           f"{'on' if row['verdict']['passed'] else 'off'}: {1e3 * gated:.3f} ({off / gated:.1f}×) | "
           f"{1e3 * fit.rmse_heldout:.3f} | {row['verdict']['heldout_gain']:.1f} | "
           f"{fit.residual['rmse_over_noise']:.2f} | {fit.residual['ljung_box_p']:.2g} |", flush=True)
+    for name, share, rms in phases or []:
+        print(f"    forced, {name}: {100 * share:.0f} % of the mean square, RMS {1e3 * rms:.2f} mrad", flush=True)
     for reason in row["verdict"]["reasons"]:
         print(f"    refused: {reason}", flush=True)
     for note in fit.notes:

@@ -82,9 +82,10 @@ def test_the_gear_play_is_fitted_where_the_data_show_it_and_left_out_where_they_
     assert m["backlash_torque"] == pytest.approx(truth.free, rel=0.25), m
     told = [n for n in fit.notes if n.startswith("gear backlash")]
     assert len(told) == 1 and "admitted" in told[0] and "without the play" in told[0], fit.notes
-    # The play's inverse in the lead (the cycles in order) lowers the horn error further.
+    # The play's inverse in the lead (the cycles in order): the target, ≥ 5× on a geared servo
+    # (measured 5.5×; 3.0× when the side followed the present torque over a fixed 5 ms ramp).
     on = session(tmp_path / "geared-on", GearedOracle(), lead=lead_of(fit))
-    assert on < off / 2.5, f"{1e3 * off:.2f} → {1e3 * on:.2f} mrad"
+    assert on < off / 5, f"{1e3 * off:.2f} → {1e3 * on:.2f} mrad"
     # A servo without play: the play's fit does not cut the held-out error, so it stays 0.
     rigid = fit_of(bam_recording[0])
     assert rigid.model()["backlash"] == 0.0 and rigid.model()["backlash_torque"] == 0.0

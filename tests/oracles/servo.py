@@ -87,12 +87,13 @@ class BamOracle:
         return self.kt / self.r * self.vin * self.kp_duty
 
 
-def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
+def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine, trace=None):
     """Run the loop oracle against ``servo`` and record it with the daemon's Recorder. ``lead``
     (ω, α, τ arrays of every cycle) -> the goal offsets (rad) is the compensation, given the whole
     session at once (the virtual joint does not depend on the servo), so that a compensation
     that carries a state from cycle to cycle (the gear play's side) sees the cycles in order.
-    Returns the rendering error (RMS present − model)."""
+    Returns the rendering error (RMS present − model); ``trace`` (a dict), if given, receives
+    every recorded column."""
     n = int(seconds * RATE)
     cols = {k: np.full(n, np.nan) for k in ("t", "t_wake", "tau", "force", "theta_model", "omega_model",
                                             "theta_goal", "theta_present", "cycle", "mode", "fault")}
@@ -133,6 +134,8 @@ def session(folder, servo, seconds=12.0, divisor=5, lead=None, hand=multisine):
         mcap.append(1, batch, wall_offset_ns=0)
     rec.close()
     mcap.close()
+    if trace is not None:
+        trace.update(cols)
     read = ~np.isnan(cols["theta_present"])
     return float(np.sqrt(np.mean((cols["theta_present"][read] - cols["theta_model"][read]) ** 2)))
 
