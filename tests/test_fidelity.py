@@ -92,6 +92,26 @@ def test_the_gear_play_is_fitted_where_the_data_show_it_and_left_out_where_they_
     assert any(n.startswith("no gear backlash: held-out error") for n in rigid.notes), rigid.notes
 
 
+def test_a_small_play_does_not_leave_the_fit_in_the_lag_form_s_dead_time_valley(tmp_path):
+    # A 0.25° play: the lag form alone trades the motor's lag for a dead time (T 3.6 ms, 12 ms),
+    # and LM with the play from there stays in that valley (T 4.2 ± 1.9 ms: refused, unpinned).
+    import math
+
+    from oracles.servo import GearedOracle
+
+    truth = GearedOracle(backlash=math.radians(0.25))
+    session(tmp_path, truth)
+    from admittance.fidelity.recording import load_recording
+    from admittance.fidelity.report import analyse
+
+    result = analyse(load_recording(tmp_path))
+    m = result["servo"]
+    total_damping = truth.damping + truth.kt ** 2 / truth.r
+    assert m["time_constant"] + m["dead_time"] == pytest.approx(total_damping / truth.stiffness, rel=0.15), m
+    assert m["backlash"] == pytest.approx(truth.play, rel=0.1), m
+    assert result["servo_verdict"]["passed"], result["servo_verdict"]
+
+
 @pytest.mark.parametrize("truth", [LagOracle, BamOracle])
 def test_compensating_with_the_fitted_model_cuts_the_rendering_error_3x(tmp_path, truth, lag_recording, bam_recording):
     folder, before = lag_recording if truth is LagOracle else bam_recording
