@@ -610,7 +610,8 @@ mod tests {
         reader.stop();
     }
 
-    /// Serves frame `k` at its k-th read, pauses before frame `pause_at`, and is silent after `last`.
+    /// Serves two frames a read (counters k, k+1), pauses before frame `pause_at`, and is silent
+    /// after `last`.
     struct Counting {
         k: u16,
         pause_at: u16,
@@ -623,9 +624,11 @@ mod tests {
         }
         fn read(&mut self, out: &mut Vec<u8>, _timeout_us: u64) -> io::Result<()> {
             std::thread::sleep(Duration::from_millis(if self.k == self.pause_at { 300 } else { 1 }));
-            if self.k <= self.last {
-                out.extend_from_slice(&encode_sample(self.k, 0, &[452, 0, 0]).unwrap_or_default());
-                self.k += 1;
+            for _ in 0..2 {
+                if self.k <= self.last {
+                    out.extend_from_slice(&encode_sample(self.k, 0, &[452, 0, 0]).unwrap_or_default());
+                    self.k += 1;
+                }
             }
             Ok(())
         }
@@ -640,13 +643,13 @@ mod tests {
 
     #[test]
     fn the_longest_gap_is_located_by_time_and_frame_counters() {
-        let source = Counting { k: 0, pause_at: 10, last: 12 };
+        let source = Counting { k: 0, pause_at: 10, last: 13 };
         let mut reader = Reader::new(Box::new(source), ReaderConfig { stale_after_ns: 10_000_000_000, ..config() }, Target::Capture).unwrap();
         reader.start().unwrap();
-        let s = wait_for(&reader, |s| s.samples_pushed == 13);
+        let s = wait_for(&reader, |s| s.samples_pushed == 14);
         reader.stop();
         let got = reader.take_captured();
-        assert_eq!((s.max_gap.counter_before, s.max_gap.counter_after), (9, 10), "the pause was before frame 10");
+        assert_eq!((s.max_gap.counter_before, s.max_gap.counter_after), (9, 10), "the pause was between frames 9 and 10 (reads 8-9, 10-11)");
         assert_eq!(s.max_gap.end_ns, got[10].t_ns, "ended by the read that brought frame 10");
         assert_eq!(s.max_gap_ns, got[10].t_ns - got[9].t_ns);
     }
