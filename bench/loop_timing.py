@@ -31,14 +31,20 @@ Two loads, the same for all three loops:
   With ``--sensor rust`` the sensor is a real one's stand-in instead: a separate process writes
   1 kHz OptoForce frames on a pty at absolute deadlines (SCHED_FIFO 60 when allowed), read by the
   daemon's Rust reader (SCHED_FIFO 40 beside the FIFO loops), and each row also shows the
-  reader's longest gap; only the Rust loops run (the reader pushes into their ring).
+  reader's longest gap, split at its frame counters into the time between the source's writes
+  of the frames on either side and how long after its write the frame that ended it was read
+  (the DAQ logs each write time by counter), beside the source's own longest write gap; only
+  the Rust loops run (the reader pushes into their ring).
 
 Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
 ("period error": a deadline, or a sample's push), the force-to-write latency (a sample's
 arrival → the end of the first SyncWrite that used it), the cycle's own cost (wake-up → end of
 its SyncWrite), and ratios of one run. A last section shows the phase lock at work on a sensor
-paced at the loop's own rate. The machine is shared and noisy: read the ratios, not the
-absolutes. ``--help`` lists the options; the default run takes about eight minutes.
+paced at the loop's own rate. With the daemon load each row also shows the p99 tail: the
+cycles at or above the p99 latency, their median wake-up lateness and the rest (the wait for a
+sample in the window, the work, the write). Each point runs at least ``--min-cycles`` cycles
+(2000), so that a p99 is not the few worst cycles. The machine is shared and noisy: read the
+ratios, not the absolutes. ``--help`` lists the options; the default run takes about ten minutes.
 """
 
 from __future__ import annotations
