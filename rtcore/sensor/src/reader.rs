@@ -263,7 +263,7 @@ fn sample_counters(records: &[Record]) -> Option<(u16, u16)> {
         _ => None,
     });
     let first = counters.next()?;
-    Some((first, counters.last().unwrap_or(first)))
+    Some((first, counters.next_back().unwrap_or(first)))
 }
 
 fn set_stats(shared: &Shared, f: impl FnOnce(&mut ReaderStats)) {
