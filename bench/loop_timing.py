@@ -31,14 +31,20 @@ Two loads, the same for all three loops:
   With ``--sensor rust`` the sensor is a real one's stand-in instead: a separate process writes
   1 kHz OptoForce frames on a pty at absolute deadlines (SCHED_FIFO 60 when allowed), read by the
   daemon's Rust reader (SCHED_FIFO 40 beside the FIFO loops), and each row also shows the
-  reader's longest gap; only the Rust loops run (the reader pushes into their ring).
+  reader's longest gap, split at its frame counters into the time between the source's writes
+  of the frames on either side and how long after its write the frame that ended it was read
+  (the DAQ logs each write time by counter), beside the source's own longest write gap; only
+  the Rust loops run (the reader pushes into their ring).
 
 Figures, p50/p99/p99.9/max in µs: the wake-up lateness behind the moment the cycle was due
 ("period error": a deadline, or a sample's push), the force-to-write latency (a sample's
 arrival → the end of the first SyncWrite that used it), the cycle's own cost (wake-up → end of
 its SyncWrite), and ratios of one run. A last section shows the phase lock at work on a sensor
-paced at the loop's own rate. The machine is shared and noisy: read the ratios, not the
-absolutes. ``--help`` lists the options; the default run takes about eight minutes.
+paced at the loop's own rate. With the daemon load each row also shows the p99 tail: the
+cycles at or above the p99 latency, their median wake-up lateness and the rest (the wait for a
+sample in the window, the work, the write). Each point runs at least ``--min-cycles`` cycles
+(2000), so that a p99 is not the few worst cycles. The machine is shared and noisy: read the
+ratios, not the absolutes. ``--help`` lists the options; the default run takes about ten minutes.
 """
 
 from __future__ import annotations
@@ -72,6 +78,9 @@ from admittance.logs import ROOT
 RATES_HZ = (250, 500, 1000, 2000)
 JOINT_COUNTS = (1, 6, 12)
 POINT_S = 2.0
+# A p99 of a few hundred cycles is the few worst cycles, one VM hiccup apart: each point runs
+# long enough for at least this many cycles (3 s at 250 Hz is 750: its p99 is the 8th-worst).
+MIN_CYCLES = 2000
 FORCE_N = 2.0
 INERTIA, DAMPING, COULOMB, LEVER = 0.02, 0.05, 0.01, 0.1
 GOAL_ADDRESS, GOAL_SIZE = 116, 4
@@ -315,14 +324,27 @@ class DriftingSensor(ForceSensor):
 
 
 # A DAQ in its own process: OptoForce frames on a pty at absolute deadlines (its own clock, as a
-# real DAQ has), at SCHED_FIFO when allowed: hardware is not delayed by the host's load.
+# real DAQ has; clock_nanosleep(TIMER_ABSTIME), so a late wake-up does not shift the next ones),
+# at SCHED_FIFO when allowed: hardware is not delayed by the host's load. Each frame's write time
+# (CLOCK_MONOTONIC ns, 0: dropped) goes into a shared log indexed by the frame's 16-bit counter,
+# so the bench can tell the source's own gaps from the reader's (WriteLog).
 PTY_DAQ = r"""
-import os, sys, time, tty
+import ctypes, mmap, os, struct, sys, time, tty
 from admittance.drivers.optoforce import encode_sample
-rate, priority, counts = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+rate, priority, counts, log_path = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 master, slave = os.openpty()
 tty.setraw(slave)
 os.set_blocking(master, False)
+with open(log_path, "r+b") as f:
+    log = mmap.mmap(f.fileno(), 0)
+libc = ctypes.CDLL(None, use_errno=True)
+class Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+CLOCK_MONOTONIC, TIMER_ABSTIME, EINTR = 1, 1, 4
+def sleep_until(ns):
+    ts = Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
+    while libc.clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, ctypes.byref(ts), None) == EINTR:
+        pass
 print(os.ttyname(slave), flush=True)
 try:
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -330,13 +352,13 @@ except OSError:
     pass
 period, t0, k = 1e9 / rate, time.monotonic_ns(), 0
 while True:
-    late = t0 + int(k * period) - time.monotonic_ns()
-    if late > 0:
-        time.sleep(late / 1e9)
+    sleep_until(t0 + int(k * period))
     try:
         os.write(master, encode_sample(k & 0xFFFF, 0, [counts, 0, 0]))
+        written = time.monotonic_ns()
     except BlockingIOError:
-        pass  # nobody reads: the DAQ drops the frame
+        written = 0  # nobody reads: the DAQ drops the frame
+    struct.pack_into("<q", log, (k & 0xFFFF) * 8, written)
     k += 1
 """
 DAQ_RATE_HZ = 1000
@@ -345,18 +367,47 @@ COUNTS_PER_N = 451.89
 
 
 class PtyDaq:
-    """The PTY_DAQ process; ``port`` is the pty a reader opens."""
+    """The PTY_DAQ process; ``port`` is the pty a reader opens, ``log`` its write times."""
 
     def __init__(self, rate_hz: float = DAQ_RATE_HZ) -> None:
+        self.log_path = Path(tempfile.mkstemp(prefix="pty-daq-writes-")[1])
+        self.log_path.write_bytes(bytes(8 * COUNTER_SPAN))
         self.proc = subprocess.Popen([sys.executable, "-c", PTY_DAQ, str(rate_hz), str(DAQ_PRIORITY),
-                                      str(round(FORCE_N * COUNTS_PER_N))],
+                                      str(round(FORCE_N * COUNTS_PER_N)), str(self.log_path)],
                                      stdout=subprocess.PIPE, text=True, preexec_fn=die_with_parent)
         self.port = self.proc.stdout.readline().strip()
         self.period_ns = int(1e9 / rate_hz)
 
+    def writes(self) -> np.ndarray:
+        """The write time of the last frame with each counter value (0: none or dropped)."""
+        return np.fromfile(self.log_path, dtype="<i8")
+
     def close(self) -> None:
         self.proc.kill()
         self.proc.wait()
+        self.log_path.unlink(missing_ok=True)
+
+
+COUNTER_SPAN = 1 << 16  # the OptoForce frame counter is 16 bits: 65 s of frames at 1 kHz
+
+
+def source_and_reader(writes: np.ndarray, reader: dict, t0_ns: int, t1_ns: int) -> dict:
+    """Whose gap it was. The source's own gaps are the times between its consecutive writes in the
+    run [t0, t1]; the reader's longest gap (between two reads that brought samples) is split at its
+    frame counters: ``source_ns`` is the time between the writes of the frames on either side (the
+    source wrote nothing else), ``reader_late_ns`` how long after its write the frame that ended
+    it was read (the pty's hand-over and the reader's wake-up: what the reader side added)."""
+    times = np.sort(writes[(writes >= t0_ns) & (writes <= t1_ns)])
+    gaps = np.diff(times)
+    out = {"source_writes": int(len(times)),
+           "source_max_gap_ns": int(gaps.max()) if len(gaps) else 0,
+           "source_p999_gap_ns": float(np.percentile(gaps, 99.9)) if len(gaps) else 0.0}
+    before, after = writes[reader["max_gap_counter_before"]], writes[reader["max_gap_counter_after"]]
+    end = reader["max_gap_end_ns"]
+    if reader["max_gap_ns"] and t0_ns - 1_000_000_000 <= before <= after <= end:
+        out["gap_source_ns"] = int(after - before)
+        out["gap_reader_late_ns"] = int(end - after)
+    return out
 
 
 def rust_reader(port: str, sink, priority: int):
@@ -485,6 +536,7 @@ class DaemonLoad:
         self.runs += 1
         cfg = self.config(rate_hz, n_joints)
         readers = []
+        tee = TelemetryTee(loop)
 
         def make_sensor(cfg, port, sink):
             if self.daq is None:
@@ -495,18 +547,21 @@ class DaemonLoad:
         backends = Backends(start_bench=lambda cfg: contextlib.nullcontext((cfg.bus.port, "", lambda: None)),
                             check_servos=lambda cfg, port: [], release_servos=lambda cfg, port: None,
                             make_sensor=make_sensor,
-                            make_loop=lambda cfg, port: loop, make_interface=DaemonInterface)
+                            make_loop=lambda cfg, port: tee, make_interface=DaemonInterface)
         supervisor = Supervisor(cfg, backends, RunOptions(duration=duration_s, before_loop=settle_for_the_reader),
                                 notifier=Notifier(environ={}))
         switch_interval_s = sys.getswitchinterval()
+        t0_ns = time.monotonic_ns()
         try:
             supervisor.run()
         finally:  # settled for this run only: the next point, the phase-lock section start as they were
             unsettle(switch_interval_s)
         shutil.rmtree(cfg.record.path, ignore_errors=True)
         stats = dict(supervisor.final_stats)
+        stats["tail"] = tee.tail()
         if readers:
             stats["reader"] = readers[-1].stats()
+            stats["reader"].update(source_and_reader(self.daq.writes(), stats["reader"], t0_ns, time.monotonic_ns()))
         return stats
 
     def close(self) -> None:
@@ -522,6 +577,40 @@ class DaemonLoad:
         shutil.rmtree(self.workdir, ignore_errors=True)
 
 
+class TelemetryTee:
+    """The loop as the supervisor sees it, keeping a copy of the rows it drains: the bench's view
+    of what the slowest cycles waited on (``tail``)."""
+
+    def __init__(self, loop) -> None:
+        self._loop = loop
+        self._rows: list[np.ndarray] = []
+
+    def __getattr__(self, name):
+        return getattr(self._loop, name)
+
+    def drain_telemetry(self) -> np.ndarray:
+        rows = self._loop.drain_telemetry()
+        self._rows.append(rows[["cycle", "period_error_ns", "latency_ns"]].copy())
+        return rows
+
+    def tail(self) -> dict:
+        """The cycles at or above the p99 force→write latency: how many, and the medians of their
+        wake-up lateness (the start rule's due time → the thread's wake-up: the scheduler) and of
+        the rest (the wait for a sample inside the window, the cycle's own work and write)."""
+        if not self._rows:
+            return {}
+        rows = np.concatenate(self._rows)
+        _, first = np.unique(rows["cycle"], return_index=True)  # one row per cycle, not per joint
+        rows = rows[first]
+        rows = rows[rows["latency_ns"] >= 0]
+        if len(rows) == 0:
+            return {}
+        slow = rows[rows["latency_ns"] >= np.percentile(rows["latency_ns"], 99)]
+        late = slow["period_error_ns"].astype(float)
+        return {"cycles": int(len(rows)), "slow": int(len(slow)), "wake_late_us": float(np.median(late)) / 1e3,
+                "rest_us": float(np.median(slow["latency_ns"] - late)) / 1e3}
+
+
 # -- one point: every loop, both policies, one load -------------------------------------------
 
 def loops_of(load) -> tuple[str, ...]:
@@ -530,6 +619,7 @@ def loops_of(load) -> tuple[str, ...]:
 
 
 def run_point(load, rate: int, n: int, point_s: float) -> dict:
+    point_s = max(point_s, MIN_CYCLES / rate)
     bus = mock_bus(n)
     results = {}
     loops = loops_of(load)
@@ -541,6 +631,8 @@ def run_point(load, rate: int, n: int, point_s: float) -> dict:
             results[name] = summary(stats)
             if "reader" in stats:
                 results[name]["reader"] = stats["reader"]
+            if stats.get("tail"):
+                results[name]["tail"] = stats["tail"]
     finally:
         bus.stop()
     return results
@@ -557,10 +649,22 @@ def ratio(a: dict, b: dict, key: str, k: int) -> float:
 def print_point(rate: int, n: int, results: dict) -> None:
     for name, r in results.items():
         reader = r.get("reader")
-        gap = (f" | reader {reader['reader']} {reader['thread_policy']}: longest gap {reader['max_gap_ns'] / 1e3:.0f} µs, "
-               f"stale {reader['stale_events']}" if reader else "")
+        gap = (f" | reader {reader['reader']} {reader['thread_policy']}: longest gap {reader['max_gap_ns'] / 1e3:.0f} µs"
+               f"{split_of(reader)}, stale {reader['stale_events']}; source's longest write gap "
+               f"{reader.get('source_max_gap_ns', 0) / 1e3:.0f} µs" if reader else "")
+        tail = r.get("tail")
+        if tail:
+            gap += (f" | p99 tail: {tail['slow']} of {tail['cycles']} cycles, median wake-up late "
+                    f"{tail['wake_late_us']:.0f} µs + rest {tail['rest_us']:.0f} µs")
         print(f"{rate:5d} {n:3d} {name:<15} {r['policy']:<11} | {fmt(r['period'])} | {fmt(r['latency'])} "
               f"| {fmt(r['cost'])} | {r['overruns']}/{r['cycles']}{gap}", flush=True)
+
+
+def split_of(reader: dict) -> str:
+    if "gap_source_ns" not in reader:
+        return " (its frames' writes not in the log)"
+    return (f" = source {reader['gap_source_ns'] / 1e3:.0f} µs between its writes, "
+            f"then read {reader['gap_reader_late_ns'] / 1e3:.0f} µs after the write")
 
 
 def print_latency_table(rows: list[tuple]) -> None:
@@ -695,6 +799,7 @@ def run_phase_lock(rate: int, point_s: float) -> None:
 
 
 def main() -> None:
+    global MIN_CYCLES
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--load", choices=("bench", "daemon", "both", "none"), default="both",
                         help="which load the loops run under (none: only the phase-lock section; default both)")
@@ -703,13 +808,17 @@ def main() -> None:
     parser.add_argument("--joints", type=int, nargs="+", default=list(JOINT_COUNTS), metavar="N",
                         help=f"joint counts (default {' '.join(map(str, JOINT_COUNTS))})")
     parser.add_argument("--point-s", type=float, default=POINT_S, metavar="S",
-                        help=f"seconds per loop and point (default {POINT_S})")
+                        help=f"seconds per loop and point (default {POINT_S}), at least {MIN_CYCLES} cycles "
+                             f"(--min-cycles) so that a p99 is not the few worst cycles")
+    parser.add_argument("--min-cycles", type=int, default=MIN_CYCLES, metavar="N",
+                        help=f"cycles per loop and point at least (default {MIN_CYCLES}: a p99 over 20 cycles)")
     parser.add_argument("--sensor", choices=("python", "rust"), default="python",
                         help="the daemon load's sensor: python (a Python reader thread pushing ~1 kHz) or rust "
                              "(a 1 kHz DAQ process on a pty read by the Rust reader; Rust loops only)")
     parser.add_argument("--no-phase-lock-section", action="store_true",
                         help="skip the last section (a sensor paced at the loop's rate)")
     args = parser.parse_args()
+    MIN_CYCLES = max(1, args.min_cycles)
     print(__doc__.split("\n\n")[0])
     print(f"command: {' '.join(sys.argv)}")
     print(f"uptime: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}")

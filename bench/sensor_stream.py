@@ -10,7 +10,8 @@ a thread beside the simulated bus (dxlsim/src/daq.rs), as a real DAQ streams on 
 Each run is `admittance run --duration S --stats-json` on the default embedded bench, with
 ``--burners`` busy-looping processes started before and killed after; the streams take turns
 (``--runs`` each). Per run: stale-sensor holds (`sensor_stale_events`), the reader's longest gap
-between samples, the loop's overruns and bus errors, and the load average before the run: the
+between samples beside the simulated DAQ's own longest gap between two frames written (the
+Rust stream's `max_write_gap_ns`: a reader's gap no longer than it is the source's), the loop's overruns and bus errors, and the load average before the run: the
 machine is shared, so read the two streams against each other, not against another run.
 """
 
@@ -57,7 +58,9 @@ def daemon_run(stream: str, duration: float) -> dict:
 def row(stream: str, load: str, stats: dict) -> str:
     sensor = stats.get("daemon", {}).get("sensor", {})
     gap_ms = sensor.get("max_gap_ns", 0) / 1e6
-    return (f"| {stream} | {load} | {stats.get('exit')} | {stats.get('sensor_stale_events', '?')} | {gap_ms:.1f} | "
+    write_gap = stats.get("bench", {}).get("sensor", {}).get("max_write_gap_ns")
+    source = "n/a" if write_gap is None else f"{write_gap / 1e6:.1f}"  # the Python stream does not time it
+    return (f"| {stream} | {load} | {stats.get('exit')} | {stats.get('sensor_stale_events', '?')} | {gap_ms:.1f} | {source} | "
             f"{stats.get('overruns', '?')} | {stats.get('bus_errors', '?')} | {stats.get('cycles', '?')} |")
 
 
@@ -70,9 +73,9 @@ def main() -> int:
     args = parser.parse_args()
     print(f"admittance run --duration {args.duration:g} on the embedded bench, {args.burners} CPU burners; "
           f"{os.cpu_count()} CPUs")
-    print("| stream | load before (1/5/15 min) | exit | stale holds | reader's longest gap, ms | overruns | "
-          "bus errors | cycles |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| stream | load before (1/5/15 min) | exit | stale holds | reader's longest gap, ms | "
+          "DAQ's longest write gap, ms | overruns | bus errors | cycles |")
+    print("|---|---|---|---|---|---|---|---|---|")
     holds: dict[str, list[int]] = {s: [] for s in args.streams}
     for _ in range(args.runs):
         for stream in args.streams:

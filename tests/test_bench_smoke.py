@@ -45,6 +45,9 @@ CASES = [
      r"^\| this \| 1 \| [1-9]\d* \| \d+ \| \d+ \|"),
     # One short daemon run per simulated DAQ stream, no burners.
     ("sensor_stream.py", ["--duration", "2", "--burners", "0"], r"^stale holds per stream: python \d+ in 1 runs, rust \d+ in 1 runs$"),
+    # One short run per transport, no burners: the hand-over's split is printed for both.
+    ("pty_handoff.py", ["--seconds", "0.5", "--runs", "1", "--burners", "0"],
+     r"^median p99 latency: pty \d+ µs, pipe \d+ µs \(pty / pipe \d+\.\dx\)$"),
     ("slcan_reader_cpu.py", ["--window", "1"], r"^slcan / serial CPU: \d+\.\d+x$"),
     ("reader_stalls.py", ["--window", "0.5", "--burners", "0"], r"^switch\+freeze / default: p99 \d+\.\d+, p99\.9 \d+\.\d+"),
     # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.
@@ -53,11 +56,14 @@ CASES = [
     # One servo, one inertia, guard off and on (after a short identification of the servo model).
     ("passivity.py", ["--servos", "lag 25 ms", "--factors", "1", "--seconds", "4", "--identify-seconds", "8",
                       "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),
-    ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3",
+    ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3", "--min-cycles", "1",
                         "--no-phase-lock-section"], r"^median Python/Rust at SCHED_OTHER: p99 period error"),
     # The daemon load with the Rust reader on a pty DAQ process (Rust loops only).
+    # Its reader's longest gap is split into the source's share and the reader's, beside the source's own gaps.
     ("loop_timing.py", ["--load", "daemon", "--sensor", "rust", "--rates", "250", "--joints", "1", "--point-s", "0.3",
-                        "--no-phase-lock-section"], r"rust_fifo .* reader rust-serial SCHED_FIFO: longest gap \d+ µs"),
+                        "--min-cycles", "1", "--no-phase-lock-section"],
+     r"rust_fifo .* reader rust-serial SCHED_FIFO: longest gap \d+ µs = source \d+ µs between its writes, then read "
+     r"-?\d+ µs after the write, stale \d+; source's longest write gap [1-9]\d* µs \| p99 tail: \d+ of \d+ cycles"),
 ]
 # Benches no case runs, each with the reason (test_every_bench_has_a_case makes it explicit).
 SKIPPED = {

@@ -187,6 +187,9 @@ pub struct DaqState {
     pub configs_received: AtomicU64,
     pub late_skips: AtomicU64,
     pub faulty_frames: AtomicU64,
+    /// The longest time between two frames written one after the other (ns): the source's own
+    /// gap, to set beside the reader's (a stop, a silence or a dropped frame starts afresh).
+    pub max_write_gap_ns: AtomicU64,
     /// f64 bits: samples per second (0 once the host stopped the stream).
     rate_hz: AtomicU64,
     /// f64 bits: the torque the sensor read at the last sample.
@@ -317,9 +320,13 @@ impl SimulatedDaq {
         let state = DaqState::default();
         state.rate_hz.store(config.rate_hz.to_bits(), Ordering::Relaxed);
         let noise = Gaussian::new(config.seed);
-        let rt_priority = config.rt_priority;
-        let profile = Arc::new(Mutex::new(config.profile.clone()));
-        let stream = Stream { profile: profile.clone(), config, servos, noise, parser: Parser::default(), tare: None, last_counts: Vec::new(), counter: 0, rt_priority };
+        // The profile moves into the mutex `set_profile` replaces: no second copy (up to 16 MB).
+        let DaqConfig { profile, model, hand_servo, rt_priority, .. } = config;
+        let profile = Arc::new(Mutex::new(profile));
+        let stream = Stream {
+            profile: profile.clone(), model, hand_servo, servos, noise, parser: Parser::default(), tare: None,
+            last_counts: Vec::new(), counter: 0, rt_priority, last_write_ns: 0,
+        };
         Ok(SimulatedDaq {
             port: Arc::new(Mutex::new(port)),
             profile,
@@ -441,7 +448,8 @@ impl Drop for SimulatedDaq {
 struct Stream {
     /// The hand's profile: `SimulatedDaq::set_profile` may replace it while the stream runs.
     profile: Arc<Mutex<HandProfile>>,
-    config: DaqConfig,
+    model: ForceModel,
+    hand_servo: u8,
     servos: Arc<Mutex<Shared>>,
     noise: Gaussian,
     parser: Parser,
@@ -449,6 +457,8 @@ struct Stream {
     last_counts: Vec<i16>,
     counter: u16,
     rt_priority: i32,
+    /// When the last frame went out (0: the last tick wrote none).
+    last_write_ns: u64,
 }
 
 impl Stream {
@@ -482,9 +492,10 @@ impl Stream {
         let tau = state.hand_torque(&lock(&self.profile), t);
         let sensed = self.push_hand(tau);
         state.last_torque.store(sensed.to_bits(), Ordering::Relaxed);
-        let (mut counts, mut status) = self.config.model.counts(sensed, &mut self.noise);
+        let (mut counts, mut status) = self.model.counts(sensed, &mut self.noise);
         self.last_counts.clone_from(&counts);
         if !state.streaming() || state.silent.load(Ordering::Relaxed) {
+            self.last_write_ns = 0;
             return;
         }
         if let Some(tare) = &self.tare {
@@ -492,21 +503,35 @@ impl Stream {
         }
         status |= state.fault_status.load(Ordering::Relaxed) as u16;
         if state.saturated.load(Ordering::Relaxed) {
-            let i = self.config.model.axis;
+            let i = self.model.axis;
             counts[i] = if counts[i] >= 0 { INT16_MAX as i16 } else { -INT16_MAX as i16 };
             status |= overload_bit(i);
         }
-        let Some(frame) = optoforce::encode_sample(self.counter, status, &counts) else { return };
+        let Some(frame) = optoforce::encode_sample(self.counter, status, &counts) else {
+            self.last_write_ns = 0;
+            return;
+        };
         self.counter = self.counter.wrapping_add(1);
         let frame = self.faulty(frame, state);
-        let counter = if lock(port).send(&frame) { &state.samples_sent } else { &state.samples_dropped };
+        let sent = lock(port).send(&frame);
+        self.note_write(sent, state);
+        let counter = if sent { &state.samples_sent } else { &state.samples_dropped };
         counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// The source's own gap: the time between this frame's write and the previous one's.
+    fn note_write(&mut self, sent: bool, state: &DaqState) {
+        let now = if sent { monotonic_ns() } else { 0 };
+        if now != 0 && self.last_write_ns != 0 {
+            state.max_write_gap_ns.fetch_max(now - self.last_write_ns, Ordering::Relaxed);
+        }
+        self.last_write_ns = now;
     }
 
     /// Applies τ to the hand's servo; what the sensor reads (τ, or what a gripping hand transmits).
     fn push_hand(&self, tau: f64) -> f64 {
         let mut shared = lock(&self.servos);
-        match shared.bus.servo_mut(self.config.hand_servo) {
+        match shared.bus.servo_mut(self.hand_servo) {
             Some(servo) => {
                 servo.set_external_torque(tau);
                 servo.snapshot().hand_torque

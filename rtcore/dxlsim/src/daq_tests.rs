@@ -116,6 +116,23 @@ fn the_stream_pushes_the_hand_and_sends_its_force() {
 }
 
 #[test]
+fn the_write_gap_counts_the_streams_own_pauses_not_a_silence() {
+    let bus = bus();
+    let daq = daq(&bus, constant(PUSH));
+    let mut host = Host::open(&daq.port_path());
+    daq.start().unwrap();
+    host.samples(20);
+    let gap = daq.state().max_write_gap_ns.load(Ordering::Relaxed);
+    assert!(gap > 0, "consecutive frames were timed");
+    daq.state().silent.store(true, Ordering::Relaxed);
+    std::thread::sleep(Duration::from_millis(300));
+    daq.state().silent.store(false, Ordering::Relaxed);
+    host.samples(20);
+    let gap = daq.state().max_write_gap_ns.load(Ordering::Relaxed);
+    assert!(gap < 300_000_000, "a silence the host asked for is not the source's gap ({gap} ns)");
+}
+
+#[test]
 fn a_config_packet_tares_stops_and_is_acknowledged() {
     let bus = bus();
     let daq = daq(&bus, constant(PUSH));

@@ -147,6 +147,7 @@ impl PySimulatedDaq {
         d.set_item("samples_dropped", n(&s.samples_dropped))?;
         d.set_item("configs_received", n(&s.configs_received))?;
         d.set_item("late_skips", n(&s.late_skips))?;
+        d.set_item("max_write_gap_ns", n(&s.max_write_gap_ns))?;
         d.set_item("silent", s.silent.load(Ordering::Relaxed))?;
         d.set_item("saturated", s.saturated.load(Ordering::Relaxed))?;
         d.set_item("fault_status", s.fault_status.load(Ordering::Relaxed))?;

@@ -72,6 +72,11 @@ pub struct ReaderStats {
     pub stale: bool,
     /// The longest time between two reads that brought samples, since the start (ns).
     pub max_gap_ns: u64,
+    /// Where that gap fell: the read that ended it (CLOCK_MONOTONIC ns) and the sensor's
+    /// frame counters on either side (the last sample before it, the first after). With the
+    /// source's own write times (a bench's DAQ logs them by counter) they split the gap into
+    /// the source's share (no frame written) and the reader's (frames written, not yet read).
+    pub max_gap: GapAt,
     pub batches: u64,
     pub parser: ParserStats,
     pub converter: ConverterStats,
@@ -79,6 +84,14 @@ pub struct ReaderStats {
     pub thread_policy: &'static str,
     pub thread_priority: i32,
     pub thread_warnings: Vec<String>,
+}
+
+/// Where the reader's longest gap fell (see `ReaderStats::max_gap`); zeros before any gap.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GapAt {
+    pub end_ns: u64,
+    pub counter_before: u16,
+    pub counter_after: u16,
 }
 
 struct TareRequest {
@@ -243,6 +256,16 @@ impl Drop for Reader {
     }
 }
 
+/// The first and last sample counters among `records` (None: no sample).
+fn sample_counters(records: &[Record]) -> Option<(u16, u16)> {
+    let mut counters = records.iter().filter_map(|r| match r {
+        Record::Sample(s) => Some(s.counter),
+        _ => None,
+    });
+    let first = counters.next()?;
+    Some((first, counters.next_back().unwrap_or(first)))
+}
+
 fn set_stats(shared: &Shared, f: impl FnOnce(&mut ReaderStats)) {
     if let Ok(mut s) = shared.stats.lock() {
         f(&mut s);
@@ -260,6 +283,8 @@ struct Worker {
     backoff_ns: u64,
     last_arrival_ns: u64,
     last_batch_ns: u64,
+    /// The counter of the last sample read (the start of the next gap).
+    last_counter: u16,
     buf: Vec<u8>,
     records: Vec<Record>,
     batch: Vec<[f64; 6]>,
@@ -285,7 +310,7 @@ impl Worker {
         let now = monotonic_ns();
         Worker {
             source, target, shared, parser: Parser::default(), converter, stats, describe,
-            backoff_ns: RECONNECT_FIRST_NS, last_arrival_ns: now, last_batch_ns: 0, buf: Vec::with_capacity(8192),
+            backoff_ns: RECONNECT_FIRST_NS, last_arrival_ns: now, last_batch_ns: 0, last_counter: 0, buf: Vec::with_capacity(8192),
             records: Vec::with_capacity(256), batch: Vec::with_capacity(256),
         }
     }
@@ -326,6 +351,7 @@ impl Worker {
         records.clear();
         batch.clear();
         self.parser.feed(data, |r| records.push(r));
+        let counters = sample_counters(&records);
         for record in &records {
             match *record {
                 Record::Sample(sample) => match self.converter.convert(&sample) {
@@ -341,8 +367,8 @@ impl Worker {
         }
         self.emit(&batch, t_ns);
         (self.records, self.batch) = (records, batch);
-        if self.parser.stats.samples != samples {
-            self.arrived(t_ns);
+        if let (true, Some((first, last))) = (self.parser.stats.samples != samples, counters) {
+            self.arrived(t_ns, first, last);
         }
         if self.converter.stats.overloads != overloads {
             let note = self.converter.saturation_note();
@@ -403,11 +429,15 @@ impl Worker {
         }
     }
 
-    fn arrived(&mut self, t_ns: u64) {
-        if self.last_batch_ns != 0 {
-            self.stats.max_gap_ns = self.stats.max_gap_ns.max(t_ns.saturating_sub(self.last_batch_ns));
+    /// Samples came at `t_ns`, counters `first..=last`.
+    fn arrived(&mut self, t_ns: u64, first: u16, last: u16) {
+        let gap = t_ns.saturating_sub(self.last_batch_ns);
+        if self.last_batch_ns != 0 && gap > self.stats.max_gap_ns {
+            self.stats.max_gap_ns = gap;
+            self.stats.max_gap = GapAt { end_ns: t_ns, counter_before: self.last_counter, counter_after: first };
         }
         self.last_batch_ns = t_ns;
+        self.last_counter = last;
         self.stats.batches += 1;
         self.last_arrival_ns = t_ns;
         self.backoff_ns = RECONNECT_FIRST_NS;
@@ -578,6 +608,50 @@ mod tests {
         let got = reader.take_captured();
         assert!((got[0].forces[0] - 1.0).abs() < 1e-12);
         reader.stop();
+    }
+
+    /// Serves two frames a read (counters k, k+1), pauses before frame `pause_at`, and is silent
+    /// after `last`.
+    struct Counting {
+        k: u16,
+        pause_at: u16,
+        last: u16,
+    }
+
+    impl Source for Counting {
+        fn open(&mut self) -> Result<(), String> {
+            Ok(())
+        }
+        fn read(&mut self, out: &mut Vec<u8>, _timeout_us: u64) -> io::Result<()> {
+            std::thread::sleep(Duration::from_millis(if self.k == self.pause_at { 300 } else { 1 }));
+            for _ in 0..2 {
+                if self.k <= self.last {
+                    out.extend_from_slice(&encode_sample(self.k, 0, &[452, 0, 0]).unwrap_or_default());
+                    self.k += 1;
+                }
+            }
+            Ok(())
+        }
+        fn close(&mut self) {}
+        fn describe(&self) -> String {
+            "optoforce sensor on counting".into()
+        }
+        fn path(&self) -> &'static str {
+            "rust-test"
+        }
+    }
+
+    #[test]
+    fn the_longest_gap_is_located_by_time_and_frame_counters() {
+        let source = Counting { k: 0, pause_at: 10, last: 13 };
+        let mut reader = Reader::new(Box::new(source), ReaderConfig { stale_after_ns: 10_000_000_000, ..config() }, Target::Capture).unwrap();
+        reader.start().unwrap();
+        let s = wait_for(&reader, |s| s.samples_pushed == 14);
+        reader.stop();
+        let got = reader.take_captured();
+        assert_eq!((s.max_gap.counter_before, s.max_gap.counter_after), (9, 10), "the pause was between frames 9 and 10 (reads 8-9, 10-11)");
+        assert_eq!(s.max_gap.end_ns, got[10].t_ns, "ended by the read that brought frame 10");
+        assert_eq!(s.max_gap_ns, got[10].t_ns - got[9].t_ns);
     }
 
     #[test]
