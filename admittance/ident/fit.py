@@ -64,8 +64,8 @@ ABS_STEP = {
 # (the Rust plant's forward sensitivities, one pass per trial: rtcore/plant/src/sensitivity.rs).
 # The tangent is the exact derivative of the branch the plant took, and that is what loses: on
 # 30 drops with a Stribeck term (bench/identify_speed.py's set) LM with exact derivatives
-# stalled in worse optima, Stribeck ended a stand-in instead of named, its torque 3.7 σ from
-# the finite-difference fit's, and the CPU time was 3× higher (docs/identification.md, *Speed*).
+# stalled in worse optima, Stribeck ended a stand-in instead of named, its torque 3.8 of its σ
+# from the finite-difference fit's, and the CPU time was 3× higher (docs/identification.md, *Speed*).
 # The 1 % chords step over the kinks of stick friction; the tangent sees every kink.
 JACOBIAN = "differences"
 
