@@ -114,10 +114,10 @@ fn every_derivative_matches_central_differences_on_a_smooth_law() {
     let x0 = at(1.0, 0.3);
     let n = trial.n_samples();
     let out = sensitivities(&trial, &p, FrictionLaw::Tanh, x0, &all_params());
-    for j in 0..N_PARAMS {
+    for (j, name) in PARAM_NAMES.iter().enumerate() {
         let fd = difference(&trial, &p, FrictionLaw::Tanh, x0, j, 1e-6);
         let m = mismatch(row(&out, n, j + 1), &fd);
-        assert!(m < 1e-4, "{}: mismatch {m:.2e}", PARAM_NAMES[j]);
+        assert!(m < 1e-4, "{name}: mismatch {m:.2e}");
     }
     for (r, omega) in [(N_PARAMS + 1, false), (N_PARAMS + 2, true)] {
         let m = mismatch(row(&out, n, r), &x0_difference(&trial, &p, FrictionLaw::Tanh, x0, omega));
@@ -152,8 +152,8 @@ fn a_joint_held_by_friction_does_not_depend_on_the_parameters() {
     let p = Params { coulomb: 0.05, damping: 0.01, ..bare(0.01) };
     let out = sensitivities(&trial, &p, FrictionLaw::Stick, at(0.0, 0.0), &all_params());
     let n = trial.n_samples();
-    for j in 0..N_PARAMS {
-        assert!(row(&out, n, j + 1).iter().all(|v| *v == 0.0), "{}", PARAM_NAMES[j]);
+    for (j, name) in PARAM_NAMES.iter().enumerate() {
+        assert!(row(&out, n, j + 1).iter().all(|v| *v == 0.0), "{name}");
     }
     assert!(row(&out, n, N_PARAMS + 1).iter().all(|v| *v == 1.0), "dθ/dθ0 is 1 at rest");
 }
