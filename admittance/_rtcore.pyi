@@ -141,6 +141,7 @@ class _MotorConstants(TypedDict):
     max_pwm: float
 
 __all__ = ["__version__", "build_profile", "PARAM_NAMES", "PARAM_DEFAULTS", "Trial", "simulate_batch",
+    "simulate_sensitivities",
     "required_torque", "corrected_torque", "admittance_check_stable", "crc16", "checksum1",
     "encode_instruction", "encode_status", "encode_ping", "encode_read", "encode_write", "encode_reg_write",
     "encode_action", "encode_factory_reset", "encode_reboot", "encode_sync_read", "encode_fast_sync_read", "encode_sync_write",
@@ -353,3 +354,6 @@ def split_param_name(name: str) -> tuple[int | None, str]: ...
 def simulate_batch(trials: Sequence[Trial], params: ArrayLike, x0: ArrayLike, *, max_step: float = 0.0005,
                    friction: _Friction = 'stick', return_velocity: bool = False,
                    threads: int | None = None) -> list[_Floats]: ...
+def simulate_sensitivities(trials: Sequence[Trial], params: ArrayLike, x0: ArrayLike, wrt: Sequence[str], *,
+                           max_step: float = 0.0005, friction: _Friction = 'stick',
+                           threads: int | None = None) -> list[_Floats]: ...  # per trial (len(wrt) + 3, n)

@@ -16,7 +16,7 @@ parameter within the larger of the two σ. Then the median ratio over the sets, 
 average before and after. A figure is what one run measured: nothing is extrapolated.
 
 Usage: ``.venv/bin/python bench/identify_speed.py [--sets stribeck=0.04,quadratic_drag=0.002,cogging=0.01]
-[--trials 30] [--duration 10] [--seed 0] [--baseline-ref 74e9896] [--this-only]``
+[--trials 30] [--duration 10] [--seed 0] [--baseline-ref 74e9896] [--jacobian sensitivities]``
 """
 
 from __future__ import annotations
@@ -42,6 +42,9 @@ import admittance
 from admittance.formats.dataset import load_dataset
 from admittance.ident.identify import identify_dataset
 dataset = load_dataset(sys.argv[1])
+if len(sys.argv) > 2:  # this tree's Jacobian (fit.JACOBIAN); the baseline has only differences
+    import admittance.ident.fit as fit
+    fit.JACOBIAN = sys.argv[2]
 start, cpu = time.perf_counter(), time.process_time()
 result = identify_dataset(dataset).to_json()
 seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -65,11 +68,11 @@ def baseline_tree(ref: str, into: Path) -> Path:
     return into
 
 
-def run_identify(tree: Path, dataset: Path) -> dict:
+def run_identify(tree: Path, dataset: Path, jacobian: str | None = None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     # ``python -c`` puts the working directory first on sys.path: run from the data's folder, so
     # that a checkout in the caller's directory cannot stand in for ``tree`` (checked below).
-    done = subprocess.run([sys.executable, "-c", RUNNER, str(dataset)], env=env, capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-c", RUNNER, str(dataset), *([jacobian] if jacobian else [])], env=env, capture_output=True, text=True,
                           check=False, cwd=dataset)
     if done.returncode != 0:
         raise RuntimeError(f"identify failed in {tree}: {done.stderr[-2000:]}")
@@ -108,6 +111,8 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="s per trial")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--baseline-ref", default=BASELINE_REF, help="git commit whose identification is the baseline")
+    parser.add_argument("--jacobian", choices=("differences", "sensitivities"), default=None,
+                        help="this tree's Jacobian (admittance.ident.fit.JACOBIAN; default: the tree's own)")
     args = parser.parse_args()
     sets = [(name, float(size)) for name, size in (item.split("=") for item in args.sets.split(","))]
 
@@ -122,7 +127,8 @@ def main() -> None:
             order = [("baseline", base), ("this", ROOT)]
             if number % 2:
                 order.reverse()
-            results = {label: run_identify(tree, folder) for label, tree in order}
+            results = {label: run_identify(tree, folder, args.jacobian if label == "this" else None)
+                       for label, tree in order}
             b, t = results["baseline"], results["this"]
             rows.append((effect, size, b, t, agreement(b, t)))
             print(_row(rows[-1]) + f" load {_load().split()[0]}", flush=True)

@@ -159,3 +159,24 @@ def test_base_fit_leaves_a_friction_basin_a_single_start_cannot(tmp_path, monkey
     alone, _ = base.fit_base(sim, start, free, initial_state_starts(ds.trials), Sensor(), 0.3)
     assert alone.rmse > 0.02  # ten times the 2 mrad noise: a wrong basin
 
+
+
+def test_the_plants_sensitivities_agree_with_the_finite_difference_jacobian(clean, monkeypatch):
+    """The two Jacobians of fit.py (JACOBIAN): the Rust plant's forward sensitivities against
+    central differences of the same simulator, parameters and initial states."""
+    import admittance.ident.fit as fit
+
+    ds = load_dataset(clean)
+    sim = Simulator(ds.trials[:3], ds.mode)
+    truth = vector_from(json.loads((clean / "truth.json").read_text())["params"])
+    problem = _Problem(sim, truth, free_params("geometry", [], False), True, 0.3)
+    z = np.concatenate([truth[:3], initial_states(ds.trials[:3]).ravel()])
+    monkeypatch.setattr(fit, "JACOBIAN", "sensitivities")
+    jac = problem.jacobian(z, problem.residuals(z), np.full(z.size, np.inf))
+    assert [j.shape for j in jac] == [(5, tr.n_samples) for tr in ds.trials[:3]]
+    for slot, row, step in ((5, 3, 1e-6), (6, 4, 1e-6), (1, 1, 1e-7), (0, 0, 1e-8)):
+        up, down = z.copy(), z.copy()
+        up[slot] += step
+        down[slot] -= step
+        direct = (problem.residuals(up)[1] - problem.residuals(down)[1]) / (2 * step)
+        np.testing.assert_allclose(jac[1][row], direct, atol=1e-3 * np.abs(direct).max())

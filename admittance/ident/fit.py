@@ -60,6 +60,15 @@ ABS_STEP = {
     "friction_ripple_period": 1e-2,
 }
 
+# How Jacobians are computed: "differences" (the 1 % steps above, one batch) or "sensitivities"
+# (the Rust plant's forward sensitivities, one pass per trial: rtcore/plant/src/sensitivity.rs).
+# The tangent is the exact derivative of the branch the plant took, and that is what loses: on
+# 30 drops with a Stribeck term (bench/identify_speed.py's set) LM with exact derivatives
+# stalled in worse optima, Stribeck ended a stand-in instead of named, its torque 3.8 of its σ
+# from the finite-difference fit's, and the CPU time was 3× higher (docs/identification.md, *Speed*).
+# The 1 % chords step over the kinks of stick friction; the tangent sees every kink.
+JACOBIAN = "differences"
+
 Progress = Callable[[str], None]
 # A damped step predicted to gain less than this fraction of the stopping tolerance ends the fit.
 CONVERGED_FRACTION = 0.1
@@ -162,6 +171,8 @@ class _Problem:
 
     def jacobian(self, z: np.ndarray, residuals: list[np.ndarray], upper: np.ndarray) -> list[np.ndarray]:
         """Per trial, the (n_g [+2], n_k) block of ∂θ/∂(g, own x0), from one batch."""
+        if JACOBIAN == "sensitivities":
+            return self.tangent(z)
         g, x0 = self.split(z)
         h = self.steps(g, upper)
         n_rows = self.n_g + (2 if self.fit_x0 else 0)
@@ -174,6 +185,23 @@ class _Problem:
         steps = np.concatenate([h, [THETA0_STEP, OMEGA0_STEP] if self.fit_x0 else []])
         sims = self.simulate(gmat, x0s)
         return [(s - (r + m)[None, :]) / steps[:, None] for s, r, m in zip(sims, residuals, self.measured)]
+
+
+    def tangent(self, z: np.ndarray) -> list[np.ndarray]:
+        """:meth:`jacobian` from the plant's forward sensitivities: one pass per trial."""
+        g, x0 = self.split(z)
+        vector = self.rows(g[None, :])[0]
+        # The torque scale multiplies the measured torque as the gain does: ∂/∂scale = gain/scale · ∂/∂gain.
+        wrt = ["torque_gain" if n == TAU_SCALE else n for n in self.free]
+        sim = self.sim if self.scale_slot is None else self._sim_at(float(g[self.scale_slot]))
+        self.simulations += self.n_trials
+        out = []
+        for block in sim.sensitivities(vector, x0, wrt):
+            jk = block[1 : 1 + self.n_g + (2 if self.fit_x0 else 0)].copy()
+            if self.scale_slot is not None:
+                jk[self.scale_slot] *= vector[INDEX["torque_gain"]] / g[self.scale_slot]
+            out.append(jk)
+        return out
 
 
 def normal_equations(jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):

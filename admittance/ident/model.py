@@ -241,3 +241,13 @@ class Simulator:
         x0 = np.ascontiguousarray(x0, dtype=float)
         return _rtcore.simulate_batch(self._rt, rows, x0, max_step=self.max_step, friction=self.friction,
                                       return_velocity=velocity)
+
+    def sensitivities(self, vector: np.ndarray, x0: np.ndarray, wrt: Sequence[str]) -> list[np.ndarray]:
+        """Per trial, (len(wrt) + 3, n_t): θ under ``vector`` from ``x0`` (T, 2), then ∂θ/∂p for each
+        name of ``wrt``, then ∂θ/∂θ0 and ∂θ/∂ω0: one pass of the Rust plant's forward sensitivities."""
+        from admittance import _rtcore
+
+        vector = np.ascontiguousarray(vector, dtype=float)
+        x0 = np.ascontiguousarray(x0, dtype=float).reshape(1, -1, 2)
+        return _rtcore.simulate_sensitivities(self._rt, vector, x0, list(wrt), max_step=self.max_step,
+                                              friction=self.friction)

@@ -80,17 +80,9 @@ impl Batch<'_> {
                 jobs.push((s, k, chunk));
             }
         }
-        let run_jobs = move || {
+        in_pool(self.threads, move || {
             jobs.into_par_iter().for_each(|(s, k, chunk)| self.run_one(s, k, chunk));
-        };
-        match self.threads {
-            None => run_jobs(),
-            Some(n) => rayon::ThreadPoolBuilder::new()
-                .num_threads(n)
-                .build()
-                .map_err(|e| PlantError::InvalidValue(format!("cannot start {n} threads: {e}")))?
-                .install(run_jobs),
-        }
+        })?;
         Ok(outs)
     }
 
@@ -107,4 +99,17 @@ impl Batch<'_> {
             }),
         }
     }
+}
+
+/// Runs `work` on rayon's global pool (`threads` None) or on a pool of `threads` workers.
+pub(crate) fn in_pool<F: FnOnce() + Send>(threads: Option<usize>, work: F) -> Result<(), PlantError> {
+    match threads {
+        None => work(),
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .map_err(|e| PlantError::InvalidValue(format!("cannot start {n} threads: {e}")))?
+            .install(work),
+    }
+    Ok(())
 }

@@ -54,7 +54,7 @@ impl FrictionLaw {
 
 /// Direction of motion for the asymmetric level: that of ω, or at rest that of the drive.
 #[inline]
-fn direction(omega: f64, drive: f64) -> f64 {
+pub(crate) fn direction(omega: f64, drive: f64) -> f64 {
     let v = if omega != 0.0 { omega } else { drive };
     if v > 0.0 {
         1.0

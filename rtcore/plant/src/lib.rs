@@ -8,6 +8,8 @@
 //! - `model`: one semi-implicit Euler substep of the plant (`step`), used by the mock bus.
 //! - `trial`: a trial's inputs and its simulation at the sample times.
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
+//! - `sensitivity`: the angle and its derivatives by parameters and initial state in one pass
+//!   (forward sensitivities of the substep), for identification's Jacobians.
 //! - `inverse`: the model read backwards (the torque a recorded motion needs), for `predict`.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
 //! - `servo`: how a position servo's horn follows its goal (fitted by `fidelity`, inverted by
@@ -33,6 +35,7 @@ pub mod friction;
 pub mod inverse;
 pub mod model;
 pub mod params;
+pub mod sensitivity;
 pub mod servo;
 pub mod trial;
 
@@ -41,4 +44,5 @@ pub use error::PlantError;
 pub use friction::FrictionLaw;
 pub use model::{step, Load, State};
 pub use params::{param_index, Params, N_PARAMS, PARAM_NAMES};
+pub use sensitivity::Sensitivities;
 pub use trial::{simulate, Trial};

@@ -175,6 +175,15 @@ impl<'a> TorqueCursor<'a> {
         }
         tau[self.j] + self.slope * (q - t[self.j])
     }
+
+    /// The torque at `q` and its rate of change there (0 where the series is held at an end
+    /// value): what a sensitivity to the time delay needs.
+    #[inline]
+    pub(crate) fn at_with_rate(&mut self, q: f64) -> (f64, f64) {
+        let value = self.at(q);
+        let inside = q > self.t[0] && q < self.t[self.t.len() - 1];
+        (value, if inside { self.slope } else { 0.0 })
+    }
 }
 
 /// `Ok(())` when `max_step` is a usable substep bound.

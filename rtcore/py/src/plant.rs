@@ -1,4 +1,5 @@
-//! Python bindings of the `plant` crate: `PARAM_NAMES`, `Trial`, `simulate_batch`, and the model
+//! Python bindings of the `plant` crate: `PARAM_NAMES`, `Trial`, `simulate_batch`,
+//! `simulate_sensitivities` (the angle and its derivatives in one pass), and the model
 //! read backwards (`required_torque`, `corrected_torque`) for `admittance predict`.
 //!
 //! A `Trial` copies its arrays into Rust once; `simulate_batch` then only reads parameter
@@ -6,7 +7,9 @@
 //! rayon. Inputs are converted with `numpy.asarray` semantics (lists, float32, strided views
 //! are all accepted) and every error is a `ValueError` naming the bad input.
 use numpy::{AllowTypeChange, PyArray1, PyArrayLikeDyn, PyArrayMethods, PyUntypedArrayMethods};
-use plant::{Batch, FrictionLaw, Load, Output, Params, PlantError, State, Trial, N_PARAMS, PARAM_NAMES};
+use plant::{
+    param_index, Batch, FrictionLaw, Load, Output, Params, PlantError, Sensitivities, State, Trial, N_PARAMS, PARAM_NAMES,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
@@ -174,6 +177,41 @@ fn simulate_batch<'py>(
         .collect()
 }
 
+/// The angle of every trial under one parameter set and, from the same pass, its derivatives
+/// by the parameters named in `wrt` and by the trial's initial state (`plant::sensitivity`).
+/// Per trial an array (len(wrt) + 3, n_samples): θ, ∂θ/∂p for each of `wrt`, ∂θ/∂θ0, ∂θ/∂ω0.
+#[pyfunction]
+#[pyo3(signature = (trials, params, x0, wrt, *, max_step=5e-4, friction="stick", threads=None))]
+#[allow(clippy::too_many_arguments)]
+fn simulate_sensitivities<'py>(
+    py: Python<'py>,
+    trials: Vec<Bound<'py, PyTrial>>,
+    params: &Bound<'py, PyAny>,
+    x0: &Bound<'py, PyAny>,
+    wrt: Vec<String>,
+    max_step: f64,
+    friction: &str,
+    threads: Option<usize>,
+) -> PyResult<Vec<Bound<'py, PyAny>>> {
+    let law: FrictionLaw = friction.parse().map_err(value_error)?;
+    let p = param_vector(params)?;
+    let x0 = initial_states(x0, 1, trials.len())?;
+    let wrt = wrt
+        .iter()
+        .map(|name| {
+            param_index(name).ok_or_else(|| PyValueError::new_err(format!("wrt: {name:?} is not a parameter name")))
+        })
+        .collect::<PyResult<Vec<usize>>>()?;
+    let trial_refs: Vec<&Trial> = trials.iter().map(|t| &t.get().inner).collect();
+    let request = Sensitivities { trials: &trial_refs, params: &p, x0: &x0, wrt: &wrt, law, max_step, threads };
+    let rows = request.rows();
+    let outs = py.detach(|| request.run()).map_err(value_error)?;
+    outs.into_iter()
+        .zip(&trial_refs)
+        .map(|(buf, trial)| Ok(PyArray1::from_vec(py, buf).reshape([rows, trial.n_samples()])?.into_any()))
+        .collect()
+}
+
 /// Reads one parameter vector (`PARAM_NAMES` order) into `Params`.
 fn param_vector(params: &Bound<'_, PyAny>) -> PyResult<Params> {
     let (data, _) = f64_array(params, "params", 1)?;
@@ -235,6 +273,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PARAM_DEFAULTS", PyTuple::new(py, Params::default().to_array())?)?;
     m.add_class::<PyTrial>()?;
     m.add_function(wrap_pyfunction!(simulate_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_sensitivities, m)?)?;
     m.add_function(wrap_pyfunction!(required_torque, m)?)?;
     m.add_function(wrap_pyfunction!(corrected_torque, m)?)?;
     m.add_function(wrap_pyfunction!(admittance_check_stable, m)?)?;
