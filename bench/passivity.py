@@ -59,12 +59,14 @@ def own_inertia() -> float:
 
 
 def lockstep_session(work: Path, name: str, *, params: Path, profile: str, seconds: float, joint: dict | None = None,
-                     bench: dict | None = None, seed: int = 1) -> tuple[Path, dict]:
+                     bench: dict | None = None, seed: int = 1, stalls: tuple[float, int] = (0.0, 0)) -> tuple[Path, dict]:
     """bench/fidelity.py's `session` in model time: the same configuration (`fb.config_doc`), the
     loop built from it as the daemon builds it, the embedded bench's servos and hand, stepped
     together by `_rtcore.run_lockstep` (no wall clock: the same records on every run, whatever
     the load), and the records written by the daemon's own recorder, so the same analysis reads
-    them. (recording folder, stats: the guard's figures as the daemon's --stats-json has them)."""
+    them; ``stalls``: (probability per cycle, longest in cycles) of the loop's seeded stalls (a loaded
+    machine's overruns, made repeatable). (recording folder, stats: the guard's figures as the
+    daemon's --stats-json has them)."""
     from types import SimpleNamespace
 
     from admittance import _rtcore
@@ -95,7 +97,8 @@ def lockstep_session(work: Path, name: str, *, params: Path, profile: str, secon
     records = _rtcore.run_lockstep(loop, sim.bus, *table, seconds + b.hand_delay_s, hand_servo=sim.hand_servo_id,
                                    lever_arm=model.lever_arm, axis=model.axis_index,
                                    counts_per_newton=list(model.counts_per_newton), noise_std_n=model.noise_std_n,
-                                   seed=seed, hand_delay_s=b.hand_delay_s)
+                                   seed=seed, hand_delay_s=b.hand_delay_s, stall_probability=stalls[0],
+                                   stall_max_cycles=stalls[1])
     folder = work / name
     lp = cfg.loop
     recorder = Recorder(folder, [(j.id, j.model) for j in cfg.joints], measured_theta=True,
@@ -108,7 +111,8 @@ def lockstep_session(work: Path, name: str, *, params: Path, profile: str, secon
     damping = rows["passivity_damping"]
     episodes = int(np.sum((damping[1:] > 0) & (damping[:-1] == 0)) + (damping[0] > 0))
     guard = {"port_energy": None, "episodes": episodes}  # the guard's port sum is not in the records
-    return folder, {"passivity": [guard], "overruns": 0, "bus_errors": int(np.sum(rows["fault"] != 0))}
+    stalled = int(np.sum(np.diff(rows["cycle"]) == 0))  # not a count of stalls: rows are per cycle run
+    return folder, {"passivity": [guard], "overruns": stalled, "bus_errors": int(np.sum(rows["fault"] != 0))}
 
 
 def energy_figures(folder: Path, stats: dict) -> dict:

@@ -40,6 +40,7 @@ pub(crate) fn pushes(amplitude: f64) -> LockstepHand {
         servo: 1,
         sensor: ForceModel { lever_arm: LEVER, axis: 0, counts_per_unit: vec![451.89; 3], bias_n: 0.0, noise_std_n: 0.02 },
         seed: 7,
+        stalls: Stalls::default(),
     }
 }
 
