@@ -32,6 +32,7 @@ takes about 12 minutes with every part.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -183,12 +184,16 @@ def main() -> int:
     parser.add_argument("--clock", choices=("lockstep", "wall"), default="lockstep",
                         help="lockstep: the loop and the bench in model time (deterministic, load-independent); "
                              "wall: the daemon on the wall clock (`admittance run`, one process per session)")
+    parser.add_argument("--stalls", nargs=2, type=float, default=(0.0, 0), metavar=("P", "CYCLES"),
+                        help="lockstep: the loop stalls at a cycle with probability P for up to CYCLES cycles (seeded: "
+                             "a loaded machine's overruns, repeatable); default none")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     args = parser.parse_args()
     own = own_inertia()
-    run = lockstep_session if args.clock == "lockstep" else fb.session
-    print(f"clock: {args.clock}; load before: {os.getloadavg()}", flush=True)
-    results: dict = {"clock": args.clock, "gripped": [], "passive": []}
+    stalls = (args.stalls[0], int(args.stalls[1]))
+    run = functools.partial(lockstep_session, stalls=stalls) if args.clock == "lockstep" else fb.session
+    print(f"clock: {args.clock}; stalls {stalls}; load before: {os.getloadavg()}", flush=True)
+    results: dict = {"clock": args.clock, "stalls": stalls, "gripped": [], "passive": []}
     with tempfile.TemporaryDirectory(prefix="passivity-bench-") as tmp:
         work = Path(tmp)
         print("| servo | hand | I / servo's | guard | wobble 1–1.75 s (mrad) | wobble 2–2.75 s (mrad) | sustained | "
