@@ -20,10 +20,16 @@ bench/fidelity.py does: the compensation is what makes light virtual joints osci
    (the MX-64's own inertia) under a 1 Hz sine and the 0.3–3 Hz multi-sine, guard off and on
    (target: within 5 %).
 
+By default (``--clock lockstep``) every session runs the real loop cycle and the simulated bench
+in model time (`lockstep_session`: no wall clock, so the figures are the same on every run whatever
+the load; ``--stalls P CYCLES`` adds the loop's seeded stalls); ``--clock wall`` runs each session
+through the daemon (`admittance run`) on the wall clock, the end-to-end check.
+
 All data are synthetic (the simulated bench on a shared 2-core machine; the load is printed).
 Usage::
 
-    .venv/bin/python bench/passivity.py [--servos "BAM MX-64" "lag 25 ms"] [--factors 2 1 0.5 0.25]
+    .venv/bin/python bench/passivity.py [--clock lockstep|wall] [--stalls P CYCLES]
+                                        [--servos "BAM MX-64" "lag 25 ms"] [--factors 2 1 0.5 0.25]
                                         [--seconds 10.5] [--skip-fidelity] [--json FILE]
 
 takes about 12 minutes with every part.
