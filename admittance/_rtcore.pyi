@@ -148,7 +148,8 @@ __all__ = ["__version__", "build_profile", "PARAM_NAMES", "PARAM_DEFAULTS", "Tri
     "encode_bulk_read", "encode_bulk_write", "model_table", "Decoder", "DxlClient", "motor_constants",
     "baud_code", "MockBus", "SimulatedDaq", "AdmittanceLoop", "ForceSink", "LOOP_MODES", "FAULT_KINDS", "MAX_CATCH_UP_STEPS",
     "MAX_JOINT_ID", "split_param_name", "LOOP_DEFAULTS", "LOOP_BOUNDS", "STOP_CAUSES", "UNSAFE_HARDWARE_ERRORS",
-    "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "SERVO_PARAM_DEFAULTS", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader"]
+    "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "SERVO_PARAM_DEFAULTS", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader",
+    "run_lockstep"]
 
 FAULT_KINDS: Final[list[str]]
 LOOP_BOUNDS: Final[dict[str, tuple[float, float]]]  # (low, high) of keys whose limits the loop sets
@@ -347,6 +348,10 @@ def motor_constants(model: str) -> _MotorConstants | None: ...
 def required_torque(params: ArrayLike, theta: ArrayLike, omega: ArrayLike, alpha: ArrayLike, *,
                     load_inertia: float = 0.0, gravity_torque: float = 0.0, friction: _Friction = 'stick',
                     velocity_eps: float = 0.001) -> _Floats: ...
+def run_lockstep(config: RtLoopConfig | Mapping[str, object], bus: MockBus, t: Sequence[float], tau: Sequence[float],
+                 period: float | None, seconds: float, *, hand_servo: int, lever_arm: float, axis: int,
+                 counts_per_newton: Sequence[float], noise_std_n: float = 0.0, seed: int = 1,
+                 hand_delay_s: float = 0.5, stall_probability: float = 0.0, stall_max_cycles: int = 0) -> np.ndarray: ...
 def servo_lead(params: ArrayLike, omega: ArrayLike, alpha: ArrayLike, tau: ArrayLike, *, h: float | None = None) -> _Floats: ...
 def servo_simulate_batch(trials: Sequence[ServoTrial], params: ArrayLike, x0: ArrayLike, *,
                          max_step: float = 0.0005) -> list[_Floats]: ...

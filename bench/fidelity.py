@@ -80,16 +80,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def session(work: Path, name: str, *, params: Path, profile: str, seconds: float, joint: dict | None = None,
-            bench: dict | None = None) -> tuple[Path, dict]:
-    """One `admittance run` of the embedded bench, recorded; (recording folder, stats)."""
+def config_doc(work: Path, name: str, *, params: Path, profile: str, joint: dict | None = None,
+               bench: dict | None = None) -> dict:
+    """The embedded bench's configuration of one recorded session (bench/passivity.py's lockstep
+    sessions take it too)."""
     doc = tomllib.loads(BENCH.read_text())
     doc["joints"][0].update({"params": str(params), **(joint or {})})
     doc["loop"]["stale_timeout_ms"] = 500.0  # the schema's most: a starved reader must not hold the joint (not under test)
     doc["loop"]["sync_read_divisor"] = 2  # rows every 2 ms: the 3 Hz hand's torque between rows is a line
     doc["bench"].update({"profile": profile, **(bench or {})})
-    doc["zenoh"] = {"prefix": f"bench/{name}", "listen": [f"tcp/127.0.0.1:{free_port()}"]}
     doc["record"] = {"path": str(work / name), "segment_s": 6.0}
+    return doc
+
+
+def session(work: Path, name: str, *, params: Path, profile: str, seconds: float, joint: dict | None = None,
+            bench: dict | None = None) -> tuple[Path, dict]:
+    """One `admittance run` of the embedded bench, recorded; (recording folder, stats)."""
+    doc = config_doc(work, name, params=params, profile=profile, joint=joint, bench=bench)
+    doc["zenoh"] = {"prefix": f"bench/{name}", "listen": [f"tcp/127.0.0.1:{free_port()}"]}
     config = work / f"{name}.toml"
     config.write_text(tomli_w.dumps(doc))
     stats = work / f"{name}.json"
@@ -148,11 +156,12 @@ def target_response(f: float, v: dict) -> complex:
     return 1.0 / complex(-v["virtual_inertia"] * w * w, v["virtual_damping"] * w)
 
 
-def identify_servo(work: Path, servo: str, lag: float, seconds: float, hand: dict | None) -> tuple[Path, dict]:
-    """The servo model, from a session without compensation (only what the recording shows)."""
+def identify_servo(work: Path, servo: str, lag: float, seconds: float, hand: dict | None, run=None) -> tuple[Path, dict]:
+    """The servo model, from a session without compensation (only what the recording shows);
+    ``run`` makes the session (default: `session`, the daemon on the wall clock)."""
     name = f"{slug(servo)}-identify{'-hand' if hand else ''}"
     profile = str(multisine(work / f"{name}.csv", seconds, LINEAR))
-    folder, _ = session(work, name, params=MX64, profile=profile, seconds=seconds, joint=dict(LINEAR),
+    folder, _ = (run or session)(work, name, params=MX64, profile=profile, seconds=seconds, joint=dict(LINEAR),
                         bench={"servo_lag_s": lag, **(hand or {})})
     params = work / f"{name}.toml"
     subprocess.run([str(ADMITTANCE), "fidelity", str(folder), "--json", str(work / f"{name}-fidelity.json"),

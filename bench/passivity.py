@@ -20,10 +20,16 @@ bench/fidelity.py does: the compensation is what makes light virtual joints osci
    (the MX-64's own inertia) under a 1 Hz sine and the 0.3–3 Hz multi-sine, guard off and on
    (target: within 5 %).
 
+By default (``--clock lockstep``) every session runs the real loop cycle and the simulated bench
+in model time (`lockstep_session`: no wall clock, so the figures are the same on every run whatever
+the load; ``--stalls P CYCLES`` adds the loop's seeded stalls); ``--clock wall`` runs each session
+through the daemon (`admittance run`) on the wall clock, the end-to-end check.
+
 All data are synthetic (the simulated bench on a shared 2-core machine; the load is printed).
 Usage::
 
-    .venv/bin/python bench/passivity.py [--servos "BAM MX-64" "lag 25 ms"] [--factors 2 1 0.5 0.25]
+    .venv/bin/python bench/passivity.py [--clock lockstep|wall] [--stalls P CYCLES]
+                                        [--servos "BAM MX-64" "lag 25 ms"] [--factors 2 1 0.5 0.25]
                                         [--seconds 10.5] [--skip-fidelity] [--json FILE]
 
 takes about 12 minutes with every part.
@@ -32,6 +38,7 @@ takes about 12 minutes with every part.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -40,6 +47,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fidelity as fb  # noqa: E402  (the sessions, the hands, the wobble: one source with that bench)
@@ -57,6 +65,63 @@ def own_inertia() -> float:
     return float(tomllib.loads(fb.MX64.read_text())["params"]["motor_inertia"])
 
 
+def lockstep_session(work: Path, name: str, *, params: Path, profile: str, seconds: float, joint: dict | None = None,
+                     bench: dict | None = None, seed: int = 1, stalls: tuple[float, int] = (0.0, 0)) -> tuple[Path, dict]:
+    """bench/fidelity.py's `session` in model time: the same configuration (`fb.config_doc`), the
+    loop built from it as the daemon builds it, the embedded bench's servos and hand, stepped
+    together by `_rtcore.run_lockstep` (no wall clock: the same records on every run, whatever
+    the load), and the records written by the daemon's own recorder, so the same analysis reads
+    them; ``stalls``: (probability per cycle, longest in cycles) of the loop's seeded stalls (a loaded
+    machine's overruns, made repeatable). (recording folder, stats: the guard's figures as the
+    daemon's --stats-json has them)."""
+    from types import SimpleNamespace
+
+    from admittance import _rtcore
+    from admittance.daemon.config import load_config
+    from admittance.daemon.loopconfig import loop_config
+    from admittance.daemon.recording import Recorder
+    from admittance.daemon.supervisor import Supervisor
+    from admittance.daemon.telemetry import columns_by_joint
+    from admittance.mockbench.bench import BenchConfig, MockBench
+    from admittance.mockbench.hand import tabulate
+
+    config = work / f"{name}.toml"
+    config.write_text(tomli_w.dumps(fb.config_doc(work, name, params=params, profile=profile, joint=joint, bench=bench)))
+    cfg = load_config(config)
+    s, b = cfg.sensor, cfg.bench
+    hand = (b.hand_inertia, b.hand_damping, b.hand_stiffness)
+    # The daemon's set-up leaves Return Delay Time at 0 (drivers/dynamixel.py `prepare`).
+    servos = [{"id": j.id, "model": j.model, "protocol": cfg.bus.protocol, "params_file": j.params,
+               "registers": {"Return Delay Time": 0}} for j in cfg.joints]
+    sim = MockBench(BenchConfig(servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile, lever_arm=cfg.joints[0].lever_arm,
+                                axis=s.axis, counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n,
+                                hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None))
+    table = tabulate(sim.profile, 1.0 / cfg.loop.rate_hz)
+    if table is None:
+        raise SystemExit(f"{name}: the lockstep bench takes the built-in or CSV hand profiles")
+    model = sim.force_model
+    loop = loop_config(cfg, "lockstep")
+    records = _rtcore.run_lockstep(loop, sim.bus, *table, seconds + b.hand_delay_s, hand_servo=sim.hand_servo_id,
+                                   lever_arm=model.lever_arm, axis=model.axis_index,
+                                   counts_per_newton=list(model.counts_per_newton), noise_std_n=model.noise_std_n,
+                                   seed=seed, hand_delay_s=b.hand_delay_s, stall_probability=stalls[0],
+                                   stall_max_cycles=stalls[1])
+    folder = work / name
+    lp = cfg.loop
+    recorder = Recorder(folder, [(j.id, j.model) for j in cfg.joints], measured_theta=True,
+                        t0=float(records["deadline_ns"][0]) * 1e-9, segment_s=cfg.record.segment_s,
+                        joint_info=Supervisor.joint_info(SimpleNamespace(cfg=cfg)), period_s=1.0 / lp.rate_hz)
+    recorder.set_targets(_rtcore.AdmittanceLoop(loop).params())
+    recorder.append_all(columns_by_joint(records, cfg))
+    recorder.close()
+    rows = records[records["id"] == cfg.joints[0].id]
+    damping = rows["passivity_damping"]
+    episodes = int(np.sum((damping[1:] > 0) & (damping[:-1] == 0)) + (damping[0] > 0))
+    guard = {"port_energy": None, "episodes": episodes}  # the guard's port sum is not in the records
+    stalled = int(np.sum(np.diff(rows["cycle"]) == 0))  # not a count of stalls: rows are per cycle run
+    return folder, {"passivity": [guard], "overruns": stalled, "bus_errors": int(np.sum(rows["fault"] != 0))}
+
+
 def energy_figures(folder: Path, stats: dict) -> dict:
     """The guard's balance at its lowest and its largest damping (the recorded rows), the port's net
     energy and the guard's episodes (the session's stats)."""
@@ -68,10 +133,10 @@ def energy_figures(folder: Path, stats: dict) -> dict:
             "episodes": guard["episodes"], "damping_max": float(damping.max())}
 
 
-def gripped(work: Path, servo: str, lag: float, params: Path, inertia: float, guard: int, hand: dict,
+def gripped(run, work: Path, servo: str, lag: float, params: Path, inertia: float, guard: int, hand: dict,
             seconds: float, label: str) -> dict:
     name = f"{fb.slug(servo)}-{label}-{'on' if guard else 'off'}"
-    folder, stats = fb.session(work, name, params=params, profile=PUSHES, seconds=seconds,
+    folder, stats = run(work, name, params=params, profile=PUSHES, seconds=seconds,
                                joint={"virtual_inertia": inertia, "virtual_damping": 0.0347, "virtual_coulomb": 0.0,
                                       "servo_compensation": 1.0, "passivity_guard": guard},
                                bench={"servo_lag_s": lag, **hand})
@@ -80,26 +145,35 @@ def gripped(work: Path, servo: str, lag: float, params: Path, inertia: float, gu
             **energy_figures(folder, stats), "overruns": stats["overruns"], "bus_errors": stats["bus_errors"]}
 
 
-def passive(work: Path, servo: str, lag: float, params: Path, seconds: float) -> list[dict]:
-    """The rendering error of the linear joint, guard off and on."""
+# Guard off, on, off, on: interleaved, so that a drift of the machine's load over the four
+# sessions shows as off ≠ off again rather than as an effect of the guard.
+PASSIVE_ORDER = (("off", 0), ("on", 1), ("off_again", 0), ("on_again", 1))
+
+
+def passive(run, work: Path, servo: str, lag: float, params: Path, seconds: float) -> list[dict]:
+    """The rendering error of the linear joint, guard off and on, interleaved."""
     rows = []
     profiles = [("sine 1 Hz", f"sine:amplitude={fb.sine_amplitude(1.0, fb.LINEAR):.5f},frequency=1.0"),
                 ("multi-sine 0.3–3 Hz", str(fb.multisine(work / "multisine.csv", seconds, fb.LINEAR)))]
     for label, profile in profiles:
         row = {"servo": servo, "hand": label}
-        # Off, on, and off again: the repeat shows how much two identical sessions differ here.
-        for key, guard in (("off", 0), ("on", 1), ("off_again", 0)):
+        for key, guard in PASSIVE_ORDER:
             name = f"{fb.slug(servo)}-passive-{fb.slug(label)}-{key}"
-            folder, stats = fb.session(work, name, params=params, profile=profile, seconds=seconds,
-                                       joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
-                                       bench={"servo_lag_s": lag})
+            folder, stats = run(work, name, params=params, profile=profile, seconds=seconds,
+                                joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
+                                bench={"servo_lag_s": lag})
             row[key] = {"rendering_rmse": fb.analyse(folder)["rendering_rmse"], **energy_figures(folder, stats)}
-        off, on, again = (row[k]["rendering_rmse"] for k in ("off", "on", "off_again"))
-        print(f"| {servo} | {label} | {1e3 * off:.3f} | {1e3 * on:.3f} | {100 * (on / off - 1):+.1f} % | "
-              f"{1e3 * again:.3f} ({100 * (again / off - 1):+.1f} %) | {row['on']['episodes']} | "
-              f"{1e3 * row['on']['generated_j']:.2f} |", flush=True)
+        off, on, again, on_again = (row[k]["rendering_rmse"] for k, _ in PASSIVE_ORDER)
+        print(f"| {servo} | {label} | {1e3 * off:.4f} | {1e3 * on:.4f} | {100 * (on / off - 1):+.2f} % | "
+              f"{1e3 * again:.4f} | {1e3 * on_again:.4f} | {100 * ((on + on_again) / (off + again) - 1):+.2f} % | "
+              f"{row['on']['episodes'] + row['on_again']['episodes']} | {1e3 * row['on']['generated_j']:.2f} |", flush=True)
         rows.append(row)
     return rows
+
+
+def port_mj(r: dict) -> str:
+    """The port's net energy (the daemon's stats; not recorded in a lockstep run)."""
+    return "–" if r["port_energy_j"] is None else f"{1e3 * r['port_energy_j']:+.1f}"
 
 
 def main() -> int:
@@ -113,11 +187,19 @@ def main() -> int:
     parser.add_argument("--skip-gripped", action="store_true", help="only the passive sessions")
     parser.add_argument("--identify-seconds", type=float, default=24.0,
                         help="the servo identification's session (bench/fidelity.py's: 24 s)")
+    parser.add_argument("--clock", choices=("lockstep", "wall"), default="lockstep",
+                        help="lockstep: the loop and the bench in model time (deterministic, load-independent); "
+                             "wall: the daemon on the wall clock (`admittance run`, one process per session)")
+    parser.add_argument("--stalls", nargs=2, type=float, default=(0.0, 0), metavar=("P", "CYCLES"),
+                        help="lockstep: the loop stalls at a cycle with probability P for up to CYCLES cycles (seeded: "
+                             "a loaded machine's overruns, repeatable); default none")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     args = parser.parse_args()
     own = own_inertia()
-    print(f"load before: {os.getloadavg()}", flush=True)
-    results: dict = {"gripped": [], "passive": []}
+    stalls = (args.stalls[0], int(args.stalls[1]))
+    run = functools.partial(lockstep_session, stalls=stalls) if args.clock == "lockstep" else fb.session
+    print(f"clock: {args.clock}; stalls {stalls}; load before: {os.getloadavg()}", flush=True)
+    results: dict = {"clock": args.clock, "stalls": stalls, "gripped": [], "passive": []}
     with tempfile.TemporaryDirectory(prefix="passivity-bench-") as tmp:
         work = Path(tmp)
         print("| servo | hand | I / servo's | guard | wobble 1–1.75 s (mrad) | wobble 2–2.75 s (mrad) | sustained | "
@@ -126,7 +208,7 @@ def main() -> int:
         for servo in args.servos if not args.skip_gripped else ():
             lag = fb.SERVOS[servo]
             hand = fb.HANDS[servo]
-            params, _ = fb.identify_servo(work, servo, lag, args.identify_seconds, hand)
+            params, _ = fb.identify_servo(work, servo, lag, args.identify_seconds, hand, run)
             cases = [("gripping", hand, f) for f in args.factors]
             if not args.skip_stiff:
                 stiff = {**hand, "hand_stiffness": STIFF * hand["hand_stiffness"]}
@@ -134,21 +216,21 @@ def main() -> int:
             for label, hand_used, factor in cases:
                 ratio = max(factor * SMALLEST_STABLE[servo], INERTIA_FLOOR / own)
                 for guard in (0, 1):
-                    r = gripped(work, servo, lag, params, ratio * own, guard, hand_used, args.seconds,
+                    r = gripped(run, work, servo, lag, params, ratio * own, guard, hand_used, args.seconds,
                                 f"{label}-{factor:g}")
                     r.update(servo=servo, hand=label, ratio=ratio, guard=guard)
                     results["gripped"].append(r)
                     print(f"| {servo} | {label} | {ratio:.4f} | {'on' if guard else 'off'} | {r['early_mrad']:.2f} | "
                           f"{r['late_mrad']:.2f} | {'YES' if r['sustained'] else 'no'} | "
-                          f"{1e3 * r['generated_j']:.1f} | {1e3 * r['port_energy_j']:+.1f} | {r['episodes']} | "
+                          f"{1e3 * r['generated_j']:.1f} | {port_mj(r)} | {r['episodes']} | "
                           f"{r['damping_max']:.3g} |", flush=True)
         if not args.skip_fidelity:
-            print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | guard off again "
-                  "(mrad) | guard episodes | lowest balance (mJ below 0) |")
-            print("|---|---|---|---|---|---|---|---|")
+            print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | off again (mrad) | "
+                  "on again (mrad) | change, both pairs | guard episodes | lowest balance (mJ below 0) |")
+            print("|---|---|---|---|---|---|---|---|---|---|")
             for servo in args.servos:
-                params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], args.identify_seconds, None)
-                results["passive"] += passive(work, servo, fb.SERVOS[servo], params, 12.0)
+                params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], args.identify_seconds, None, run)
+                results["passive"] += passive(run, work, servo, fb.SERVOS[servo], params, 12.0)
     print(f"load after: {os.getloadavg()}", flush=True)
     on = [r for r in results["gripped"] if r["guard"]]
     print(f"guard on: {sum(r['sustained'] for r in on)} of {len(on)} gripped sessions with a sustained oscillation; "

@@ -56,6 +56,9 @@ CASES = [
     # One servo, one inertia, guard off and on (after a short identification of the servo model).
     ("passivity.py", ["--servos", "lag 25 ms", "--factors", "1", "--seconds", "4", "--identify-seconds", "8",
                       "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),
+    # The same through the daemon on the wall clock (the default runs the loop in model time).
+    ("passivity.py", ["--clock", "wall", "--servos", "lag 25 ms", "--factors", "1", "--seconds", "4",
+                      "--identify-seconds", "8", "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),
     ("loop_timing.py", ["--load", "daemon", "--rates", "250", "--joints", "1", "--point-s", "0.3", "--min-cycles", "1",
                         "--no-phase-lock-section"], r"^median Python/Rust at SCHED_OTHER: p99 period error"),
     # The daemon load with the Rust reader on a pty DAQ process (Rust loops only).

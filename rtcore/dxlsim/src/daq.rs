@@ -139,20 +139,31 @@ impl ForceModel {
             .collect();
         (counts, status)
     }
+
+    /// The forces (N) and torques (N·m) a reader decodes from the counts of `tau` (the lockstep
+    /// bench's sensor: the same quantization and noise as the stream's).
+    pub(crate) fn forces(&self, tau: f64, noise: &mut Gaussian) -> [f64; 6] {
+        let mut out = [0.0; 6];
+        let (counts, _) = self.counts(tau, noise);
+        for ((slot, count), cpu) in out.iter_mut().zip(counts).zip(&self.counts_per_unit) {
+            *slot = if *cpu != 0.0 { f64::from(count) / cpu } else { 0.0 };
+        }
+        out
+    }
 }
 
 /// Seeded Gaussian noise (splitmix64 + Box–Muller): repeatable, no dependency.
-struct Gaussian {
+pub(crate) struct Gaussian {
     state: u64,
     spare: Option<f64>,
 }
 
 impl Gaussian {
-    fn new(seed: u64) -> Gaussian {
+    pub(crate) fn new(seed: u64) -> Gaussian {
         Gaussian { state: seed, spare: None }
     }
 
-    fn uniform(&mut self) -> f64 {
+    pub(crate) fn uniform(&mut self) -> f64 {
         self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.state;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

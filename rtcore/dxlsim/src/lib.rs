@@ -23,6 +23,7 @@ pub mod daq;
 pub mod direct;
 pub mod firmware;
 pub mod hand;
+pub mod lockstep;
 pub mod motor;
 pub mod pty;
 pub mod registers;

@@ -281,6 +281,11 @@ impl MockBus {
         self.shared.clone()
     }
 
+    /// The wire's and the physics' settings (the lockstep bench times its link with them).
+    pub fn config(&self) -> BusConfig {
+        self.config
+    }
+
     /// An in-process link to these servos for one client (the embedded bench's loop): see `direct`.
     pub fn direct_link(&self) -> DirectLink {
         DirectLink::new(self.port.clone(), self.shared.clone(), self.config)

@@ -147,6 +147,11 @@ impl PyMockBus {
         self.inner.direct_link()
     }
 
+    /// The bus's wire and physics settings, and whether its thread runs (the lockstep bench's).
+    pub(crate) fn bus_config(&self) -> (dxlsim::BusConfig, bool) {
+        (self.inner.config(), self.inner.is_running())
+    }
+
     /// The servos' shared state (the simulated sensor pushes the hand on them).
     pub(crate) fn servos(&self) -> std::sync::Arc<std::sync::Mutex<dxlsim::server::Shared>> {
         self.inner.servos()

@@ -8,6 +8,7 @@
 //! - `dxlsim.rs`: the simulated Dynamixel bus of the mock bench
 //! - `daq.rs`: the mock bench's simulated force sensor, streaming from a Rust thread
 //! - `rt.rs`: the real-time admittance loop
+//! - `lockstep.rs`: that loop and the simulated bus in model time (the deterministic bench)
 //! - `sensor.rs`: the Rust force-sensor readers feeding the loop
 //! - `dict_fields.rs`: the configuration-dict rules `dxlsim.rs` and `rt.rs` share
 use pyo3::prelude::*;
@@ -17,6 +18,7 @@ mod dict_fields;
 mod dxl;
 mod dxlsim;
 mod errors;
+mod lockstep;
 mod plant;
 mod rt;
 mod sensor;
@@ -33,5 +35,6 @@ fn _rtcore(m: &Bound<'_, PyModule>) -> PyResult<()> {
     rt::register(m)?;
     servo::register(m)?;
     sensor::register(m)?;
+    lockstep::register(m)?;
     Ok(())
 }

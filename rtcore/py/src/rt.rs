@@ -257,7 +257,7 @@ fn trigger_mode(d: &Bound<'_, PyDict>) -> PyResult<TriggerMode> {
 /// The configuration as a dict: the daemon's typed `admittance.loop_config.LoopConfig` (a frozen
 /// msgspec Struct, converted here by `msgspec.to_builtins`, which leaves its unset fields out so
 /// they take the loop's defaults), or a dict of the same keys (the benches and tests).
-fn config_dict<'py>(config: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+pub(crate) fn config_dict<'py>(config: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
     if let Ok(d) = config.cast::<PyDict>() {
         return Ok(d.clone());
     }
@@ -269,7 +269,7 @@ fn config_dict<'py>(config: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> 
     })
 }
 
-fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
+pub(crate) fn loop_config(d: &Bound<'_, PyDict>) -> PyResult<LoopConfig> {
     let py = d.py();
     check_keys(d, &LOOP_KEYS, "config")?;
     let port = opt(d, "port", "config")?;
@@ -463,11 +463,7 @@ impl PyAdmittanceLoop {
     fn drain_telemetry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let mut records = Vec::new();
         self.inner.drain_telemetry(&mut records);
-        let mut bytes = Vec::with_capacity(records.len() * 8 * RECORD_FIELDS.len());
-        records.iter().for_each(|r: &Record| r.write_le(&mut bytes));
-        let numpy = py.import("numpy")?;
-        let array = numpy.call_method1("frombuffer", (PyBytes::new(py, &bytes), telemetry_dtype(py)?))?;
-        array.call_method0("copy")
+        records_array(py, &records)
     }
 
     /// The numpy dtype of `drain_telemetry`'s rows.
@@ -649,7 +645,16 @@ fn trigger_dict<'py>(py: Python<'py>, inner: &LoopHandle) -> PyResult<Bound<'py,
     Ok(d)
 }
 
-fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+/// Telemetry records as a numpy structured array of `telemetry_dtype` (a copy it owns).
+pub(crate) fn records_array<'py>(py: Python<'py>, records: &[Record]) -> PyResult<Bound<'py, PyAny>> {
+    let mut bytes = Vec::with_capacity(records.len() * 8 * RECORD_FIELDS.len());
+    records.iter().for_each(|r| r.write_le(&mut bytes));
+    let numpy = py.import("numpy")?;
+    let array = numpy.call_method1("frombuffer", (PyBytes::new(py, &bytes), telemetry_dtype(py)?))?;
+    array.call_method0("copy")
+}
+
+pub(crate) fn telemetry_dtype(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     let fields: Vec<(&str, &str)> = RECORD_FIELDS.to_vec();
     py.import("numpy")?.call_method1("dtype", (fields,))
 }

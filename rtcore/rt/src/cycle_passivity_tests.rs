@@ -85,7 +85,9 @@ fn the_guard_damps_the_oscillation_out_and_keeps_the_energy_near_its_margin() {
     // Added and removed without a jump: the damping moves by at most its growth per cycle.
     for pair in records.windows(2) {
         let (a, b) = (pair[0].passivity_damping, pair[1].passivity_damping);
-        assert!(b <= a.max(1e-3) * (1.0 / (RATE * crate::passivity::RISE_S)).exp() + 1e-12, "{a} → {b}");
+        let h = 1.0 / RATE;
+        let rise = (1.0 - a) * h / (crate::passivity::RISE_S + h) + crate::passivity::START_FRACTION;
+        assert!(b - a <= rise + 1e-12 && a - b <= a * h / crate::passivity::RELEASE_S + 1e-3, "{a} → {b}");
     }
     let goal_steps = records.windows(2).map(|p| (p[1].goal_tick - p[0].goal_tick).abs()).max().unwrap();
     assert!(goal_steps <= 3, "no goal jumps more than 3 ticks in a cycle: {goal_steps}");

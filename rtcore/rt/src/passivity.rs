@@ -28,34 +28,54 @@
 //!   zero whenever the hand speeds the joint up (a false alarm on any uncompensated servo).
 //!
 //! The controller: while `balance < −margin` and the joint is still generating (the balance
-//! falling faster than margin / `WINDOW_S`, the power that would hold it at the margin), a damping `damping` is added to the model and grows by e every `RISE_S` from
-//! `damping_max`·`START_FRACTION`; while the balance stays below the margin without falling it
-//! is kept; once the balance is back within the margin it decays by e every `RELEASE_S` and
-//! is dropped below `START_FRACTION`/10 of the maximum (a step far below a tick's worth of
-//! motion). It is applied implicitly, ω ← ω / (1 + h·D/I), after the model's step: a velocity
-//! only ever brought towards rest, stable for any D (an explicit D would need h·(B + D)/I < 1,
-//! which caps it too low for the lightest inertias it is needed at). This is the admittance
-//! form of the passivity controller (Hannaford and Ryu 2002: for a port of admittance causality,
-//! force in and velocity out, the controller takes velocity away in proportion to the force;
-//! here through a damper added to the model's own), which leaves the model's position continuous
-//! (Keemink, van der Kooij and Stienen, IJRR 2018, on admittance control and the inertia beyond
-//! the sensor that makes a light virtual joint oscillate). Growing and decaying
-//! continuously, not the per-sample TDPA law D = −E/(h·ω²) that steps with every sample, keeps
-//! the goal free of jumps.
+//! falling faster than margin / `WINDOW_S`, the power that would hold it at the margin), a
+//! damping `damping` is added to the model. Its target is Hannaford and Ryu's time-domain
+//! passivity law for the energy beyond the margin, E / (ω²·`DISSIPATE_S`) with ω² the model's
+//! mean square velocity: the damping that takes that energy out of the model's motion within
+//! `DISSIPATE_S` (their per-sample β = E/(h·v²) steps with every sample; spread over a few
+//! wobble periods it does not). The damping approaches the target with the time constant
+//! `RISE_S` (5 ms; it never falls while the joint generates), is held `HOLD_S` after the joint
+//! stopped generating (the observer cannot tell whether a joint the damping keeps quiet would
+//! wobble again without it), then decays by e every `RELEASE_S` and is dropped below
+//! `START_FRACTION`/10 of the maximum (a step far below a tick's worth of motion). It is applied
+//! implicitly, ω ← ω / (1 + h·D/I), after the model's step: a velocity only ever brought
+//! towards rest, stable for any D (an explicit D would need h·(B + D)/I < 1, which caps it too
+//! low for the lightest inertias it is needed at), so the guard can only take energy out of the
+//! model, never add it. This is the admittance form of the passivity controller (Hannaford and
+//! Ryu 2002; Ryu, Kwon and Hannaford 2004: for a port of admittance causality, force in and
+//! velocity out, the controller takes velocity away in proportion to the force; here through a
+//! damper added to the model's own), which leaves the model's position continuous (Keemink, van
+//! der Kooij and Stienen, IJRR 2018, on admittance control and the inertia beyond the sensor that
+//! makes a light virtual joint oscillate). A guard that never acts leaves the cycle bit for bit
+//! as a guard that is off: the observer only reads, and `damp` does nothing at zero damping
+//! (dxlsim's lockstep tests check it on the simulated bench).
 use crate::params::JointGains;
 use plant::State;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 /// s: the observer's forgetting time (what the joint dissipated longer ago stops counting).
 pub const WINDOW_S: f64 = 1.0;
-/// s: the added damping grows by e this often while the joint generates energy.
-pub const RISE_S: f64 = 0.03;
-/// s: and decays by e this often once the balance is back within the margin.
+/// s: the added damping approaches its target with this time constant while the joint generates
+/// energy (fast: the old e-fold growth from 1/1000 of the maximum took 140 ms to matter).
+pub const RISE_S: f64 = 0.005;
+/// s: the target damping would take the energy beyond the margin out of the model's motion
+/// within this time (Hannaford and Ryu's per-sample β = E/(h·v²), spread over this time instead
+/// of one sample, so that neither the damping nor the goal steps).
+pub const DISSIPATE_S: f64 = 0.05;
+/// s: once the joint stops generating, the damping is held this long before it decays (the
+/// observer cannot see whether a joint that the damping keeps quiet would wobble again without it;
+/// releasing at once let the oscillation come back, a limit cycle of act and release).
+pub const HOLD_S: f64 = 1.5;
+/// s: then it decays by e this often.
 pub const RELEASE_S: f64 = 0.5;
-/// The added damping starts at this fraction of `passivity_damping_max`.
+/// The added damping starts from at least this fraction of `passivity_damping_max`, and is
+/// dropped once it has decayed below a tenth of it (a step far below a tick's worth of motion).
 pub const START_FRACTION: f64 = 1e-3;
 /// s: the time constant of the generated power's low-pass (is the joint still generating?).
 const POWER_S: f64 = 0.2;
+/// s: the time constant of the model's mean square velocity (the target's v²): a few periods of
+/// the wobble it is to damp.
+const MOTION_S: f64 = 0.05;
 
 /// A joint's guard settings (`passivity_guard`, `passivity_margin`, `passivity_damping_max`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -90,6 +110,10 @@ pub struct PassivityGuard {
     generating: f64,
     /// N·m·s/rad: the damping added now.
     damping: f64,
+    /// rad²/s², low-passed: the model's mean square velocity.
+    motion: f64,
+    /// s: how much longer the damping is held before it decays.
+    hold_left: f64,
     /// Episodes: the damping went from 0 to > 0.
     episodes: u64,
     /// The horn's angle at the last read, None until one after the last hold.
@@ -139,6 +163,7 @@ impl PassivityGuard {
             self.torque_n = self.torque_n.saturating_add(1);
             self.model_dissipated += (gains.damping * model.omega * model.omega + gains.coulomb * model.omega.abs()) * h;
         }
+        self.motion += (model.omega * model.omega - self.motion) * h / (MOTION_S + h);
         let fallen = before - self.balance;
         self.generating += (fallen / h - self.generating) * h / (POWER_S + h);
         // Forget what the joint dissipated (the balance beyond what the model stores), not what
@@ -146,26 +171,36 @@ impl PassivityGuard {
         // A deficit is forgotten too, so that an episode ends once the joint stops generating.
         let forget = (self.balance - self.stored).max(0.0) + self.balance.min(0.0);
         self.balance -= forget * h / (WINDOW_S + h);
-        if !(self.balance.is_finite() && self.generating.is_finite()) {
+        if !(self.balance.is_finite() && self.generating.is_finite() && self.motion.is_finite()) {
             self.balance = 0.0; // a NaN would keep the guard from ever acting again
             self.generating = 0.0;
+            self.motion = 0.0;
         }
         self.control(h);
     }
 
     /// The damping's law (see the module doc).
     fn control(&mut self, h: f64) {
-        let p = &self.params;
+        let p = self.params;
         let floor = p.damping_max * START_FRACTION;
-        let beyond = p.guard > 0.0 && self.balance < -p.margin;
+        let excess = -(self.balance + p.margin);
+        let on = p.guard > 0.0;
         // Still generating: faster than the power that holds the windowed balance at the margin
         // (a slower fall is the noise of the reads, and the window brings it back by itself).
-        if beyond && self.generating > p.margin / WINDOW_S {
+        if on && excess > 0.0 && self.generating > p.margin / WINDOW_S {
             if self.damping == 0.0 {
                 self.episodes += 1;
             }
-            self.damping = (self.damping.max(floor) * (h / RISE_S).exp()).min(p.damping_max);
-        } else if !beyond || self.damping > p.damping_max {
+            // max/min, not clamp: the RT thread never panics on a NaN bound.
+            let target = (excess / (self.motion.max(f64::MIN_POSITIVE) * DISSIPATE_S)).min(p.damping_max);
+            // Towards the target, never down while generating: no step, and what stopped the
+            // generation stays.
+            self.damping = (self.damping + (target - self.damping).max(0.0) * h / (RISE_S + h)).max(floor).min(p.damping_max);
+            self.hold_left = HOLD_S;
+        } else if on && (excess > 0.0 || self.hold_left > 0.0) && self.damping <= p.damping_max {
+            self.hold_left = (self.hold_left - h).max(0.0);
+        } else {
+            self.hold_left = 0.0;
             self.damping *= (-h / RELEASE_S).exp();
             if self.damping < floor / 10.0 || !self.damping.is_finite() {
                 self.damping = 0.0;

@@ -1,0 +1,67 @@
+//! The lockstep bench: the same inputs give the same records bit for bit, and a guard that never
+//! acts leaves the cycle exactly as the guard-off one.
+use super::*;
+use crate::daq::HandProfile;
+use crate::hand::Hand;
+use crate::server::IoCounters;
+use crate::setup::{build_bus, ServoConfig};
+use crate::wire::PhysicsClock;
+use rt::config::JointConfig;
+use dxl::Protocol;
+
+const BUS: BusConfig = BusConfig { baudrate: 1_000_000, wire_delay: true, physics_rate_hz: 2000.0, rt_priority: 0 };
+const LEVER: f64 = 0.105;
+
+/// An MX-64 (the thesis plant), or a horn lagging its goal by `lag` s, gripped by a hand.
+pub(crate) fn servos(lag: Option<f64>, hand: (f64, f64, f64)) -> Arc<Mutex<Shared>> {
+    let mut config = ServoConfig::new(1, plant::Params { motor_inertia: 0.01467, damping: 0.03471, coulomb: 0.08426, ..plant::Params::default() });
+    config.first_order_lag = lag;
+    config.registers = vec![("Return Delay Time".into(), 0)]; // as the daemon's set-up leaves it
+    let mut bus = build_bus(vec![config], BUS.baudrate).unwrap();
+    let (inertia, damping, stiffness) = hand;
+    bus.servo_mut(1).unwrap().set_hand(Some(Hand::new(inertia, damping, stiffness, 0.0).unwrap()));
+    Arc::new(Mutex::new(Shared { bus, io: IoCounters::default(), physics: PhysicsClock::new(BUS.physics_rate_hz) }))
+}
+
+pub(crate) fn loop_config(inertia: f64, damping: f64, guard: bool) -> LoopConfig {
+    let mut joint = JointConfig::new(1, Protocol::V2);
+    joint.gains = rt::params::JointGains { inertia, damping, coulomb: 0.0, lever_arm: LEVER };
+    joint.passivity.guard = if guard { 1.0 } else { 0.0 };
+    LoopConfig { joints: vec![joint], sync_read_divisor: 2, ..LoopConfig::default() }
+}
+
+/// A push of `amplitude` N·m for 0.3 s every 3 s, on a sensor with noise.
+pub(crate) fn pushes(amplitude: f64) -> LockstepHand {
+    let t = vec![0.0, 0.05, 0.35, 0.37, 3.0];
+    let tau = vec![0.0, amplitude, amplitude, 0.0, 0.0];
+    LockstepHand {
+        profile: HandProfile::new(t, tau, Some(3.0)).unwrap(),
+        delay_s: 0.2,
+        servo: 1,
+        sensor: ForceModel { lever_arm: LEVER, axis: 0, counts_per_unit: vec![451.89; 3], bias_n: 0.0, noise_std_n: 0.02 },
+        seed: 7,
+        stalls: Stalls::default(),
+    }
+}
+
+const GRIP: (f64, f64, f64) = (0.0055, 0.15, 2.0);
+
+#[test]
+fn the_same_inputs_give_the_same_records_bit_for_bit() {
+    let a = run(&loop_config(0.01467, 0.0347, true), servos(None, GRIP), BUS, &pushes(0.3), 1.5).unwrap();
+    let b = run(&loop_config(0.01467, 0.0347, true), servos(None, GRIP), BUS, &pushes(0.3), 1.5).unwrap();
+    assert_eq!(a.records.len(), 1500);
+    assert!(a.records.iter().any(|r| r.present_tick >= 0 && r.present_tick != a.records[0].present_tick), "the horn moved");
+    assert_eq!(a.records, b.records);
+    assert_eq!(a.overruns, 0, "model time has no overruns");
+}
+
+#[test]
+fn a_guard_that_never_acts_leaves_every_cycle_as_the_guard_off_one() {
+    let on = run(&loop_config(0.01467, 0.0347, true), servos(None, GRIP), BUS, &pushes(0.3), 3.0).unwrap();
+    let off = run(&loop_config(0.01467, 0.0347, false), servos(None, GRIP), BUS, &pushes(0.3), 3.0).unwrap();
+    assert!(on.records.iter().all(|r| r.passivity_damping == 0.0), "a passive joint: the guard never acts");
+    let same = |r: &Record| (r.theta.to_bits(), r.omega.to_bits(), r.goal_tick, r.present_tick, r.force.to_bits(), r.passivity_energy.to_bits());
+    assert!(on.records.iter().map(same).eq(off.records.iter().map(same)), "bit for bit, the observer's balance too");
+}
+
