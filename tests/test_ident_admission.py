@@ -51,6 +51,45 @@ def test_an_effect_that_changes_sign_or_swings_across_folds_is_not_one_effect():
     assert "more than its own size" in fold_instability(ev, swings)
 
 
+def _assessed(monkeypatch, fold_values, pooled_gain=0.10):
+    """search.assess on a quadratic-drag candidate (10 σ, 10 % training gain) whose
+    cross-validation is given: its folds' drag values and its pooled gain (a lower bound above
+    zero, every fold improving). The regime test passes. Returns (admitted model or None, evidence)."""
+    from admittance.ident import search
+    from admittance.ident.crossval import PairedGain
+
+    residual = [np.full(100, 1e-3)]
+    refit = _fit(free=("quadratic_drag",), sigma={"quadratic_drag": 0.001}, residuals=[0.9 * r for r in residual],
+                 quadratic_drag=0.01)
+    folds = [_fit(free=("quadratic_drag",), quadratic_drag=v) for v in fold_values]
+    gain = PairedGain(pooled_gain, pooled_gain / 2, 5.0, 1.0, len(folds), len(folds), len(folds), 1e-3, 1e-3)
+    monkeypatch.setattr(search, "cross_validate", lambda ctx, full: search.Scored(full, folds, residual))
+    monkeypatch.setattr(search, "compare", lambda ctx, current, scored: gain)
+    monkeypatch.setattr(search, "regime_inconsistency", lambda *args: ("", []))
+    ctx = SimpleNamespace(settings=search.SearchSettings(), torque_scale=1.0, sim=SimpleNamespace(mode="geometry"))
+    ev = Evidence("quadratic_drag", params=("quadratic_drag",))
+    return search.assess(ctx, SimpleNamespace(full=_fit(residuals=residual)), ev, refit), ev
+
+
+def test_assess_admits_a_stable_supported_effect(monkeypatch):
+    admitted, ev = _assessed(monkeypatch, (0.010, 0.011, 0.009))
+    assert admitted is not None and ev.accepted and not ev.stand_in
+
+
+def test_assess_refuses_an_effect_whose_folds_disagree(monkeypatch):
+    """The fold-stability gate where the search applies it (a removed call admits it)."""
+    admitted, ev = _assessed(monkeypatch, (0.010, -0.002, 0.009))
+    assert admitted is None and not ev.accepted
+    assert ev.reason.startswith("not the same effect in every fold")
+
+
+def test_assess_refuses_a_cross_validated_gain_below_the_floor(monkeypatch):
+    """The 3 % pooled-gain floor where the search applies it: a significant 2 % gain is refused."""
+    admitted, ev = _assessed(monkeypatch, (0.010, 0.011, 0.009), pooled_gain=0.02)
+    assert admitted is None and not ev.accepted
+    assert "≤ 3 %" in ev.reason
+
+
 # --- effects.py / search.py: the look-elsewhere correction ------------------------------------
 
 def test_the_look_elsewhere_correction_raises_the_bar_for_grid_searched_shapes():
