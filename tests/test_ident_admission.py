@@ -181,6 +181,62 @@ def test_a_faintly_coloured_residual_is_not_white():
     assert not verdict.white
 
 
+def _ar1(rng, n, rho, sigma):
+    shocks = rng.normal(0.0, sigma, n)
+    x = np.empty(n)
+    x[0] = shocks[0]
+    for k in range(1, n):
+        x[k] = rho * x[k - 1] + shocks[k]
+    return x
+
+
+def test_a_faint_colour_beyond_the_sensors_own_is_not_white():
+    """The coloured-noise branch: the rest periods show AR(1) noise (ρ 0.6, motion capture's
+    filter); where the joint moves a faint extra colour remains once that AR(1) is removed."""
+    from admittance.ident.angle_sensor import Sensor, noise_verdict
+
+    def verdict(extra):
+        rng = np.random.default_rng(5)
+        residuals, at_rest = [], []
+        for _ in range(3):
+            x = _ar1(rng, 4000, 0.6, 1e-3)
+            x[2000:] += extra * np.roll(x[2000:], 3)
+            residuals.append(x)
+            at_rest.append(np.arange(4000) < 2000)
+        return noise_verdict([np.zeros(4000)] * 3, residuals, Sensor(), at_rest)
+
+    assert verdict(0.0).white and verdict(0.0).correlation == pytest.approx(0.6, abs=0.03)
+    coloured = verdict(0.05)
+    assert coloured.correlation == pytest.approx(0.6, abs=0.03)  # the AR(1) branch was taken
+    assert 1e-4 < coloured.ljung_box_p < 0.01  # just on the refused side of 0.01
+    assert not coloured.white
+
+
+def test_a_faint_colour_under_an_encoders_rounding_is_not_white():
+    """The encoder branch (the bootstrap over the rounding): noise before a 4096-tick encoder,
+    white or with a faint lag-3 colour."""
+    from admittance.ident.angle_sensor import Sensor, noise_verdict
+
+    sensor = Sensor(2 * math.pi / 4096, 0.0, "manifest")
+
+    def verdict(colour):
+        rng = np.random.default_rng(7)
+        measured, residuals = [], []
+        for k in range(4):
+            truth = 0.8 * np.sin(1.3 * np.arange(3000) / 100 + k)
+            noise = rng.normal(0.0, 1e-3, truth.size)
+            noise[3:] += colour * noise[:-3]
+            reading = sensor.read(truth + noise)
+            measured.append(reading)
+            residuals.append(truth - reading)
+        return noise_verdict(measured, residuals, sensor)
+
+    assert verdict(0.0).white and verdict(0.0).quantised
+    coloured = verdict(0.05)
+    assert 1e-4 < coloured.ljung_box_p < 0.01
+    assert not coloured.white
+
+
 # --- datacheck.py: every check, and a clean swing passes all ----------------------------------
 
 def _free_swing(n=1200, rate=100.0, seed=0):
