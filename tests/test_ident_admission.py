@@ -335,14 +335,17 @@ def test_a_passive_rod_pendulum_with_drag_gets_its_drag_named(tmp_path):
     """No motor: motor inertia 0, which the base fit puts on its bound. Quadratic drag is tried
     (not refused for a bound the base model was already on) and named."""
     from admittance.formats.dataset import load_dataset
+    from admittance.ident.effects import candidate_effects
     from admittance.ident.identify import identify_dataset
     from admittance.ident.synthetic import SynthSpec, generate
 
     spec = SynthSpec(n_trials=6, duration=5.0, seed=2, params={"motor_inertia": 1e-9, "damping": 0.004, "coulomb": 0.004},
                      effects={"quadratic_drag": 0.01})
     j = identify_dataset(load_dataset(generate(tmp_path, spec))).to_json()
-    tried = [e for round_ in j["evidence"] for e in round_ if e["effect"] == "quadratic_drag"]
-    assert tried and not any("collapsed" in e["reason"] for e in tried)
+    judged = [e for round_ in j["evidence"] for e in round_]
+    # Every candidate is tried in the first round, and none is refused for the bound.
+    assert {e["effect"] for e in j["evidence"][0]} == set(candidate_effects([], False, "geometry"))
+    assert not any("collapsed" in e["reason"] for e in judged)
     assert j["effects"] == ["quadratic_drag"]
     assert j["rmse_after"] < 0.8 * j["rmse_before"]
 
