@@ -90,6 +90,43 @@ def test_assess_refuses_a_cross_validated_gain_below_the_floor(monkeypatch):
     assert "≤ 3 %" in ev.reason
 
 
+def test_a_fit_the_regime_halves_show_stuck_is_judged_again_from_their_optimum(monkeypatch):
+    """The regime test flags a fit; refitted from a half's optimum it fits materially better and
+    is one model: judged again, it is named (not a stand-in), and the reason says why. A flagged
+    fit the halves cannot improve stays flagged (a stand-in, refused here for its folds' 2 of 3)."""
+    from admittance.ident import search
+    from admittance.ident.crossval import PairedGain
+
+    calls = []
+
+    def regimes(ctx, evidence, fit, current, halves_out=None):
+        calls.append(fit)
+        if fit.value("quadratic_drag") == 0.01:  # the stuck fit
+            halves_out[:] = [fit, fit]
+            return "the model with it is not one model", []
+        return "", []
+
+    _assessed(monkeypatch, (0.010, 0.011, 0.009))
+    monkeypatch.setattr(search, "regime_inconsistency", regimes)
+    better = _fit(free=("quadratic_drag",), sigma={"quadratic_drag": 0.001}, residuals=[np.full(100, 0.5e-3)],
+                  quadratic_drag=0.012)
+    monkeypatch.setattr(search, "restart_from_halves", lambda ctx, fit, halves: better if halves else None)
+    ctx = SimpleNamespace(settings=search.SearchSettings(), torque_scale=1.0, sim=SimpleNamespace(mode="geometry"),
+                          say=lambda message: None)
+    current = SimpleNamespace(full=_fit(residuals=[np.full(100, 1e-3)]))
+    refit = _fit(free=("quadratic_drag",), sigma={"quadratic_drag": 0.001}, residuals=[np.full(100, 0.9e-3)],
+                 quadratic_drag=0.01)
+    ev = Evidence("quadratic_drag", params=("quadratic_drag",))
+    assert search.assess(ctx, current, ev, refit) is not None
+    assert ev.accepted and not ev.stand_in and ev.reason.startswith("refitted from a regime half's optimum")
+    assert ev.values["quadratic_drag"][0] == 0.012 and len(calls) == 2
+    # No better start: the flag stands (and the restart is tried once, not again and again).
+    monkeypatch.setattr(search, "restart_from_halves", lambda ctx, fit, halves: None)
+    monkeypatch.setattr(search, "compare", lambda ctx, c, s: PairedGain(0.1, 0.05, 5.0, 1.0, 2, 3, 3, 1e-3, 1e-3))
+    ev = Evidence("quadratic_drag", params=("quadratic_drag",))
+    assert search.assess(ctx, current, ev, refit) is None and ev.stand_in
+
+
 # --- effects.py / search.py: the look-elsewhere correction ------------------------------------
 
 def test_the_look_elsewhere_correction_raises_the_bar_for_grid_searched_shapes():

@@ -83,7 +83,7 @@ from admittance.ident.effects import (
 )
 from admittance.ident.fit import FitResult, Progress, fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
-from admittance.ident.regime import regime_inconsistency, transfer_loss
+from admittance.ident.regime import regime_inconsistency, restart_from_halves, transfer_loss
 from admittance.ident.residual import noise_of
 from admittance.ident.angle_sensor import Sensor
 
@@ -326,11 +326,13 @@ def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fal
 
 
 def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitResult,
-           stand_ins: bool = False, at_floor: FitResult | None = None) -> Scored | None:
+           stand_ins: bool = False, at_floor: FitResult | None = None, restarted: bool = False) -> Scored | None:
     """The admission tests of the module doc on a refitted candidate (``refit``: the current
     model plus the effect, fitted on all units; ``stand_ins``: the current model carries some).
     Records everything on ``evidence``; returns the candidate's cross-validated model when it is
-    admitted (``evidence.stand_in`` says how)."""
+    admitted (``evidence.stand_in`` says how). A candidate the regime test flags is judged
+    again, once, from the regime halves' own optima when they fit all the data materially
+    better (``restarted``; regime.restart_from_halves)."""
     settings = ctx.settings
     evidence.values = {n: (refit.value(n), refit.sigma.get(n, math.nan)) for n in evidence.params}
     evidence.training_gain = float(1.0 - refit.rmse / current.full.rmse)
@@ -359,7 +361,16 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     unstable = fold_instability(evidence, scored.folds)
     if unstable:
         return _refuse(evidence, f"not the same effect in every fold: {unstable}")
-    regimes, evidence.regimes = regime_inconsistency(ctx, evidence, refit, current.full)
+    halves: list[FitResult] = []
+    regimes, evidence.regimes = regime_inconsistency(ctx, evidence, refit, current.full, halves)
+    if regimes and not restarted:
+        better = restart_from_halves(ctx, refit, halves)
+        if better is not None:
+            moved = f"refitted from a regime half's optimum ({1e3 * refit.rmse:.3f} → {1e3 * better.rmse:.3f} mrad)"
+            ctx.say(f"{evidence.effect}: {moved}, judged again")
+            scored = assess(ctx, current, evidence, better, stand_ins, at_floor, restarted=True)
+            evidence.reason = f"{moved}; {evidence.reason}"
+            return scored
     why = StandIn.REGIMES if regimes else None
     if not regimes and stand_ins:
         regimes, why = BESIDE_REASON, StandIn.BESIDE
