@@ -22,6 +22,11 @@ what separates the fit's plant from any other source of data, which no simulatio
 model contains (on 30 mocap drops the model's own floor was 0.0015× the noise variance, the
 right model's gain against the oracle's data 0.025-0.085×). Measured only when the test would
 otherwise call the model unstable.
+
+**A flagged fit may be stuck, not wrong.** Halves that gain from their own parameters also show
+a fit on all data that missed its optimum (a breakaway decided wrongly at one turning point);
+:func:`restart_from_halves` refits from the halves' optima, and search.assess judges a
+materially better fit again, once.
 """
 
 from __future__ import annotations

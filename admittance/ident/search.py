@@ -29,7 +29,9 @@ them, and admits at most one. A candidate is admitted only when all of these hol
    better with it), but it is not named in ``effects``; the ``unexplained`` object lists it.
    Prediction being its only claim, a stand-in must improve *every* fold, not a majority, and
    carry over between regimes (:func:`transfer_loss`: fitted on one half of each split, predict
-   the other half better than the model without it).
+   the other half better than the model without it). Before that verdict, a flagged fit is
+   refitted from the halves' own optima (``regime.restart_from_halves``): one that then fits
+   materially better was stuck, not a stand-in, and is judged again from there, once.
    A periodic term (cogging, a friction ripple: a shape chosen among 31 periods, with a free
    phase) can fit part of almost anything that varies with the angle, so it is claimed only
    when the model with it (or with the effects admitted after it) leaves nothing but sensor
