@@ -120,7 +120,17 @@ def test_a_fit_the_regime_halves_show_stuck_is_judged_again_from_their_optimum(m
     assert search.assess(ctx, current, ev, refit) is not None
     assert ev.accepted and not ev.stand_in and ev.reason.startswith("refitted from a regime half's optimum")
     assert ev.values["quadratic_drag"][0] == 0.012 and len(calls) == 2
-    # No better start: the flag stands (and the restart is tried once, not again and again).
+    # A restart that keeps finding a better fit the test still flags: tried MAX_RESTARTS times, not for ever.
+    calls.clear()
+    monkeypatch.setattr(search, "regime_inconsistency",
+                        lambda ctx, evidence, fit, current, halves_out=None: (calls.append(fit), halves_out.extend([fit]),
+                                                                               ("the model with it is not one model", []))[-1])
+    monkeypatch.setattr(search, "transfer_loss", lambda *args: "")
+    looping = Evidence("quadratic_drag", params=("quadratic_drag",))
+    assert search.assess(ctx, current, looping, refit) is not None and looping.stand_in
+    assert len(calls) == search.MAX_RESTARTS + 1
+    monkeypatch.setattr(search, "regime_inconsistency", regimes)
+    # No better start: the flag stands.
     monkeypatch.setattr(search, "restart_from_halves", lambda ctx, fit, halves: None)
     monkeypatch.setattr(search, "compare", lambda ctx, c, s: PairedGain(0.1, 0.05, 5.0, 1.0, 2, 3, 3, 1e-3, 1e-3))
     ev = Evidence("quadratic_drag", params=("quadratic_drag",))

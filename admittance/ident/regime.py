@@ -26,7 +26,7 @@ otherwise call the model unstable.
 **A flagged fit may be stuck, not wrong.** Halves that gain from their own parameters also show
 a fit on all data that missed its optimum (a breakaway decided wrongly at one turning point);
 :func:`restart_from_halves` refits from the halves' optima, and search.assess judges a
-materially better fit again, once.
+materially better fit again (a few times at most).
 """
 
 from __future__ import annotations
