@@ -11,9 +11,22 @@ the target is ≥ 90 %. Driven effects (time delay, torque bias, torque gain) ge
 Synthetic data: this measures the σ against a known truth, with the only model errors the ones
 the generator makes (a finer integration step). Measured data have more.
 
+``--encoder TICKS`` rounds every angle the generator wrote to a TICKS-per-revolution encoder
+(no Gaussian noise: the rounding is the sensor) and declares it in the manifest; ``--trials 30``
+gives 30-drop sets.
+
+Measured sets have no truth. ``--real`` runs a consistency check instead on the sets of
+../shared/data/real (converted as bench/identify_families.py does): the trials of each set are
+dealt into two disjoint halves (alternately, in file order), each half is identified on its own
+(no held-out trials taken: every trial of the half trains), and for every parameter both halves
+report, the two 95 % intervals must overlap. With a right σ two independent estimates' intervals
+of half-width 1.96 σ fail to overlap in < 1 % of cases; a frequent miss means the intervals are
+too narrow (or the halves see different physics: the test cannot say which).
+
 Usage: ``nice .venv/bin/python bench/identify_coverage.py [--seeds 20] [--kinds clean,stribeck,...]
-[--trials 10]``; prints the machine load with the table. To measure another checkout (the side by
-side of docs/identification.md), run this file with that checkout's interpreter and ``--root``.
+[--trials 10] [--encoder 4096] [--real]``; prints the machine load with the table. To measure
+another checkout (the side by side of docs/identification.md), run this file with that
+checkout's interpreter and ``--root``.
 """
 
 from __future__ import annotations
@@ -50,8 +63,13 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=6.0)
     parser.add_argument("--root", default=str(Path(__file__).resolve().parents[1]),
                         help="the checkout whose admittance package to measure")
+    parser.add_argument("--encoder", type=int, default=0, help="round the angles to this many ticks per revolution")
+    parser.add_argument("--seed0", type=int, default=1000, help="the first seed")
+    parser.add_argument("--real", action="store_true", help="the consistency check on the measured sets instead")
     parser.add_argument("--json", help="also write the rows here")
     args = parser.parse_args()
+    if args.real:
+        return real_consistency(args)
     sys.path.insert(0, args.root)
     try:
         from admittance.formats.dataset import load_dataset
@@ -66,9 +84,12 @@ def main() -> int:
         for kind in args.kinds.split(","):
             size, driven = KINDS[kind]
             for seed in range(args.seeds):
-                spec = SynthSpec(n_trials=args.trials, duration=args.duration, seed=1000 + seed, with_torque=driven,
-                                 effects={} if size is None else {kind: size})
+                spec = SynthSpec(n_trials=args.trials, duration=args.duration, seed=args.seed0 + seed,
+                                 with_torque=driven, effects={} if size is None else {kind: size},
+                                 **({"noise": 0.0} if args.encoder else {}))
                 folder = generate(Path(tmp) / f"{kind}_{seed}", spec)
+                if args.encoder:
+                    quantise(folder, args.encoder)
                 truth = json.loads((folder / "truth.json").read_text())["params"]
                 tick = time.perf_counter()
                 j = identify_dataset(load_dataset(folder), IdentifySettings()).to_json()
@@ -106,6 +127,70 @@ def main() -> int:
             after = f"{held} of {len(judged)} | {100 * held / len(judged):.0f} %" if judged else "– | not reported"
             print(f"| {kind} | {len(sel)} | {covered} | {100 * covered / len(sel):.0f} % | {after} | "
                   f"{max(abs(r['z']) for r in sel):.1f} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def quantise(folder: Path, ticks: int) -> None:
+    """Round every angle in ``folder``'s CSVs to ``ticks`` per revolution and declare the encoder
+    in the manifest (what a Dynamixel's 4096-tick encoder records)."""
+    import numpy as np
+    import tomli_w
+    import tomllib
+
+    step = 2 * np.pi / ticks
+    for path in folder.glob("*.csv"):
+        header = path.read_text().splitlines()[0]
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        data[:, 1] = np.round(data[:, 1] / step) * step
+        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.9g")
+    manifest = folder / "manifest.toml"
+    content = tomllib.loads(manifest.read_text())
+    content["encoder_ticks"] = ticks
+    manifest.write_text(tomli_w.dumps(content))
+
+
+def real_consistency(args) -> int:
+    """The measured sets' disjoint-halves check (module doc)."""
+    sys.path.insert(0, str(Path(args.root) / "tests"))
+    sys.path.insert(0, str(Path(args.root) / "bench"))
+    from identify_families import real_sets
+
+    from admittance.formats.converters import convert_files
+    from admittance.formats.dataset import load_dataset
+    from admittance.ident.identify import IdentifySettings, identify_dataset
+
+    print(f"load before: {Path('/proc/loadavg').read_text().strip()}; root {args.root}")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, files, fmt, header, extra, window in real_sets():
+            halves = [files[0::2], files[1::2]]
+            results = []
+            for k, half in enumerate(halves):
+                folder = convert_files(half, fmt, Path(tmp) / f"{label.split()[0]}_{k}", header=header, extra=extra,
+                                       **window)
+                tick = time.perf_counter()
+                result = identify_dataset(load_dataset(folder), IdentifySettings(hold_out=False))
+                j = result.to_json()
+                results.append(j)
+                print(f"  {label} half {k} ({len(half)} trials): {time.perf_counter() - tick:.1f} s, named "
+                      f"{j['effects']}, model {j['model_effects']}", flush=True)
+            a, b = (r.get("uncertainty") or {} for r in results)
+            for name in sorted(set(a.get("interval95", {})) & set(b.get("interval95", {}))):
+                ia, ib = a["interval95"][name], b["interval95"][name]
+                overlap = ia[0] <= ib[1] and ib[0] <= ia[1]
+                rows.append({"set": label, "param": name, "half_a": ia, "half_b": ib, "overlap": overlap,
+                             "groups": [a.get("groups"), b.get("groups")]})
+                print(f"    {name:22s} [{ia[0]:.5g}, {ia[1]:.5g}] vs [{ib[0]:.5g}, {ib[1]:.5g}]: "
+                      f"{'overlap' if overlap else 'DISJOINT'}", flush=True)
+    print(f"load after: {Path('/proc/loadavg').read_text().strip()}")
+    print("\n| measured set | parameters in both halves | intervals overlapping |\n|---|---|---|")
+    for label in sorted({r["set"] for r in rows}) + ["all"]:
+        sel = [r for r in rows if label in ("all", r["set"])]
+        if sel:
+            held = sum(r["overlap"] for r in sel)
+            print(f"| {label} | {len(sel)} | {held} ({100 * held / len(sel):.0f} %) |")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -132,23 +132,28 @@ def run_row(family, label, spec, tmp: Path) -> dict:
             "seconds": seconds, "unexplained": bool(result.get("unexplained"))}
 
 
-def real_rows(tmp: Path) -> list[dict]:
+def real_sets() -> list[tuple]:
+    """(label, files, format, header, extra, window) of each measured set present ([] without
+    ../shared/data/real)."""
     from conftest import REAL_DATA
     from test_realdata import _dfki_files, _xl330_files
 
-    from admittance.formats.converters import convert_files
-
     if not REAL_DATA.is_dir():
         return []
-    sets = [
+    return [
         ("XL330 free swings (geometry)", _xl330_files(REAL_DATA), "dynamixel",
          {"motor": "XL330", "rod": {"mass": 0.0094, "length": 0.1}, "bob": {"mass": 0.49}}, {"bob_distance": 0.1}, {}),
         ("DFKI swing-ups (geometry)", _dfki_files(REAL_DATA), "dfki",
          {"motor": "AK80-6", "rod": {"mass": 0.13, "length": 0.5}, "bob": {"mass": 0.546}}, {"bob_distance": 0.5},
          {"t_stop": 3.3}),
     ]
+
+
+def real_rows(tmp: Path) -> list[dict]:
+    from admittance.formats.converters import convert_files
+
     out = []
-    for label, files, fmt, header, extra, window in sets:
+    for label, files, fmt, header, extra, window in real_sets():
         folder = convert_files(files, fmt, tmp / label.split()[0], header=header, extra=extra, **window)
         start = time.perf_counter()
         result = identify_dataset(load_dataset(folder), IdentifySettings()).to_json()

@@ -68,6 +68,9 @@ class IdentifySettings:
     min_sigma: float = 3.0
     max_step: float = FIT_MAX_STEP
     quiet: bool = True
+    # False: every trial trains and scores (no held-out estimate): for a set too small to spare
+    # any, e.g. the halves of a measured set compared in bench/identify_coverage.py.
+    hold_out: bool = True
 
     def __post_init__(self):
         if self.friction not in paramfile.FRICTION_LAWS:
@@ -294,7 +297,7 @@ def _run(dataset: Dataset, settings: IdentifySettings, progress: _Progress, timi
     with _timed(timings, "data_checks"):
         dataset, findings = screen(dataset, progress.note)
     trials = dataset.trials
-    heldout, training = stratified_pick(trials)
+    heldout, training = stratified_pick(trials) if settings.hold_out else ([], list(range(len(trials))))
     if not heldout:  # a single trial: score on it, and say so in the JSON (heldout == training)
         heldout = list(training)
     torque_scale = torque_scale_of(dataset)
