@@ -22,6 +22,7 @@ from admittance.errors import DeviceError
 
 if TYPE_CHECKING:
     from admittance._rtcore import AdmittanceLoop
+    from admittance.drivers.force_reader import ForceStream
 
 
 def real_backends() -> Backends:
@@ -98,11 +99,18 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, Callable[[], None]]:
     hand = (b.hand_inertia, b.hand_damping, b.hand_stiffness)
     bench = MockBench(BenchConfig(
         servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile,
-        sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
+        sensor="can" if s.kind == "can" else "optoforce", lever_arm=first_lever_arm(cfg), axis=s.axis,
         counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
         hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None,
         rt_priority=cfg.loop.rt_priority, sensor_stream=b.sensor_stream))  # the loop's scheduling: the mock is not late where a servo is not
     return bench, _hand_held_until_go(bench, cfg.bench.hand_delay_s)
+
+
+def first_lever_arm(cfg: DaemonConfig) -> float:
+    """The first joint's lever arm, where a simulated hand pushes: a loaded configuration gives
+    every joint one, its own or [sensor].lever_arm (config.py), which is also the fallback."""
+    lever_arm = cfg.joints[0].lever_arm
+    return cfg.sensor.lever_arm if lever_arm is None else lever_arm
 
 
 def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
@@ -225,7 +233,9 @@ def release_servos(cfg: DaemonConfig, port: str) -> None:
             bus.set_torque(joint.id, False)
 
 
-def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a ForceSensor or a NativeForceReader
+def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> ForceStream:
+    """The configured sensor's reader, the Rust one or a Python ForceSensor (native_sensor.py
+    chooses), streaming into ``sink`` once started."""
     from admittance.drivers.force_reader import create_sensor
     from admittance.drivers.native_sensor import NativeForceReader, choose_reader, reader_priority
 
@@ -234,7 +244,7 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a Forc
                "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate, "channel": s.channel,
                "can_options": dict(s.can_options), "saturation": s.saturation}
     if s.kind == "mock":  # a scripted sensor in this process: it plays the [bench] hand itself
-        section.update(lever_arm=cfg.joints[0].lever_arm, axis=s.axis, profile=cfg.bench.profile,
+        section.update(lever_arm=first_lever_arm(cfg), axis=s.axis, profile=cfg.bench.profile,
                        noise_std_n=cfg.bench.noise_std_n)
     section["reader"] = s.reader
     if choose_reader(section) == "rust":  # no sample passes through Python (native_sensor.py)
