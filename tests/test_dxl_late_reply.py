@@ -114,3 +114,21 @@ def test_a_scan_probe_takes_silence_for_an_answer_without_a_late_wait(stalling):
         start = time.monotonic()
         assert [s.id for s in bus.scan(ids=[1, 2, 3])] == [1]
         assert time.monotonic() - start < LATE_MS / 1e3, "absent IDs were awaited late"
+
+
+def test_the_daemon_never_sends_a_setup_instruction_twice_on_a_pty(stalling):
+    """A pty loses no bytes: past its late window the daemon's setup gives up (one clear line)
+    rather than send again and leave a second reply for the next instruction (backends.py)."""
+    from types import SimpleNamespace
+
+    from admittance.daemon.backends import PTY_LATE_REPLY_MS, PTY_REPLY_SLACK_MS, open_setup_bus
+    from admittance.drivers.dynamixel import ServoTimeout
+
+    past_the_window_s = (PTY_REPLY_SLACK_MS + PTY_LATE_REPLY_MS) / 1e3 + 0.5
+    servos = stalling({(READ, FIRMWARE_VERSION, 1): past_the_window_s})
+    cfg = SimpleNamespace(bus=SimpleNamespace(baudrate=1_000_000, protocol=2))
+    with open_setup_bus(cfg, servos.path) as bus:
+        bus._tables[1] = table_for_number(2, MODEL_NUMBER[2])
+        with pytest.raises(ServoTimeout):
+            bus.read_raw(1, "Firmware Version")
+    assert servos.seen[(READ, FIRMWARE_VERSION)] == 1

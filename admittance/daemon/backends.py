@@ -22,6 +22,7 @@ from admittance.errors import DeviceError
 
 if TYPE_CHECKING:
     from admittance._rtcore import AdmittanceLoop
+    from admittance.drivers.dynamixel import ServoBus
     from admittance.drivers.force_reader import ForceStream
 
 
@@ -127,19 +128,26 @@ def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
 
 
 PTY_REPLY_SLACK_MS = 200.0
+PTY_LATE_REPLY_MS = 3000.0
 
 
-def reply_slack_ms(port: str) -> float:
-    """How long a setup transaction may wait beyond the wire time.
+def open_setup_bus(cfg: DaemonConfig, port: str, *, auto_recover: bool = True) -> ServoBus:
+    """The configured bus, for setup transactions, with their waits for a reply.
 
     A pseudo-terminal is always a simulated bus: its servos are a thread of another process
-    that a loaded machine may not schedule for tens of milliseconds, unlike a servo's firmware.
-    Setup is not time-critical, so the simulated bus gets a generous slack and hardware the
-    driver's default.
+    that a loaded machine may not schedule for tens of milliseconds, or seconds, unlike a
+    servo's firmware. Setup is not time-critical, so there a reply gets a generous slack and is
+    then awaited ``PTY_LATE_REPLY_MS`` longer; and an instruction is never sent again: a pty
+    loses no bytes, so a second copy would only put a second reply on the way, which the next
+    instruction would take for its own (dynamixel.py, late replies). Hardware gets the
+    driver's defaults (one more try: a reply can be lost to noise there).
     """
-    from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS
+    from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS, ServoBus
 
-    return PTY_REPLY_SLACK_MS if os.path.realpath(port).startswith("/dev/pts/") else DEFAULT_REPLY_SLACK_MS
+    pty = os.path.realpath(port).startswith("/dev/pts/")
+    return ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol, auto_recover=auto_recover,
+                    reply_slack_ms=PTY_REPLY_SLACK_MS if pty else DEFAULT_REPLY_SLACK_MS,
+                    late_reply_ms=PTY_LATE_REPLY_MS if pty else None, retries=0 if pty else 1)
 
 
 def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
@@ -149,11 +157,8 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
     to whatever goal it held from a previous session. The SDK's port is closed on return: from
     then on the RT loop owns the tty.
     """
-    from admittance.drivers.dynamixel import ServoBus
-
     warnings: list[str] = []
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
-                  reply_slack_ms=reply_slack_ms(port), auto_recover=False) as bus:
+    with open_setup_bus(cfg, port, auto_recover=False) as bus:
         if bus.warning:
             warnings.append(bus.warning)
         for joint in cfg.joints:
@@ -225,10 +230,7 @@ def present_within_one_turn(bus: Any, servo_id: int) -> int:
 
 def release_servos(cfg: DaemonConfig, port: str) -> None:
     """Torque off every joint (a start that failed after torque-on, with policy torque_off)."""
-    from admittance.drivers.dynamixel import ServoBus
-
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
-                  reply_slack_ms=reply_slack_ms(port)) as bus:
+    with open_setup_bus(cfg, port) as bus:
         for joint in cfg.joints:
             bus.set_torque(joint.id, False)
 
