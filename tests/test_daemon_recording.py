@@ -274,8 +274,15 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     from_mcap = json.loads((tmp_path / "mcap.json").read_text())
     assert from_mcap["rendering_rmse"] == pytest.approx(before, rel=0.02)
     assert from_mcap["target"] == json.loads((tmp_path / "plain_fidelity.json").read_text())["target"]
+    # Step 3's premises, each with its own message: a load that disturbs the plain session can
+    # make `fidelity` refuse the servo model, and one that stalls the compensated session can
+    # make the loop's watch blend the compensation out; either leaves no compensation to judge.
+    verdict = json.loads((tmp_path / "plain_fidelity.json").read_text())["servo_verdict"]
+    assert tomllib.loads(servo_params.read_text())["fit"]["servo_compensation"] == 1.0, verdict
     compensated, stats = bench_session(tmp_path, "compensated", servo_params, cycles=4500)
     assert stats["rendering_rms"]["1"] > 0, "the live figure is in the stats file"
+    assert stats["compensation_fallbacks"] == 0, ("the loop's watch blended the compensation out", stats["overruns"],
+                                                  stats["bench"]["bus"]["timing"])
     assert main(["fidelity", str(compensated), "--json", str(tmp_path / "comp.json"), "--quiet"]) == 0
     after = json.loads((tmp_path / "comp.json").read_text())
     assert after["servo_compensation"] == 1.0 and after["rendering_rmse"] < before / 3, (before, after["rendering_rmse"])
