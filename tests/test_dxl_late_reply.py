@@ -121,10 +121,10 @@ def test_the_daemon_never_sends_a_setup_instruction_twice_on_a_pty(stalling):
     rather than send again and leave a second reply for the next instruction (backends.py)."""
     from types import SimpleNamespace
 
-    from admittance.daemon.backends import PTY_LATE_REPLY_MS, PTY_REPLY_SLACK_MS, open_setup_bus
+    from admittance.daemon.backends import PTY_REPLY_WAIT_MS, open_setup_bus
     from admittance.drivers.dynamixel import ServoTimeout
 
-    past_the_window_s = (PTY_REPLY_SLACK_MS + PTY_LATE_REPLY_MS) / 1e3 + 0.5
+    past_the_window_s = PTY_REPLY_WAIT_MS / 1e3 + 0.5
     servos = stalling({(READ, FIRMWARE_VERSION, 1): past_the_window_s})
     cfg = SimpleNamespace(bus=SimpleNamespace(baudrate=1_000_000, protocol=2))
     with open_setup_bus(cfg, servos.path) as bus:

@@ -127,8 +127,7 @@ def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
     return hand.go
 
 
-PTY_REPLY_SLACK_MS = 200.0
-PTY_LATE_REPLY_MS = 3000.0
+PTY_REPLY_WAIT_MS = 3000.0
 
 
 def open_setup_bus(cfg: DaemonConfig, port: str, *, auto_recover: bool = True) -> ServoBus:
@@ -136,18 +135,17 @@ def open_setup_bus(cfg: DaemonConfig, port: str, *, auto_recover: bool = True) -
 
     A pseudo-terminal is always a simulated bus: its servos are a thread of another process
     that a loaded machine may not schedule for tens of milliseconds, or seconds, unlike a
-    servo's firmware. Setup is not time-critical, so there a reply gets a generous slack and is
-    then awaited ``PTY_LATE_REPLY_MS`` longer; and an instruction is never sent again: a pty
-    loses no bytes, so a second copy would only put a second reply on the way, which the next
-    instruction would take for its own (dynamixel.py, late replies). Hardware gets the
-    driver's defaults (one more try: a reply can be lost to noise there).
+    servo's firmware. Setup is not time-critical, so there a reply is awaited up to
+    ``PTY_REPLY_WAIT_MS``; and an instruction is never sent again: a pty loses no bytes, so a
+    second copy would only put a second reply on the way, which the next instruction would
+    take for its own (dynamixel.py, late replies). Hardware gets the driver's defaults (one
+    more try: a reply can be lost to noise there).
     """
     from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS, ServoBus
 
     pty = os.path.realpath(port).startswith("/dev/pts/")
     return ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol, auto_recover=auto_recover,
-                    reply_slack_ms=PTY_REPLY_SLACK_MS if pty else DEFAULT_REPLY_SLACK_MS,
-                    late_reply_ms=PTY_LATE_REPLY_MS if pty else None, retries=0 if pty else 1)
+                    reply_slack_ms=PTY_REPLY_WAIT_MS if pty else DEFAULT_REPLY_SLACK_MS, retries=0 if pty else 1)
 
 
 def check_servos(cfg: DaemonConfig, port: str) -> list[str]:

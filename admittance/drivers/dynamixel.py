@@ -29,8 +29,10 @@ instruction sent again after a timeout leaves two replies on their way, and the 
 as the answer to whatever is sent next (a Firmware Version of 45 read as Hardware Error Status
 0x2D: "input voltage, overheating, motor encoder, overload" on a healthy servo). A reply that
 misses its timeout (a host, or a simulated bus's thread, not scheduled in time) is therefore
-first awaited a while longer without sending anything (``late_reply_ms``): it is still the
-answer to the instruction that is out. Only silence through that window sends it again.
+first awaited a while longer without sending anything (``late_reply_ms``) before the
+instruction is sent again: it is still the answer to the instruction that is out. Only
+silence through that window sends it again (the last attempt has no such wait: nothing is
+sent after it, so an absent servo costs no more).
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ P1_HARDWARE_BITS = 0x01 | 0x04 | 0x20
 HARDWARE_ERROR_BITS = {0: "input voltage", 2: "overheating", 3: "motor encoder", 4: "electrical shock", 5: "overload"}
 REBOOT_WAIT_S = 3.0
 DEFAULT_REPLY_SLACK_MS = 20.0  # a servo's firmware plus a desktop host's scheduling
-LATE_REPLY_FACTOR = 5.0  # the window for a late reply, in reply slacks (ServoBus.late_reply_ms)
+LATE_REPLY_FACTOR = 1.0  # the wait for a late reply before a resend, in reply slacks (ServoBus.late_reply_ms)
 READ_POLL_S = 0.002  # the port's read timeout: the reply wait sleeps in select, it does not spin
 
 
@@ -190,9 +192,9 @@ class ServoBus:
 
     ``reply_slack_ms`` is added to the wire and latency time of every reply (the servo's
     Return Delay Time and the host's scheduling). An addressed operation whose reply misses
-    that is awaited ``late_reply_ms`` longer (default ``LATE_REPLY_FACTOR`` slacks) before it is
-    sent again, ``1 + retries`` times in all (a reply lost to noise or a busy host is worth one
-    more try at setup); the pings of a scan are tried once and not awaited late, since most IDs
+    that is tried ``1 + retries`` times in all (a reply lost to noise or a busy host is worth one
+    more try at setup), each retry only after the reply was awaited ``late_reply_ms`` longer
+    (default ``LATE_REPLY_FACTOR`` slacks); the pings of a scan are tried once, since most IDs
     are simply absent.
     """
 
@@ -267,7 +269,7 @@ class ServoBus:
     def _transact(self, servo_id: int, what: str, fn: Callable[..., tuple], args: tuple, attempts: int,
                   late: bool) -> tuple:
         """The SDK call, sent again while no reply comes (up to ``attempts`` times); with
-        ``late``, a reply that missed its timeout is awaited before anything is sent again,
+        ``late``, a reply that missed its timeout is awaited before the call is sent again,
         so that no reply to an earlier copy is left on the wire (the module doc)."""
         from dynamixel_sdk import COMM_RX_TIMEOUT
 
@@ -277,9 +279,9 @@ class ServoBus:
             except OSError as exc:
                 raise ServoCommError(f"{what} on servo {servo_id}: the port {self.port} failed ({exc})") from None
 
-        for _ in range(attempts):
+        for attempt in range(1, attempts + 1):
             out = run()
-            if out[-2] == COMM_RX_TIMEOUT and late:
+            if out[-2] == COMM_RX_TIMEOUT and late and attempt < attempts:
                 with self._port.listening():  # the same call again, receiving only
                     out = run()
             if out[-2] != COMM_RX_TIMEOUT:
