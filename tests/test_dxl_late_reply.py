@@ -108,7 +108,7 @@ def test_a_ping_answered_after_the_timeout_finds_the_servo(stalling):
     assert servos.seen[(PING, 0)] == 1
 
 
-def test_a_scan_probe_takes_silence_for_an_answer_without_a_late_wait(stalling):
+def test_a_scan_takes_silence_for_an_answer_without_a_late_wait(stalling):
     servos = stalling({})
     with ServoBus(servos.path, protocol=2, reply_slack_ms=SLACK_MS, late_reply_ms=LATE_MS) as bus:
         start = time.monotonic()

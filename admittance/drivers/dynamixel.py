@@ -249,14 +249,12 @@ class ServoBus:
     # -- the transaction core ---------------------------------------------------------------------
 
     def _call(
-        self, servo_id: int, what: str, fn: Callable[..., tuple], *args: Any, alert_ok: bool = False,
-        attempts: int | None = None, probe: bool = False,
+        self, servo_id: int, what: str, fn: Callable[..., tuple], *args: Any, alert_ok: bool = False, attempts: int | None = None
     ) -> Any:
-        """Run one SDK transaction; return its value (or None) or raise the typed error.
-        A ``probe`` (a scan's ping) takes silence for an answer: no late wait."""
+        """Run one SDK transaction; return its value (or None) or raise the typed error."""
         from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS
 
-        out = self._transact(servo_id, what, fn, args, attempts or self.attempts, late=not probe)
+        out = self._transact(servo_id, what, fn, args, attempts or self.attempts)
         result, error = out[-2], out[-1]
         if result == COMM_RX_TIMEOUT:
             raise ServoTimeout(f"servo {servo_id} did not answer {what} on {self.port} (ID, baud rate {self.baudrate}, protocol {self.protocol}?)")
@@ -266,11 +264,10 @@ class ServoBus:
         self._check_status(servo_id, what, error, alert_ok)
         return out[0] if len(out) == 3 else None
 
-    def _transact(self, servo_id: int, what: str, fn: Callable[..., tuple], args: tuple, attempts: int,
-                  late: bool) -> tuple:
-        """The SDK call, sent again while no reply comes (up to ``attempts`` times); with
-        ``late``, a reply that missed its timeout is awaited before the call is sent again,
-        so that no reply to an earlier copy is left on the wire (the module doc)."""
+    def _transact(self, servo_id: int, what: str, fn: Callable[..., tuple], args: tuple, attempts: int) -> tuple:
+        """The SDK call, sent again while no reply comes (up to ``attempts`` times); a reply that
+        missed its timeout is awaited before the call is sent again, so that no reply to an
+        earlier copy is left on the wire (the module doc)."""
         from dynamixel_sdk import COMM_RX_TIMEOUT
 
         def run() -> tuple:
@@ -281,7 +278,7 @@ class ServoBus:
 
         for attempt in range(1, attempts + 1):
             out = run()
-            if out[-2] == COMM_RX_TIMEOUT and late and attempt < attempts:
+            if out[-2] == COMM_RX_TIMEOUT and attempt < attempts:
                 with self._port.listening():  # the same call again, receiving only
                     out = run()
             if out[-2] != COMM_RX_TIMEOUT:
@@ -317,10 +314,10 @@ class ServoBus:
 
     # -- discovery ---------------------------------------------------------------------------------
 
-    def ping(self, servo_id: int, *, attempts: int | None = None, probe: bool = False) -> ServoInfo | None:
-        """The servo at ``servo_id``, or None if nobody answers (a ``probe``: not awaited late)."""
+    def ping(self, servo_id: int, *, attempts: int | None = None) -> ServoInfo | None:
+        """The servo at ``servo_id``, or None if nobody answers."""
         try:
-            number = self._call(servo_id, "PING", self._packet.ping, alert_ok=True, attempts=attempts, probe=probe)
+            number = self._call(servo_id, "PING", self._packet.ping, alert_ok=True, attempts=attempts)
         except ServoTimeout:
             return None
         return self._identify(servo_id, number)
@@ -329,7 +326,7 @@ class ServoBus:
         """Every servo that answers: a broadcast ping on P2 when ``ids`` is None, else one ping per ID."""
         if ids is None and self.protocol == 2:
             return self._broadcast_scan()
-        found = (self.ping(i, attempts=1, probe=True) for i in (range(MAX_ID[self.protocol] + 1) if ids is None else ids))
+        found = (self.ping(i, attempts=1) for i in (range(MAX_ID[self.protocol] + 1) if ids is None else ids))
         return [info for info in found if info is not None]
 
     def _broadcast_scan(self) -> list[ServoInfo]:
