@@ -33,10 +33,11 @@ run: setup
 test: setup test-rust test-stub test-python
 
 # The typed boundary: the stub admittance/_rtcore.pyi against the built extension (every name and
-# signature), and the loop's configuration builder and the supervisor against the stub's types.
+# signature), and the loop's configuration builder, the supervisor and its backends against the
+# stub's types (backends.py: both force readers, Python and Rust, against force_reader.ForceStream).
 test-stub: setup
 	$(BIN)/python -m mypy.stubtest admittance._rtcore
-	$(BIN)/python -m mypy --follow-imports=silent --ignore-missing-imports admittance/daemon/loopconfig.py admittance/loop_config.py admittance/daemon/supervisor.py
+	$(BIN)/python -m mypy --follow-imports=silent --ignore-missing-imports admittance/daemon/loopconfig.py admittance/loop_config.py admittance/daemon/supervisor.py admittance/daemon/backends.py
 
 test-rust:
 	cargo test --manifest-path $(CARGO_MANIFEST) --workspace --exclude admittance-py

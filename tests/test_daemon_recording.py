@@ -196,7 +196,8 @@ def test_an_unwritable_folder_is_a_config_error(tmp_path):
         Recorder(blocker / "sub", [(1, "MX-64")], measured_theta=True, t0=0.0)
 
 
-def bench_session(tmp_path, name: str, params: str | Path, *, cycles: int) -> tuple[Path, dict]:
+def bench_session(tmp_path, name: str, params: str | Path, *, cycles: int,
+                  joint: dict | None = None) -> tuple[Path, dict]:
     """A session of the embedded bench's default (MX-64 with its thesis values as the virtual
     joint, a 0.5 Hz hand, reads every 10th cycle), recorded until ``cycles`` cycles after the
     hand first pushes; returns the recording folder and the --stats-json object. The stale
@@ -210,6 +211,7 @@ def bench_session(tmp_path, name: str, params: str | Path, *, cycles: int) -> tu
     endpoint, prefix = free_endpoint(), f"hil/{name}"
     cfg = tomllib.loads(BENCH.read_text())
     cfg["joints"][0]["params"] = str(params)
+    cfg["joints"][0].update(joint or {})
     cfg["loop"]["stale_timeout_ms"] = 500.0  # no hold when CI stalls the reader (the most allowed)
     cfg["zenoh"] = {"prefix": prefix, "listen": [endpoint]}
     cfg["record"] = {"path": name, "segment_s": 2.0}
@@ -255,6 +257,7 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     4. reloaded as a joint's params, the refit's values are the virtual defaults."""
     from admittance.cli import main
     from admittance.daemon import config
+    from admittance.fidelity.judge import MIN_HELDOUT_GAIN
     from admittance.ident.identify import IdentifySettings, identify_dataset
 
     plant = paramfile.load(MX64)["params"]
@@ -274,8 +277,20 @@ def test_record_identify_fidelity_compensate_reload(tmp_path):
     from_mcap = json.loads((tmp_path / "mcap.json").read_text())
     assert from_mcap["rendering_rmse"] == pytest.approx(before, rel=0.02)
     assert from_mcap["target"] == json.loads((tmp_path / "plain_fidelity.json").read_text())["target"]
-    compensated, stats = bench_session(tmp_path, "compensated", servo_params, cycles=4500)
+    # Step 3 judges the fitted model's effect, so the compensated session turns it on by hand
+    # (judge.py: a refused fit is still written for that) rather than through the verdict: the
+    # verdict's residual test sits at 1.2-1.5x the noise floor here (at most 2x) on a quiet
+    # machine, and the stalls of a loaded one move it past (2.23x with 100 loop overruns and 266
+    # simulated-bus stalls, against 1.18x with 18 and 26), which left nothing to judge (a
+    # compensated session without compensation: 0.0100 against 0.0098 = before / 3). The model
+    # still predicts the horn: its held-out gain (11.6x then, 23x quiet) keeps the verdict's 4x.
+    verdict = json.loads((tmp_path / "plain_fidelity.json").read_text())["servo_verdict"]
+    assert verdict["heldout_gain"] >= MIN_HELDOUT_GAIN, verdict
+    compensated, stats = bench_session(tmp_path, "compensated", servo_params, cycles=4500,
+                                       joint={"servo_compensation": 1.0})
     assert stats["rendering_rms"]["1"] > 0, "the live figure is in the stats file"
+    assert stats["compensation_fallbacks"] == 0, ("the loop's watch blended the compensation out", stats["overruns"],
+                                                  stats["bench"]["bus"]["timing"])
     assert main(["fidelity", str(compensated), "--json", str(tmp_path / "comp.json"), "--quiet"]) == 0
     after = json.loads((tmp_path / "comp.json").read_text())
     assert after["servo_compensation"] == 1.0 and after["rendering_rmse"] < before / 3, (before, after["rendering_rmse"])

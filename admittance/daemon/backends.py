@@ -22,6 +22,8 @@ from admittance.errors import DeviceError
 
 if TYPE_CHECKING:
     from admittance._rtcore import AdmittanceLoop
+    from admittance.drivers.dynamixel import ServoBus
+    from admittance.drivers.force_reader import ForceStream
 
 
 def real_backends() -> Backends:
@@ -98,11 +100,18 @@ def _make_bench(cfg: DaemonConfig) -> tuple[Any, Callable[[], None]]:
     hand = (b.hand_inertia, b.hand_damping, b.hand_stiffness)
     bench = MockBench(BenchConfig(
         servos=servos, baudrate=cfg.bus.baudrate, profile=b.profile,
-        sensor="can" if s.kind == "can" else "optoforce", lever_arm=cfg.joints[0].lever_arm, axis=s.axis,
+        sensor="can" if s.kind == "can" else "optoforce", lever_arm=first_lever_arm(cfg), axis=s.axis,
         counts_per_newton=list(s.counts_per_newton), noise_std_n=b.noise_std_n, can_id=s.can_id,
         hand=hand if any(hand) else None, first_order_lag=b.servo_lag_s or None,
         rt_priority=cfg.loop.rt_priority, sensor_stream=b.sensor_stream))  # the loop's scheduling: the mock is not late where a servo is not
     return bench, _hand_held_until_go(bench, cfg.bench.hand_delay_s)
+
+
+def first_lever_arm(cfg: DaemonConfig) -> float:
+    """The first joint's lever arm, where a simulated hand pushes: a loaded configuration gives
+    every joint one, its own or [sensor].lever_arm (config.py), which is also the fallback."""
+    lever_arm = cfg.joints[0].lever_arm
+    return cfg.sensor.lever_arm if lever_arm is None else lever_arm
 
 
 def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
@@ -118,20 +127,25 @@ def _hand_held_until_go(bench: Any, delay: float) -> Callable[[], None]:
     return hand.go
 
 
-PTY_REPLY_SLACK_MS = 200.0
+PTY_REPLY_WAIT_MS = 3000.0
 
 
-def reply_slack_ms(port: str) -> float:
-    """How long a setup transaction may wait beyond the wire time.
+def open_setup_bus(cfg: DaemonConfig, port: str, *, auto_recover: bool = True) -> ServoBus:
+    """The configured bus, for setup transactions, with their waits for a reply.
 
     A pseudo-terminal is always a simulated bus: its servos are a thread of another process
-    that a loaded machine may not schedule for tens of milliseconds, unlike a servo's firmware.
-    Setup is not time-critical, so the simulated bus gets a generous slack and hardware the
-    driver's default.
+    that a loaded machine may not schedule for tens of milliseconds, or seconds, unlike a
+    servo's firmware. Setup is not time-critical, so there a reply is awaited up to
+    ``PTY_REPLY_WAIT_MS``; and an instruction is never sent again: a pty loses no bytes, so a
+    second copy would only put a second reply on the way, which the next instruction would
+    take for its own (dynamixel.py, late replies). Hardware gets the driver's defaults (one
+    more try: a reply can be lost to noise there).
     """
-    from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS
+    from admittance.drivers.dynamixel import DEFAULT_REPLY_SLACK_MS, ServoBus
 
-    return PTY_REPLY_SLACK_MS if os.path.realpath(port).startswith("/dev/pts/") else DEFAULT_REPLY_SLACK_MS
+    pty = os.path.realpath(port).startswith("/dev/pts/")
+    return ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol, auto_recover=auto_recover,
+                    reply_slack_ms=PTY_REPLY_WAIT_MS if pty else DEFAULT_REPLY_SLACK_MS, retries=0 if pty else 1)
 
 
 def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
@@ -141,11 +155,8 @@ def check_servos(cfg: DaemonConfig, port: str) -> list[str]:
     to whatever goal it held from a previous session. The SDK's port is closed on return: from
     then on the RT loop owns the tty.
     """
-    from admittance.drivers.dynamixel import ServoBus
-
     warnings: list[str] = []
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
-                  reply_slack_ms=reply_slack_ms(port), auto_recover=False) as bus:
+    with open_setup_bus(cfg, port, auto_recover=False) as bus:
         if bus.warning:
             warnings.append(bus.warning)
         for joint in cfg.joints:
@@ -217,15 +228,14 @@ def present_within_one_turn(bus: Any, servo_id: int) -> int:
 
 def release_servos(cfg: DaemonConfig, port: str) -> None:
     """Torque off every joint (a start that failed after torque-on, with policy torque_off)."""
-    from admittance.drivers.dynamixel import ServoBus
-
-    with ServoBus(port, baudrate=cfg.bus.baudrate, protocol=cfg.bus.protocol,
-                  reply_slack_ms=reply_slack_ms(port)) as bus:
+    with open_setup_bus(cfg, port) as bus:
         for joint in cfg.joints:
             bus.set_torque(joint.id, False)
 
 
-def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a ForceSensor or a NativeForceReader
+def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> ForceStream:
+    """The configured sensor's reader, the Rust one or a Python ForceSensor (native_sensor.py
+    chooses), streaming into ``sink`` once started."""
     from admittance.drivers.force_reader import create_sensor
     from admittance.drivers.native_sensor import NativeForceReader, choose_reader, reader_priority
 
@@ -234,7 +244,7 @@ def make_sensor(cfg: DaemonConfig, port: str, sink: GatedSink) -> Any:  # a Forc
                "interface": s.interface, "can_id": s.can_id, "bitrate": s.bitrate, "channel": s.channel,
                "can_options": dict(s.can_options), "saturation": s.saturation}
     if s.kind == "mock":  # a scripted sensor in this process: it plays the [bench] hand itself
-        section.update(lever_arm=cfg.joints[0].lever_arm, axis=s.axis, profile=cfg.bench.profile,
+        section.update(lever_arm=first_lever_arm(cfg), axis=s.axis, profile=cfg.bench.profile,
                        noise_std_n=cfg.bench.noise_std_n)
     section["reader"] = s.reader
     if choose_reader(section) == "rust":  # no sample passes through Python (native_sensor.py)

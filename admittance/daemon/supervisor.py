@@ -75,7 +75,7 @@ if TYPE_CHECKING:
     from admittance._rtcore import AdmittanceLoop, ForceSink, MockBus
     from admittance.daemon.messages import State
     from admittance.daemon.zenoh_iface import DaemonInterface
-    from admittance.drivers.force_reader import ForceSensor
+    from admittance.drivers.force_reader import ForceStream
 
 STATS_PERIOD_S = 1.0
 FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this often
@@ -119,7 +119,7 @@ class Backends:
     start_bench: Callable[[DaemonConfig], AbstractContextManager[BenchPorts]]
     check_servos: Callable[[DaemonConfig, str], list[str]]  # -> warnings
     release_servos: Callable[[DaemonConfig, str], None]  # torque off (failed start, torque_off policy)
-    make_sensor: Callable[[DaemonConfig, str, GatedSink], ForceSensor]  # (cfg, port, sink)
+    make_sensor: Callable[[DaemonConfig, str, GatedSink], ForceStream]  # (cfg, port, sink)
     make_loop: Callable[[DaemonConfig, str], AdmittanceLoop]  # (cfg, bus_port)
     make_interface: Callable[..., DaemonInterface] | None  # (zenoh cfg, codec, handler)
     # -> context manager holding the devices (ttys) for the whole run: step 0 of the start order
@@ -169,7 +169,7 @@ class Supervisor:
         self.notifier = notifier or Notifier()
         self.stop_event = self.options.stop
         self.loop: AdmittanceLoop | None = None
-        self.sensor: ForceSensor | None = None
+        self.sensor: ForceStream | None = None
         self.interface: DaemonInterface | None = None
         self.recorder: Recorder | None = None
         self.ecosystem = Ecosystem()  # session.mcap, ROS 2 bridge, Foxglove view: all optional
@@ -216,7 +216,7 @@ class Supervisor:
             raise RuntimeError("the RT loop is not made yet")
         return self.loop
 
-    def _opened_sensor(self) -> ForceSensor:
+    def _opened_sensor(self) -> ForceStream:
         """The force sensor, which ``_start`` opens before any step that uses it."""
         if self.sensor is None:
             raise RuntimeError("the force sensor is not open yet")

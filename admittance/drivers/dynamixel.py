@@ -23,13 +23,24 @@ What it does, by the e-manual (shared protocols.md §1–§3):
 The SDK's reply timeout assumes a 16 ms FTDI latency timer on every port; the port handler
 here uses the adapter's real timer (0 for a pty), so a scan of absent IDs takes a fraction of
 the SDK's 34 ms each, and a timer left at 16 ms is reported with its fix (usb_latency.py).
+
+Late replies: a status packet names its servo but not the instruction it answers. So an
+instruction sent again after a timeout leaves two replies on their way, and the second is taken
+as the answer to whatever is sent next (a Firmware Version of 45 read as Hardware Error Status
+0x2D: "input voltage, overheating, motor encoder, overload" on a healthy servo). A reply that
+misses its timeout (a host, or a simulated bus's thread, not scheduled in time) is therefore
+first awaited a while longer without sending anything (``late_reply_ms``) before the
+instruction is sent again: it is still the answer to the instruction that is out. Only
+silence through that window sends it again (the last attempt has no such wait: nothing is
+sent after it, so an absent servo costs no more).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -69,6 +80,8 @@ P1_HARDWARE_BITS = 0x01 | 0x04 | 0x20
 HARDWARE_ERROR_BITS = {0: "input voltage", 2: "overheating", 3: "motor encoder", 4: "electrical shock", 5: "overload"}
 REBOOT_WAIT_S = 3.0
 DEFAULT_REPLY_SLACK_MS = 20.0  # a servo's firmware plus a desktop host's scheduling
+LATE_REPLY_FACTOR = 1.0  # the wait for a late reply before a resend, in reply slacks (ServoBus.late_reply_ms)
+READ_POLL_S = 0.002  # the port's read timeout: the reply wait sleeps in select, it does not spin
 
 
 # ---------------------------------------------------------------------------------------------
@@ -126,21 +139,46 @@ def decode_p1_error(value: int) -> list[str]:
 # ---------------------------------------------------------------------------------------------
 
 
-def _port_handler(port: str, latency_ms: float, slack_ms: float) -> Any:
+def _port_handler(port: str, latency_ms: float, slack_ms: float, late_ms: float) -> Any:
     """A dynamixel-sdk PortHandler whose reply timeout uses the adapter's real latency, and
     whose port is opened exclusively (ports.py): a second daemon on the bus fails here, at
-    its first open, before it has written anything."""
+    its first open, before it has written anything.
+
+    Inside :meth:`listening` it sends nothing and keeps what has arrived: an SDK call made
+    there only receives, for ``late_ms``, the reply to the instruction it sent before (the
+    module doc, late replies); the SDK parses it as it would have on time.
+    """
     from dynamixel_sdk import PortHandler
 
     class _PortHandler(PortHandler):
+        late = False
+
+        @contextlib.contextmanager
+        def listening(self) -> Iterator[None]:
+            self.late = True
+            try:
+                yield
+            finally:
+                self.late = False
+
         def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 - SDK's name
             self.packet_start_time = self.getCurrentTime()
-            self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + slack_ms
+            on_time = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + slack_ms
+            self.packet_timeout = late_ms if self.late else on_time
+
+        def clearPort(self) -> None:  # noqa: N802 - SDK's name; called before each instruction
+            if not self.late:  # listening, what arrived is the reply awaited
+                super().clearPort()
+
+        def writePort(self, packet: list[int]) -> int:  # noqa: N802 - SDK's name
+            return len(packet) if self.late else super().writePort(packet)
 
         def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - the SDK's, with an exclusive open
             if self.is_open:
                 self.closePort()
-            self.ser = exclusive_serial(self.port_name, self.baudrate, bytesize=8, timeout=0)
+            # A read timeout, not 0: the SDK polls for a reply in a loop, and a non-blocking read
+            # made that loop spin a core, starving a simulated bus of the time to answer.
+            self.ser = exclusive_serial(self.port_name, self.baudrate, bytesize=8, timeout=READ_POLL_S)
             self.is_open = True
             self.ser.reset_input_buffer()
             self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -153,9 +191,11 @@ class ServoBus:
     """One serial port with Dynamixel servos on it, opened on construction.
 
     ``reply_slack_ms`` is added to the wire and latency time of every reply (the servo's
-    Return Delay Time and the host's scheduling). An addressed operation that gets no reply is
-    tried ``1 + retries`` times in all (a reply lost to noise or a busy host is worth one more
-    try at setup); the pings of a scan are tried once, since most IDs are simply absent.
+    Return Delay Time and the host's scheduling). An addressed operation whose reply misses
+    that is tried ``1 + retries`` times in all (a reply lost to noise or a busy host is worth one
+    more try at setup), each retry only after the reply was awaited ``late_reply_ms`` longer
+    (default ``LATE_REPLY_FACTOR`` slacks); the pings of a scan are tried once, since most IDs
+    are simply absent.
     """
 
     def __init__(
@@ -166,6 +206,7 @@ class ServoBus:
         protocol: int = 2,
         auto_recover: bool = True,
         reply_slack_ms: float = DEFAULT_REPLY_SLACK_MS,
+        late_reply_ms: float | None = None,
         retries: int = 1,
         sysfs_root: str = "/sys",
     ):
@@ -183,7 +224,8 @@ class ServoBus:
         if self.warning:
             log.warning("%s", self.warning)
         latency = read_latency_timer(port, sysfs_root=sysfs_root) or 0
-        self._port = _port_handler(port, float(latency), reply_slack_ms)
+        late_ms = LATE_REPLY_FACTOR * reply_slack_ms if late_reply_ms is None else late_reply_ms
+        self._port = _port_handler(port, float(latency), reply_slack_ms, late_ms)
         try:
             supported = self._port.setBaudRate(baudrate)
         except (serial.SerialException, OSError) as exc:
@@ -223,14 +265,22 @@ class ServoBus:
         return out[0] if len(out) == 3 else None
 
     def _transact(self, servo_id: int, what: str, fn: Callable[..., tuple], args: tuple, attempts: int) -> tuple:
-        """The SDK call, repeated while no reply comes (up to ``attempts`` times)."""
+        """The SDK call, sent again while no reply comes (up to ``attempts`` times); a reply that
+        missed its timeout is awaited before the call is sent again, so that no reply to an
+        earlier copy is left on the wire (the module doc)."""
         from dynamixel_sdk import COMM_RX_TIMEOUT
 
-        for _ in range(attempts):
+        def run() -> tuple:
             try:
-                out = fn(self._port, servo_id, *args)
+                return fn(self._port, servo_id, *args)
             except OSError as exc:
                 raise ServoCommError(f"{what} on servo {servo_id}: the port {self.port} failed ({exc})") from None
+
+        for attempt in range(1, attempts + 1):
+            out = run()
+            if out[-2] == COMM_RX_TIMEOUT and attempt < attempts:
+                with self._port.listening():  # the same call again, receiving only
+                    out = run()
             if out[-2] != COMM_RX_TIMEOUT:
                 break
         return out

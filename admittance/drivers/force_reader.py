@@ -93,6 +93,39 @@ class Sink(Protocol):
     def push(self, t_ns: int, forces: Sequence[float]) -> bool: ...
 
 
+class ForceStream(Protocol):
+    """What the daemon needs of a force sensor's reader, whichever runs it: a
+    :class:`ForceSensor` (a Python thread) or the Rust reader's wrapper
+    (native_sensor.NativeForceReader). mypy checks both against it where the daemon makes its
+    sensor (daemon/backends.py, ``make test-stub``)."""
+
+    stale_after_s: float
+
+    @property
+    def running(self) -> bool: ...
+
+    @property
+    def reader_path(self) -> str: ...
+
+    @property
+    def bias(self) -> tuple[float, ...]: ...
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def describe(self) -> str: ...
+
+    def set_event_hook(self, hook: Callable[[str, str], None] | None, repeat_s: float = ...) -> None: ...
+
+    def set_bias(self, bias: Sequence[float]) -> None: ...
+
+    def tare(self, n_samples: int = ..., *, max_std: float | Sequence[float] = ...,
+             timeout: float = ...) -> TareResult: ...
+
+    def stats(self) -> dict[str, Any]: ...
+
+
 class SampleBuffer:
     """A bounded sink that keeps the latest samples: for tools, benches and tests.
 
