@@ -18,7 +18,7 @@ RT loop's `Compensation` filter). Usage::
     .venv/bin/python bench/servo_forms.py [--seconds 12] [--forms lag,bam,geared,slew] [--hand multisine]
         [--json FILE]
 
-(``--forms`` also takes geared-0.25 and geared-1, the same motor behind a play of 0.25° and 1°;
+(``--forms`` also takes geared-0.25, geared-1 and geared-2, the same motor behind a play of 0.25°, 1° and 2°;
 ``--hand pushpull`` is a hand that pushes and pulls at 0.7 Hz with 60 ms reversals instead of
 the multi-sine.)
 
@@ -43,7 +43,8 @@ FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOr
          "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle),
          # Other plays, so that the play's inverse is not judged on one servo only (not in the default run).
          "geared-0.25": ("MX-64 geared, 0.25° backlash", lambda: GearedOracle(backlash=math.radians(0.25))),
-         "geared-1": ("MX-64 geared, 1° backlash", lambda: GearedOracle(backlash=math.radians(1.0)))}
+         "geared-1": ("MX-64 geared, 1° backlash", lambda: GearedOracle(backlash=math.radians(1.0))),
+         "geared-2": ("MX-64 geared, 2° backlash", lambda: GearedOracle(backlash=math.radians(2.0)))}
 DEFAULT_FORMS = ("lag", "bam", "geared", "slew")
 
 
