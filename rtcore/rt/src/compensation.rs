@@ -44,7 +44,7 @@
 //! daemon's line. It stays off for that model and weight; a parameter set with another model or
 //! weight tries again.
 use crate::joint::bound;
-use plant::servo::{lead, play_ahead, PlaySide, ServoModel};
+use plant::servo::{lead, PlaySide, ServoModel};
 
 /// The shortest blend of the weight, s.
 pub const MIN_BLEND_S: f64 = 0.2;
@@ -195,7 +195,7 @@ impl Compensation {
             let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
-            let play = self.play.update(&model, omega + self.alpha * play_ahead(&model), tau, h);
+            let play = self.play.update(&model, omega, self.alpha, tau, h);
             let led = lead(&model, omega, self.alpha, tau) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
