@@ -120,15 +120,26 @@ def main() -> int:
     unknown = [f for f in forms if f not in FORMS]
     if unknown:
         parser.error(f"unknown form {unknown[0]!r} (known: {', '.join(FORMS)})")
-    print(f"load before: {os.getloadavg()}, hand: {args.hand}", flush=True)
-    print("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
-          "held-out gain | residual/noise | Ljung–Box p |")
-    print("|---|---|---|---|---|---|---|---|")
-    with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
-        rows = [measure(Path(tmp), key, args.seconds, args.hand) for key in forms]
+    header = ("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
+              "held-out gain | residual/noise | Ljung–Box p |")
+
+    def run():
+        with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
+            return [measure(Path(tmp), key, args.seconds, args.hand) for key in forms]
+
+    return table(f"hand: {args.hand}", header, run, args.json)
+
+
+def table(title: str, header: str, run, json_path: Path | None) -> int:
+    """The machine's load, the table's header, its rows (``run()`` prints them and returns them),
+    the load after; the rows also to ``json_path`` if given."""
+    print(f"load before: {os.getloadavg()}, {title}", flush=True)
+    print(header)
+    print("|---" * (header.count("|") - 1) + "|")
+    rows = run()
     print(f"load after: {os.getloadavg()}", flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1, default=str) + "\n")
+    if json_path:
+        json_path.write_text(json.dumps(rows, indent=1, default=str) + "\n")
     return 0
 
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import tempfile
 from pathlib import Path
@@ -43,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from oracles.servo import HANDS, RATE, GearedOracle, session  # noqa: E402
-from servo_forms import play_phases  # noqa: E402
+from servo_forms import play_phases, table  # noqa: E402
 
 H = 1.0 / RATE
 NAMES = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque")
@@ -200,16 +199,11 @@ def main() -> int:
     rows = [r for r in json.loads(args.fits.read_text()) if "geared" in r["form"] and r["hand"] == args.hand]
     if not rows:
         parser.error(f"no geared form with the {args.hand} hand in {args.fits}")
-    print(f"load before: {os.getloadavg()}, hand: {args.hand}, torque noise {args.torque_noise} N·m", flush=True)
-    print("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
-          "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms before "
-          "it next does / elsewhere |")
-    print("|---|---|---|---|---|")
-    out = [measure(row, args.hand, args.torque_noise, args.seed) for row in rows]
-    print(f"load after: {os.getloadavg()}", flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(out, indent=1, default=str) + "\n")
-    return 0
+    header = ("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
+              "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms "
+              "before it next does / elsewhere |")
+    return table(f"hand: {args.hand}, torque noise {args.torque_noise} N·m", header,
+                 lambda: [measure(row, args.hand, args.torque_noise, args.seed) for row in rows], args.json)
 
 
 if __name__ == "__main__":
