@@ -20,7 +20,9 @@ rebuilding the extension:
   duty cap, which the servo form does not have) takes it back.
 
 ``--torque-noise SIGMA`` adds white noise (N·m, seeded) to the torque the compensation sees (the
-recording and the fit are unchanged): a force sensor's noise. All data are synthetic (test oracles).
+recording and the fit are unchanged): a force sensor's noise. ``--rest-noise SIGMA`` instead counts
+how often ``before`` and ``now`` flip the side (the goal crossing the play) with the joint at rest
+under that much white torque noise for 60 s. All data are synthetic (test oracles).
 Usage::
 
     .venv/bin/python bench/servo_forms.py --forms geared-0.25,geared,geared-1,geared-2 --json FITS.json
@@ -183,6 +185,26 @@ def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
     return out
 
 
+def rest_flips(row: dict, sigma: float, seconds: float = 60.0, seed: int = 3) -> dict:
+    """Side flips of ``before`` and ``now`` on the form's fit with the joint at rest under white
+    torque noise of ``sigma`` N·m (and speed noise of 5 mrad/s): each flip moves the goal across the
+    play (a chatter of the goal)."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * RATE)
+    q, w = rng.normal(0.0, sigma, n), rng.normal(0.0, 0.005, n)
+    p = [row["servo"][k] for k in NAMES]
+    out = {}
+    for name, kind in (("before", Before), ("now", Now)):
+        play, flips, side = kind(p), 0, 0.0
+        for i in range(n):
+            play.decide(i * H, w[i], 0.0, q[i])
+            flips, side = flips + (play.side != side), play.side
+        out[name] = flips
+    print(f"| {row['form']} | at rest, torque noise {sigma} N·m | side flips in {seconds:g} s: before "
+          f"{out['before']}, now {out['now']} |", flush=True)
+    return out
+
+
 def play_of(row: dict) -> float:
     """The form's true play, from its label ("MX-64 geared, 1° backlash")."""
     return math.radians(float(row["form"].split(", ")[1].split("°")[0]))
@@ -194,6 +216,8 @@ def main() -> int:
     parser.add_argument("--hand", default="multisine", choices=sorted(HANDS))
     parser.add_argument("--torque-noise", type=float, default=0.0, help="N·m, white, on the torque the compensation sees")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--rest-noise", type=float, default=0.0,
+                        help="N·m: instead, count the side's flips with the joint at rest under this torque noise")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     rows = [r for r in json.loads(args.fits.read_text()) if "geared" in r["form"] and r["hand"] == args.hand]
@@ -202,6 +226,9 @@ def main() -> int:
     header = ("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
               "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms "
               "before it next does / elsewhere |")
+    if args.rest_noise:
+        return table("at rest", "| servo form | session | flips |",
+                     lambda: [rest_flips(row, args.rest_noise) for row in rows], args.json)
     return table(f"hand: {args.hand}, torque noise {args.torque_noise} N·m", header,
                  lambda: [measure(row, args.hand, args.torque_noise, args.seed) for row in rows], args.json)
 
