@@ -246,7 +246,7 @@ pub fn play_ahead(model: &ServoModel) -> f64 {
 /// single horizon of before.
 pub fn play_horizons(model: &ServoModel, omega: f64) -> (f64, f64) {
     let crossing = play_crossing(model);
-    let share = (2.0 * omega.abs() * crossing / model.backlash).min(1.0); // NaN (no play, NaN ω): 1
+    let share = (2.0 * omega.abs() * crossing / model.backlash).min(1.0); // a NaN ω gives 1 (min)
     let dead = model.dead_time.max(0.0);
     (dead + 0.5 * crossing * share, dead + 0.5 * crossing * (2.0 - share))
 }
