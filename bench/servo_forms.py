@@ -18,7 +18,7 @@ RT loop's `Compensation` filter). Usage::
     .venv/bin/python bench/servo_forms.py [--seconds 12] [--forms lag,bam,geared,slew] [--hand multisine]
         [--json FILE]
 
-(``--forms`` also takes geared-0.25 and geared-1, the same motor behind a play of 0.25° and 1°;
+(``--forms`` also takes geared-0.25, geared-1 and geared-2, the same motor behind a play of 0.25°, 1° and 2°;
 ``--hand pushpull`` is a hand that pushes and pulls at 0.7 Hz with 60 ms reversals instead of
 the multi-sine.)
 
@@ -43,7 +43,8 @@ FORMS = {"lag": ("first-order lag 25 ms", LagOracle), "bam": ("BAM MX-64", BamOr
          "geared": ("MX-64 geared, 0.5° backlash", GearedOracle), "slew": ("slew-limited 0.6 rad/s", SlewOracle),
          # Other plays, so that the play's inverse is not judged on one servo only (not in the default run).
          "geared-0.25": ("MX-64 geared, 0.25° backlash", lambda: GearedOracle(backlash=math.radians(0.25))),
-         "geared-1": ("MX-64 geared, 1° backlash", lambda: GearedOracle(backlash=math.radians(1.0)))}
+         "geared-1": ("MX-64 geared, 1° backlash", lambda: GearedOracle(backlash=math.radians(1.0))),
+         "geared-2": ("MX-64 geared, 2° backlash", lambda: GearedOracle(backlash=math.radians(2.0)))}
 DEFAULT_FORMS = ("lag", "bam", "geared", "slew")
 
 
@@ -119,15 +120,26 @@ def main() -> int:
     unknown = [f for f in forms if f not in FORMS]
     if unknown:
         parser.error(f"unknown form {unknown[0]!r} (known: {', '.join(FORMS)})")
-    print(f"load before: {os.getloadavg()}, hand: {args.hand}", flush=True)
-    print("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
-          "held-out gain | residual/noise | Ljung–Box p |")
-    print("|---|---|---|---|---|---|---|---|")
-    with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
-        rows = [measure(Path(tmp), key, args.seconds, args.hand) for key in forms]
+    header = ("| servo form | horn error off (mrad) | forced on | as the verdict says | held-out (mrad) | "
+              "held-out gain | residual/noise | Ljung–Box p |")
+
+    def run():
+        with tempfile.TemporaryDirectory(prefix="servo-forms-") as tmp:
+            return [measure(Path(tmp), key, args.seconds, args.hand) for key in forms]
+
+    return table(f"hand: {args.hand}", header, run, args.json)
+
+
+def table(title: str, header: str, run, json_path: Path | None) -> int:
+    """The machine's load, the table's header, its rows (``run()`` prints them and returns them),
+    the load after; the rows also to ``json_path`` if given."""
+    print(f"load before: {os.getloadavg()}, {title}", flush=True)
+    print(header)
+    print("|---" * (header.count("|") - 1) + "|")
+    rows = run()
     print(f"load after: {os.getloadavg()}", flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1, default=str) + "\n")
+    if json_path:
+        json_path.write_text(json.dumps(rows, indent=1, default=str) + "\n")
     return 0
 
 

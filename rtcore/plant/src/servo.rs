@@ -218,31 +218,60 @@ pub fn play_crossing(model: &ServoModel) -> f64 {
     (model.inertial_time * model.time_constant).sqrt().max(model.time_constant)
 }
 
-/// s: how far ahead the side of the play is decided: the goal acts a dead time late, and the
-/// shaped crossing is centred on the moment the horn changes sides when it starts half its mean
-/// delay before it. The reference's velocity is taken this far ahead (`omega + alpha·this`), and
-/// so is the hand's torque (`PlaySide`).
+/// s: the base of how far ahead the side of the play is decided: the goal acts a dead time late,
+/// and a shaped crossing is centred on the moment the horn changes sides when it starts half its
+/// mean delay before it. The two horizons the side is decided on (`play_horizons`) are this with
+/// the crossing's share shifted by what the reference does meanwhile; the hand's torque rate is
+/// smoothed over half of it (`PlaySide`).
 pub fn play_ahead(model: &ServoModel) -> f64 {
     model.dead_time.max(0.0) + 0.5 * play_crossing(model)
+}
+
+/// s: the two horizons the side of the play is decided on, for a reference moving at `omega`
+/// (rad/s, a dead time ahead): (into a free horn, into a held horn).
+///
+/// The two ways the horn changes sides do not cost the same. While the hand pushes beyond the
+/// horn's friction it *holds* the horn against the motor: every bit of the motor's offset shows in
+/// the horn, one to one. Within the friction the horn is *free*: it stands where it is until the
+/// motor's side of the play reaches it, so it falls behind the reference only at the reference's
+/// own speed. So a crossing into a free horn (the hand lets go: the direction-of-travel rule) is
+/// started only as early as the reference would run away from it: half the crossing times
+/// x = min(1, |ω|·crossing / (β/2)), the share of half the play the reference travels in one
+/// crossing (at rest: on the moment itself, no pushing the horn ahead of a reference that does not
+/// come); and a crossing into a held horn (the hand takes hold) is started early enough to be
+/// across when it takes hold, half a crossing more by the same share: half the crossing times
+/// (2 − x), up to a whole crossing time (its mean delay) when the reference is slow, since the free
+/// horn the motor leaves early stays behind only at the reference's speed. Both add the dead
+/// time ahead (a positive one: the goal acts that late); at x = 1 both are `play_ahead`, the
+/// single horizon of before.
+pub fn play_horizons(model: &ServoModel, omega: f64) -> (f64, f64) {
+    let crossing = play_crossing(model);
+    let share = (2.0 * omega.abs() * crossing / model.backlash).min(1.0); // a NaN ω gives 1 (min)
+    let dead = model.dead_time.max(0.0);
+    (dead + 0.5 * crossing * share, dead + 0.5 * crossing * (2.0 - share))
 }
 
 /// The compensation's inverse of the play: which side of it the horn rests on (−1, 0, +1; the
 /// horn at motor + side·backlash/2), decided each cycle from what the loop knows, and the goal
 /// offset that takes the motor there, −side·backlash/2, along a shaped crossing.
 ///
-/// **The side** follows `horn_in_play` a `play_ahead` early: the hand's push counts beyond
-/// max(`backlash_torque`, `PLAY_TORQUE_MIN`) (between that and −that the side is kept); within
-/// `backlash_torque` the horn is free of the hand and the motor must push it in the direction of
-/// travel (side −sgn ω), but only once the model moves faster than `PLAY_VELOCITY_MIN`. A hand
-/// that pushes the way the joint moves thus has the motor *behind* the horn (it resists the
-/// hand), and a motor that drives a free horn has it *ahead*. The torque is the hand's
-/// extrapolated `play_ahead` on, τ + (τ − τ̄) with τ̄ its low-pass over that time (its rate at
-/// that corner, times that time), because the horn changes sides the moment the hand's torque
-/// crosses ±q_b, at once, and the motor needs its own time to follow: decided on the present
-/// torque, every crossing starts late and the horn sits the whole play off at its start. The
-/// extrapolation roughly doubles the sensor's noise, so it is used only once |τ| is beyond
-/// `PLAY_TORQUE_MIN` (the noise's level): torque noise at rest within it, and speed noise within
-/// `PLAY_VELOCITY_MIN`, never flip the side.
+/// **The side** follows `horn_in_play` ahead (`play_horizons`): the hand's push counts beyond
+/// max(`backlash_torque`, `PLAY_TORQUE_MIN`) (between that and −that the side is kept), first at
+/// the held horizon (the hand will hold the horn: the motor must be across by then), then at the
+/// free one; within `backlash_torque` at the free horizon the horn is free of the hand and the
+/// motor must push it in the direction of travel there (side −sgn ω), but only once the model
+/// moves faster than `PLAY_VELOCITY_MIN`. A hand that pushes the way the joint moves thus has the
+/// motor *behind* the horn (it resists the hand), and a motor that drives a free horn has it
+/// *ahead*. The torque is the hand's extrapolated to each horizon, τ + τ'·horizon, because the
+/// horn changes sides the moment the hand's torque crosses ±q_b, at once, and the motor needs its
+/// own time to follow: decided on the present torque, every crossing starts late and the horn
+/// sits the whole play off at its start. The rate τ' is the difference of two first-order
+/// low-passes in cascade over half `play_ahead` each (on a ramp exactly the rate times that time;
+/// the sensor's noise filtered twice, and the present torque itself is not filtered, so the
+/// decision is not late by a filter's lag). At rest the extrapolation is not used unless it
+/// predicts a change beyond the noise (|τ| or |τ'·held horizon| beyond `PLAY_TORQUE_MIN`):
+/// torque noise at rest within it, and speed noise within `PLAY_VELOCITY_MIN`, never flip the
+/// side.
 ///
 /// **The crossing** is −side·backlash/2 through three first-order stages of a third of
 /// `play_crossing` each (a critically damped crossing, mean delay `play_crossing`), plus the
@@ -254,30 +283,40 @@ pub struct PlaySide {
     side: f64,
     /// The crossing's three stages (rad): the last is the motor's offset.
     stages: [f64; 3],
-    /// The hand's torque low-passed over `play_ahead` (N·m).
-    torque: f64,
+    /// The hand's torque through two first-order low-passes in cascade (N·m): their difference
+    /// over their time constant is its rate.
+    torque: [f64; 2],
 }
 
 impl PlaySide {
-    /// One cycle of `h` s: the reference moving at `omega` (taken `play_ahead` ahead) under the
-    /// hand torque `tau`. Returns the goal offset (rad). Non-finite inputs keep the side and the
-    /// torque's filter (the offset stays finite).
-    pub fn update(&mut self, model: &ServoModel, omega: f64, tau: f64, h: f64) -> f64 {
+    /// One cycle of `h` s: the reference moving at `omega` with acceleration `alpha` (the
+    /// loop's, both now) under the hand torque `tau`. Returns the goal offset (rad). Non-finite
+    /// inputs keep the side and the torque's filters (the offset stays finite).
+    pub fn update(&mut self, model: &ServoModel, omega: f64, alpha: f64, tau: f64, h: f64) -> f64 {
         if model.backlash <= 0.0 {
             *self = PlaySide::default();
             return 0.0;
         }
         let h = if h > 0.0 { h } else { 0.0 }; // NaN or ≤ 0: the filters stand still
-        let ahead = play_ahead(model);
+        let smoothing = 0.5 * play_ahead(model);
         if tau.is_finite() {
-            self.torque += (tau - self.torque) * h / (ahead + h);
+            let share = h / (smoothing + h);
+            self.torque[0] += (tau - self.torque[0]) * share;
+            self.torque[1] += (self.torque[0] - self.torque[1]) * share;
         }
-        let tau = if tau.abs() > PLAY_TORQUE_MIN { 2.0 * tau - self.torque } else { tau };
+        let rate = (self.torque[0] - self.torque[1]) / smoothing;
+        let (free, held) = play_horizons(model, omega + alpha * model.dead_time.max(0.0));
+        let extrapolate = tau.abs() > PLAY_TORQUE_MIN || (rate * held).abs() > PLAY_TORQUE_MIN;
+        let ahead = |horizon: f64| if extrapolate { tau + rate * horizon } else { tau };
+        let (tau_free, tau_held) = (ahead(free), ahead(held));
+        let omega_free = omega + alpha * free;
         let push = model.backlash_torque.max(PLAY_TORQUE_MIN);
-        if tau.abs() > push {
-            self.side = tau.signum();
-        } else if tau.abs() <= model.backlash_torque && omega.abs() > PLAY_VELOCITY_MIN {
-            self.side = -omega.signum();
+        if tau_held.abs() > push {
+            self.side = tau_held.signum();
+        } else if tau_free.abs() > push {
+            self.side = tau_free.signum();
+        } else if tau_free.abs() <= model.backlash_torque && omega_free.abs() > PLAY_VELOCITY_MIN {
+            self.side = -omega_free.signum();
         }
         let stage = play_crossing(model) / 3.0;
         let share = h / (stage + h);
@@ -524,7 +563,7 @@ mod tests {
         let a = |t: f64| -0.8 * (2.0 * t).sin() - 4.05 * (9.0 * t).sin();
         let t: Vec<f64> = uniform(4000, 1e-3);
         let mut play = PlaySide::default();
-        let offsets: Vec<f64> = t.iter().map(|&x| play.update(model, w(x) + a(x) * play_ahead(model), tau(x), 1e-3)).collect();
+        let offsets: Vec<f64> = t.iter().map(|&x| play.update(model, w(x), a(x), tau(x), 1e-3)).collect();
         let goal = |with: bool| -> Vec<f64> {
             t.iter().zip(&offsets).map(|(&x, o)| r(x) + lead(model, w(x), a(x), tau(x)) + if with { *o } else { 0.0 }).collect()
         };
@@ -552,7 +591,7 @@ mod tests {
     /// The offsets of a fresh `PlaySide` under the model at rest (ω = 0) and the torques `taus`.
     fn offsets(model: &ServoModel, taus: impl Iterator<Item = f64>, h: f64) -> (Vec<f64>, Vec<f64>) {
         let mut play = PlaySide::default();
-        taus.map(|q| (play.update(model, 0.0, q, h), play.side())).unzip()
+        taus.map(|q| (play.update(model, 0.0, 0.0, q, h), play.side())).unzip()
     }
 
     #[test]
@@ -562,20 +601,33 @@ mod tests {
         for model in [GEARED, ServoModel { backlash_torque: 0.0, ..GEARED }] {
             let mut play = PlaySide::default();
             for _ in 0..200 {
-                play.update(&model, 0.0, 0.1, h);
+                play.update(&model, 0.0, 0.0, 0.1, h);
             }
-            let (mut flips, mut side, mut last) = (0, play.side(), 0.0);
             // Deterministic "noise": torque within ±the sensor's noise, velocity within ±its own.
+            let noise = |k: usize| (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
+            let mut rest = |play: &mut PlaySide, k: usize| {
+                play.update(&model, 0.99 * PLAY_VELOCITY_MIN * noise(k), 0.0, 0.99 * PLAY_TORQUE_MIN * noise(k), h)
+            };
+            // The hand let go at once: its fall, extrapolated, may read as a fall on through the band
+            // (once: the motor then goes to the other side of a free horn, which it does not move);
+            // within the torque filters' settling (a few of their time constants) that is over.
+            let (mut flips, mut side, mut last) = (0, play.side(), 0.0);
+            for k in 0..(10.0 * play_ahead(&model) / h) as usize {
+                rest(&mut play, k);
+                flips += (play.side() != side) as u32;
+                side = play.side();
+            }
+            assert!(flips <= 1, "a let-go flips the side at most once: {flips}");
+            flips = 0;
             for k in 0..5000 {
-                let x = (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
-                last = play.update(&model, 0.99 * PLAY_VELOCITY_MIN * x, 0.99 * PLAY_TORQUE_MIN * x, h);
+                last = rest(&mut play, k + 1000);
                 flips += (play.side() != side) as u32;
                 side = play.side();
             }
             assert_eq!(flips, 0, "the side is kept at rest: {model:?}");
-            assert_eq!(play.update(&model, f64::NAN, f64::NAN, h), last, "non-finite input: kept");
+            assert_eq!(play.update(&model, f64::NAN, f64::NAN, f64::NAN, h), last, "non-finite input: kept");
         }
-        assert_eq!(PlaySide::default().update(&MX, 1.0, 1.0, h), 0.0, "no play, no offset");
+        assert_eq!(PlaySide::default().update(&MX, 1.0, 0.0, 1.0, h), 0.0, "no play, no offset");
     }
 
     #[test]
@@ -592,25 +644,51 @@ mod tests {
             // The motor's offset (the goal less the servo's inverse of it) is half-way across after
             // about the crossing's mean delay: the servo's own time, not a constant.
             let mut play = PlaySide::default();
-            let motor: Vec<f64> = (0..2 * n).map(|k| { play.update(&model, 0.0, if k < n { 0.1 } else { -0.1 }, h); play.stages[2] }).collect();
+            let motor: Vec<f64> = (0..2 * n).map(|k| { play.update(&model, 0.0, 0.0, if k < n { 0.1 } else { -0.1 }, h); play.stages[2] }).collect();
             let mid = (n..2 * n).find(|&k| motor[k] >= 0.0).unwrap() - n;
             assert!((0.7..1.1).contains(&(mid as f64 * h / crossing)), "half-way after {mid} cycles, crossing {crossing}");
         }
     }
 
     #[test]
-    fn the_side_is_decided_play_ahead_early_on_a_hand_that_is_reversing() {
+    fn the_side_is_decided_a_whole_crossing_early_into_a_held_horn_at_rest() {
         let h = 1e-3;
         // The hand's torque falls at 0.5 N·m/s from +0.2 through the play's band to −0.2, the joint
-        // at rest: the side flips when the torque *play_ahead later* passes −push, not the torque
-        // now (the extrapolation starts once |τ| passes the noise, 20 ms before −push here).
+        // at rest: the hand will hold the horn on the other side, and the motor must be across by
+        // then: the side flips when the torque *a whole crossing later* (the held horizon at rest)
+        // passes −push, not the torque now, nor half a crossing later.
         let push = GEARED.backlash_torque.max(PLAY_TORQUE_MIN);
         let tau = |k: usize| 0.2 - 0.5 * k as f64 * h;
         let (_, sides) = offsets(&GEARED, (0..800).map(tau), h);
         let flip = sides.iter().position(|&s| s < 0.0).expect("it flips");
         let now = (0..800).find(|&k| tau(k) < -push).unwrap();
         let early = (now - flip) as f64 * h;
-        assert!((early - play_ahead(&GEARED)).abs() <= 2.0 * h, "{early} s early, play_ahead {}", play_ahead(&GEARED));
+        let (_, held) = play_horizons(&GEARED, 0.0);
+        assert!((held - play_crossing(&GEARED) - GEARED.dead_time).abs() < 1e-12, "at rest: dead time + a crossing");
+        assert!((early - held).abs() <= 2.0 * h, "{early} s early, held horizon {held}");
+    }
+
+    #[test]
+    fn a_free_horn_is_crossed_to_only_as_early_as_a_slow_reference_runs_away() {
+        let h = 1e-3;
+        // The hand lets go (its torque falls at 0.5 N·m/s from +0.2 to 0 and stays) while the
+        // joint moves on slowly: the motor must go ahead of the horn (side −1) once the hand no
+        // longer holds it, but the free horn falls behind only at the reference's speed, so the
+        // crossing starts the free horizon early (a share of half a crossing), not play_ahead.
+        let omega = 0.05;
+        let tau = |k: usize| (0.2 - 0.5 * k as f64 * h).max(0.0);
+        let mut play = PlaySide::default();
+        let sides: Vec<f64> = (0..800).map(|k| { play.update(&GEARED, omega, 0.0, tau(k), h); play.side() }).collect();
+        let flip = sides.iter().position(|&s| s < 0.0).expect("it flips");
+        let now = (0..800).find(|&k| tau(k) <= GEARED.backlash_torque).unwrap();
+        let early = now as f64 * h - flip as f64 * h;
+        let (free, held) = play_horizons(&GEARED, omega + 0.0);
+        assert!(free < 0.5 * play_ahead(&GEARED) && held > play_ahead(&GEARED), "free {free}, held {held}");
+        assert!((early - free).abs() <= 2.0 * h, "{early} s early, free horizon {free}");
+        // A reference that runs away by half the play within a crossing: both horizons are play_ahead.
+        let fast = GEARED.backlash / play_crossing(&GEARED);
+        let (free, held) = play_horizons(&GEARED, fast);
+        assert!((free - play_ahead(&GEARED)).abs() < 1e-12 && (held - play_ahead(&GEARED)).abs() < 1e-12);
     }
 
     #[test]

@@ -99,10 +99,9 @@ fn servo_lead<'py>(
         return Err(PyValueError::new_err("omega, alpha and tau must have the same length"));
     }
     let mut play = PlaySide::default();
-    let ahead = servo::play_ahead(&model);
     let out: Vec<f64> = (0..w.len())
         .map(|i| {
-            let played = h.map_or(0.0, |h| play.update(&model, w[i] + a[i] * ahead, q[i], h));
+            let played = h.map_or(0.0, |h| play.update(&model, w[i], a[i], q[i], h));
             servo::lead(&model, w[i], a[i], q[i]) + played
         })
         .collect();

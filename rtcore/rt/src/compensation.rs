@@ -18,12 +18,13 @@
 //!
 //! **Gear play.** A model with `backlash` adds the play's inverse (`plant::servo::PlaySide`):
 //! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
-//! the hand leans on it, ahead of it while it drives a free horn), decided `play_ahead` early
-//! (the hand's torque and the model's speed extrapolated by the servo's dead time and half its
-//! crossing) with hystereses in the torque and the speed so that the force's noise at rest does
-//! not make the goal chatter, and crossing it along a shaped path driven by the servo's own
-//! inverse, in about the servo's natural time (`play_crossing`). It is part of the lead (so of
-//! the watch's uncompensated prediction, the clip and the blend).
+//! the hand leans on it, ahead of it while it drives a free horn), decided ahead on two horizons
+//! (`play_horizons`: into a free horn only as early as the reference runs away from it, into a
+//! held one up to a whole crossing early; the hand's torque extrapolated from its rate, the
+//! model's speed from its acceleration) with hystereses in the torque and the speed so that the
+//! force's noise at rest does not make the goal chatter, and crossing it along a shaped path
+//! driven by the servo's own inverse, in about the servo's natural time (`play_crossing`). It is
+//! part of the lead (so of the watch's uncompensated prediction, the clip and the blend).
 //!
 //! w is a weight in [0, 1] (`servo_compensation`). It never jumps: a change blends linearly
 //! over the loop's ramp time, but over at least `MIN_BLEND_S`, so that even with
@@ -44,7 +45,7 @@
 //! daemon's line. It stays off for that model and weight; a parameter set with another model or
 //! weight tries again.
 use crate::joint::bound;
-use plant::servo::{lead, play_ahead, PlaySide, ServoModel};
+use plant::servo::{lead, PlaySide, ServoModel};
 
 /// The shortest blend of the weight, s.
 pub const MIN_BLEND_S: f64 = 0.2;
@@ -195,7 +196,7 @@ impl Compensation {
             let corner = 2.0 / (model.inertial_time * model.time_constant).sqrt(); // rad/s
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
-            let play = self.play.update(&model, omega + self.alpha * play_ahead(&model), tau, h);
+            let play = self.play.update(&model, omega, self.alpha, tau, h);
             let led = lead(&model, omega, self.alpha, tau) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.

@@ -1,0 +1,237 @@
+"""Where a geared servo's compensated horn error comes from: the play's inverse against variants
+of it, on the same fitted models, side by side in one run.
+
+bench/servo_forms.py fits each geared form and compensates with the Rust lead
+(``_rtcore.servo_lead``: ``plant::servo::lead`` plus ``PlaySide``). This bench takes those fits
+(``--fits``, the JSON that bench writes) and runs the forced session again with the play's inverse
+replaced by ORACLES of it written here in Python, so that what limits it can be tried without
+rebuilding the extension:
+
+- ``now``: this tree's ``PlaySide`` (the oracle is checked against ``_rtcore.servo_lead`` on every
+  session, to 1e-9 rad, so its figures are the Rust's);
+- ``before``: the ``PlaySide`` of commit 7887d4f (one horizon, dead time⁺ + half a crossing, for
+  both ways the horn changes sides; the torque extrapolated as τ + (τ − τ̄) beyond 0.01 N·m);
+- ``now, forecast``: ``now`` with the hand's *true* torque at each horizon (the bench's hand is a
+  known function): what a perfect torque forecast would add;
+- ``now, true servo``: ``now`` with the oracle servo's own T, m, s, b, play and horn friction
+  instead of the fitted ones: what a perfect fit would add;
+- ``before, crossing ×0.5``: ``before`` with a crossing twice as fast (goal excursions four times
+  larger): what the crossing's speed would add, and where the servo's torque limit (the oracle's
+  duty cap, which the servo form does not have) takes it back.
+
+``--torque-noise SIGMA`` adds white noise (N·m, seeded) to the torque the compensation sees (the
+recording and the fit are unchanged): a force sensor's noise. ``--rest-noise SIGMA`` instead counts
+how often ``before`` and ``now`` flip the side (the goal crossing the play) with the joint at rest
+under that much white torque noise for 60 s. All data are synthetic (test oracles).
+Usage::
+
+    .venv/bin/python bench/servo_forms.py --forms geared-0.25,geared,geared-1,geared-2 --json FITS.json
+    .venv/bin/python bench/servo_play_variants.py --fits FITS.json [--torque-noise 0.005] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from oracles.servo import HANDS, RATE, GearedOracle, session  # noqa: E402
+from servo_forms import play_phases, table  # noqa: E402
+
+H = 1.0 / RATE
+NAMES = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque")
+TORQUE_MIN, VELOCITY_MIN = 0.01, 0.02  # plant::servo::PLAY_TORQUE_MIN, PLAY_VELOCITY_MIN
+
+
+def lead_oracle(p, w, a, q):
+    """plant::servo::lead, vectorised (an oracle: the play's variants need it without the play)."""
+    T, m, d, s, b = p[:5]
+    ahead = w + a * d
+    return w * d + 0.5 * a * d * d + T * (m * a + ahead) + b * ahead / np.sqrt(ahead ** 2 + 0.02 ** 2) - s * q
+
+
+def crossing_of(p, speed=1.0):
+    return max(math.sqrt(p[1] * p[0]), p[0]) * speed
+
+
+class PlayOracle:
+    """The play's inverse: the side, and the shaped crossing with the servo's inverse of it. The
+    ``decide`` variants differ; the crossing is plant::servo::PlaySide's."""
+
+    def __init__(self, p, speed=1.0):
+        self.p, self.crossing = p, crossing_of(p, speed)
+        self.side, self.stages = 0.0, [0.0, 0.0, 0.0]
+
+    def cross(self):
+        T, m, beta = self.p[0], self.p[1], self.p[5]
+        stage = self.crossing / 3.0
+        share, value = H / (stage + H), -0.5 * beta * self.side
+        for j in range(3):
+            self.stages[j] += (value - self.stages[j]) * share
+            value = self.stages[j]
+        a, b, c = self.stages
+        return c + T * (m * (a - 2 * b + c) / stage ** 2 + (b - c) / stage)
+
+
+class Before(PlayOracle):
+    """Commit 7887d4f: one horizon, dead time⁺ + half a crossing, for every change of side."""
+
+    def __init__(self, p, speed=1.0, forecast=None):
+        super().__init__(p, speed)
+        self.torque, self.forecast = 0.0, forecast
+        self.ahead = max(p[2], 0.0) + 0.5 * self.crossing
+
+    def decide(self, t, w, a, q):
+        qb = self.p[6]
+        self.torque += (q - self.torque) * H / (self.ahead + H)
+        tau = 2 * q - self.torque if abs(q) > TORQUE_MIN else q
+        omega = w + a * self.ahead
+        if abs(tau) > max(qb, TORQUE_MIN):
+            self.side = math.copysign(1.0, tau)
+        elif abs(tau) <= qb and abs(omega) > VELOCITY_MIN:
+            self.side = -math.copysign(1.0, omega)
+
+
+class Now(PlayOracle):
+    """This tree's PlaySide: a free and a held horizon (plant::servo::play_horizons), the torque's
+    rate from two low-passes in cascade; ``forecast`` (the hand's true torque) replaces the
+    extrapolation."""
+
+    def __init__(self, p, speed=1.0, forecast=None):
+        super().__init__(p, speed)
+        self.filters, self.forecast = [0.0, 0.0], forecast
+        self.smoothing = 0.5 * (max(p[2], 0.0) + 0.5 * self.crossing)
+
+    def horizons(self, omega):
+        share = min(2 * abs(omega) * self.crossing / self.p[5], 1.0)
+        dead = max(self.p[2], 0.0)
+        return dead + 0.5 * self.crossing * share, dead + 0.5 * self.crossing * (2 - share)
+
+    def decide(self, t, w, a, q):
+        qb, share = self.p[6], H / (self.smoothing + H)
+        self.filters[0] += (q - self.filters[0]) * share
+        self.filters[1] += (self.filters[0] - self.filters[1]) * share
+        rate = (self.filters[0] - self.filters[1]) / self.smoothing
+        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        if self.forecast is not None:
+            tau_free, tau_held = self.forecast(t + free), self.forecast(t + held)
+        elif abs(q) > TORQUE_MIN or abs(rate * held) > TORQUE_MIN:
+            tau_free, tau_held = q + rate * free, q + rate * held
+        else:
+            tau_free = tau_held = q
+        push, omega = max(qb, TORQUE_MIN), w + a * free
+        if abs(tau_held) > push:
+            self.side = math.copysign(1.0, tau_held)
+        elif abs(tau_free) > push:
+            self.side = math.copysign(1.0, tau_free)
+        elif abs(tau_free) <= qb and abs(omega) > VELOCITY_MIN:
+            self.side = -math.copysign(1.0, omega)
+
+
+def offsets(play: PlayOracle, w, a, q):
+    out = np.zeros(len(w))
+    for i in range(len(w)):
+        play.decide(i * H, w[i], a[i], q[i])
+        out[i] = play.cross()
+    return out
+
+
+def true_params(truth: GearedOracle) -> list[float]:
+    """The oracle servo's own values in the servo form (docs/fidelity.md: T = D/K, m = I/D, s = 1/K,
+    b = F/K); the horn is read 0.3 ms after the goal is written (a dead time of −0.3 ms)."""
+    damping = truth.damping + truth.kt ** 2 / truth.r
+    k = truth.stiffness
+    return [damping / k, truth.inertia / damping, -3e-4, 1 / k, truth.coulomb / k, truth.play, truth.free]
+
+
+def variants(hand):
+    return {"now": (Now, {}), "before": (Before, {}), "now, forecast": (Now, {"forecast": hand}),
+            "now, true servo": (Now, {"true": True}), "before, crossing ×0.5": (Before, {"speed": 0.5})}
+
+
+def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
+    from admittance import _rtcore
+
+    fitted = [row["servo"][k] for k in NAMES]
+    play = play_of(row)
+    out = {"form": row["form"], "off": row["off"]}
+    for name, (kind, opts) in variants(HANDS[hand]).items():
+        opts = dict(opts)
+        p = true_params(GearedOracle(backlash=play)) if opts.pop("true", False) else fitted
+
+        def lead(w, a, q, p=p, kind=kind, opts=opts, name=name):
+            seen = q + np.random.default_rng(seed).normal(0.0, noise, len(q)) if noise else q
+            played = lead_oracle(p, w, a, seen) + offsets(kind(p, **opts), w, a, seen)
+            if name == "now":  # the oracle is the Rust
+                rust = _rtcore.servo_lead(np.array(p), w, a, seen, h=H)
+                assert np.max(np.abs(rust - played)) < 1e-9, np.max(np.abs(rust - played))
+            return played
+
+        trace: dict = {}
+        with tempfile.TemporaryDirectory(prefix="servo-play-") as tmp:
+            error = session(Path(tmp) / "on", GearedOracle(backlash=play), lead=lead, hand=HANDS[hand], trace=trace)
+        phases = play_phases(trace, GearedOracle(backlash=play).free)
+        out[name] = {"error": error, "ratio": row["off"] / error, "phases": phases}
+        print(f"| {row['form']} | {name} | {1e3 * error:.3f} | {row['off'] / error:.2f}× | "
+              + " / ".join(f"{100 * share:.0f} %" for _, share, _ in phases) + " |", flush=True)
+    return out
+
+
+def rest_flips(row: dict, sigma: float, seconds: float = 60.0, seed: int = 3) -> dict:
+    """Side flips of ``before`` and ``now`` on the form's fit with the joint at rest under white
+    torque noise of ``sigma`` N·m (and speed noise of 5 mrad/s): each flip moves the goal across the
+    play (a chatter of the goal)."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * RATE)
+    q, w = rng.normal(0.0, sigma, n), rng.normal(0.0, 0.005, n)
+    p = [row["servo"][k] for k in NAMES]
+    out = {}
+    for name, kind in (("before", Before), ("now", Now)):
+        play, flips, side = kind(p), 0, 0.0
+        for i in range(n):
+            play.decide(i * H, w[i], 0.0, q[i])
+            flips, side = flips + (play.side != side), play.side
+        out[name] = flips
+    print(f"| {row['form']} | at rest, torque noise {sigma} N·m | side flips in {seconds:g} s: before "
+          f"{out['before']}, now {out['now']} |", flush=True)
+    return out
+
+
+def play_of(row: dict) -> float:
+    """The form's true play, from its label ("MX-64 geared, 1° backlash")."""
+    return math.radians(float(row["form"].split(", ")[1].split("°")[0]))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--fits", type=Path, required=True, help="bench/servo_forms.py --json output (geared forms)")
+    parser.add_argument("--hand", default="multisine", choices=sorted(HANDS))
+    parser.add_argument("--torque-noise", type=float, default=0.0, help="N·m, white, on the torque the compensation sees")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--rest-noise", type=float, default=0.0,
+                        help="N·m: instead, count the side's flips with the joint at rest under this torque noise")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    rows = [r for r in json.loads(args.fits.read_text()) if "geared" in r["form"] and r["hand"] == args.hand]
+    if not rows:
+        parser.error(f"no geared form with the {args.hand} hand in {args.fits}")
+    header = ("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
+              "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms "
+              "before it next does / elsewhere |")
+    if args.rest_noise:
+        return table("at rest", "| servo form | session | flips |",
+                     lambda: [rest_flips(row, args.rest_noise) for row in rows], args.json)
+    return table(f"hand: {args.hand}, torque noise {args.torque_noise} N·m", header,
+                 lambda: [measure(row, args.hand, args.torque_noise, args.seed) for row in rows], args.json)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
