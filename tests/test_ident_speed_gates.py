@@ -6,6 +6,9 @@ Each rule decides what is computed, so each is a gate: these tests fail when it 
 - regime.regime_inconsistency measures the model's own floor (the parametric bootstrap) only
   when a split's gain exceeds the allowance's fixed part: below it the verdict is "one model"
   whatever the floor is.
+- search._judge carries a candidate's short refits to convergence unless another candidate
+  already leaves nothing but sensor noise and this one's short refits fit the training data
+  worse by more than search.FAR_BEHIND noise variances.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from admittance.ident import regime
+from admittance.ident import regime, search
 from admittance.ident.effects import Evidence
 
 FLOOR = 2e-3  # rad: the sensor's noise level the fake verdict reports
@@ -67,3 +70,34 @@ def test_a_split_gain_above_the_fixed_allowance_is_judged_on_the_models_own_floo
                         own_floor_over_floor=0.5 * regime.REGIME_MATERIAL)
     assert calls == 1
     assert why == ""
+
+
+def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str]:
+    """search._judge on a candidate whose best short refit fits ``behind_over_floor`` noise
+    variances worse than a model at the floor (None: no model at the floor yet). Returns
+    (whether it was refitted further, the reason it was refused)."""
+    at_floor = SimpleNamespace(rmse=FLOOR)
+    reached = FLOOR * np.sqrt(1.0 + (behind_over_floor or 0.0))
+    explored = [[SimpleNamespace(rmse=reached), "linearised", False], [SimpleNamespace(rmse=2 * reached), "grown", False]]
+    refits = []
+    monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
+    monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
+    evidence = Evidence("quadratic_drag")
+    ctx = SimpleNamespace(sim=None, sensor=None)
+    search._judge(ctx, SimpleNamespace(full=None), evidence, False, at_floor if behind_over_floor is not None else None, explored)
+    return bool(refits), evidence.reason
+
+
+def test_a_candidate_far_behind_a_model_at_the_floor_is_not_refitted_further(monkeypatch):
+    refitted, reason = _carried_on(monkeypatch, 10.0)
+    assert not refitted
+    assert "not refitted further" in reason
+
+
+def test_a_candidate_within_reach_of_the_floor_or_without_one_is_refitted(monkeypatch):
+    # One noise variance behind (ten times what a tie allows) is within reach of convergence: refitted.
+    refitted, _ = _carried_on(monkeypatch, 1.0)
+    assert refitted
+    # However far behind, when no candidate has reached the floor yet: refitted.
+    refitted, _ = _carried_on(monkeypatch, None)
+    assert refitted
