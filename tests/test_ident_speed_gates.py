@@ -78,13 +78,15 @@ def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str
     (whether it was refitted further, the reason it was refused)."""
     at_floor = SimpleNamespace(rmse=FLOOR)
     reached = FLOOR * np.sqrt(1.0 + (behind_over_floor or 0.0))
-    explored = [[SimpleNamespace(rmse=reached), "linearised", False], [SimpleNamespace(rmse=2 * reached), "grown", False]]
+    explored = [[SimpleNamespace(rmse=reached), "linearised", False],
+                [SimpleNamespace(rmse=2 * reached), "grown", False]]
     refits = []
     monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
     monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
     evidence = Evidence("quadratic_drag")
     ctx = SimpleNamespace(sim=None, sensor=None)
-    search._judge(ctx, SimpleNamespace(full=None), evidence, False, at_floor if behind_over_floor is not None else None, explored)
+    floor_model = at_floor if behind_over_floor is not None else None
+    search._judge(ctx, SimpleNamespace(full=None), evidence, False, floor_model, explored)
     return bool(refits), evidence.reason
 
 
