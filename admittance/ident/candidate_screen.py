@@ -15,9 +15,11 @@ load-dependent Coulomb level and a drag, each of which then went through its fal
 cross-validation and the regime tests before being refused (105 of 145 s of the search, cProfile
 on bench/identify_speed.py's set). After twelve iterations the short refits put Stribeck first.
 
-Nothing is skipped here: every candidate is still refitted and judged; the order only decides
-which one sets the floor the others are measured against, and the first stage's fits are the
-ones the refit would have computed anyway (handed on, not repeated).
+Nothing is skipped here: every candidate is still judged; the order decides which one sets the
+floor the others are measured against, and the first stage's fits are the ones the refit would
+have computed anyway (handed on, not repeated). A candidate whose short refits are still far
+behind a model at the floor (search.FAR_BEHIND noise variances; a tie needs a thirtieth of that)
+is not carried on to convergence (search._far_behind): judged, refused, not refitted further.
 """
 
 from __future__ import annotations
