@@ -113,8 +113,9 @@ def _moving(recording: Recording, joint_id: int) -> tuple[list[Segment], list[st
         (moving if np.ptp(s["theta_model"]) >= MIN_MOTION_RAD else still).append(s)
     if not moving:
         raise DataError(f"{recording.folder}: joint {joint_id}: the model moved less than "
-                        f"{1e3 * MIN_MOTION_RAD:.0f} mrad in every stretch between holds and read gaps; "
-                        "push the joint while recording")
+                        f"{1e3 * MIN_MOTION_RAD:.0f} mrad in every stretch between holds and read gaps "
+                        f"({len(still)} stretches; {recording.held_rows} held rows, {recording.gaps} gaps); "
+                        "record again, pushing the joint (on a loaded machine, raise [loop].stale_timeout_ms)")
     return moving, [s.name for s in still]
 
 
