@@ -35,8 +35,8 @@ pytestmark = pytest.mark.hil
 
 MX64 = data.params_file("MX-64")
 BENCHES = ("lab/arm1", "lab/arm2", "lab/arm3")
-# The router and the three daemons start one after another; on a starved machine each start has
-# taken most of a minute (imports), so the lab gets one deadline of several starts.
+# On a starved machine a daemon's start has taken most of a minute (imports), and the router's
+# as long: the lab gets one deadline of several starts.
 LAB_START_TIMEOUT_S = 4 * START_TIMEOUT_S
 WAIT_S = 30.0  # a condition over Zenoh (states, tokens) that takes well under a second when idle
 
@@ -86,9 +86,12 @@ def command(capfd):
 
 @contextlib.contextmanager
 def lab(files: dict[str, Path]):
-    """The router, then each bench once the one before is up: three mock benches starting at the
-    same instant on a loaded machine can miss their setup replies, which is not what this tests.
-    Their logs go to files (a pipe nobody reads would block a daemon once it filled)."""
+    """The router and the three benches, started together: on a starved machine what takes the
+    time is each process's own start (its imports), and each runnable process gets its own share
+    of the CPUs, so starting them one after another only adds the waits up. (Started together
+    they once missed setup replies; a pseudo-terminal's setup now waits 3 s for a reply, and
+    never sends again: open_setup_bus.) Their logs go to files (a pipe nobody reads would block
+    a daemon once it filled)."""
     procs, logs = [], []
 
     def start(*args: str) -> subprocess.Popen:
@@ -100,12 +103,12 @@ def lab(files: dict[str, Path]):
     try:
         deadline = time.monotonic() + LAB_START_TIMEOUT_S
         start("router", "--zenoh-config", str(files["router"]))
+        benches = {prefix: (start("run", "--config", str(files[prefix])), logs[-1]) for prefix in BENCHES}
         with login(files["alice"]) as alice:
-            for prefix in BENCHES:
-                proc = start("run", "--config", str(files[prefix]))
+            for prefix, (proc, log) in benches.items():
                 while not alice.alive(prefix, timeout=0.5):
                     assert time.monotonic() < deadline, f"{prefix} never came up behind the router"
-                    assert proc.poll() is None, logs[-1].read_text()
+                    assert proc.poll() is None, log.read_text()
         yield procs
     finally:
         for proc in reversed(procs):
