@@ -328,8 +328,9 @@ class DriftingSensor(ForceSensor):
 # at SCHED_FIFO when allowed: hardware is not delayed by the host's load. Each frame's write time
 # (CLOCK_MONOTONIC ns, 0: dropped) goes into a shared log indexed by the frame's 16-bit counter,
 # so the bench can tell the source's own gaps from the reader's (WriteLog).
-PTY_DAQ = r"""
-import ctypes, mmap, os, struct, sys, time, tty
+# Its absolute sleep is bench/_rt_sleep.py, whose source goes in front of the script.
+PTY_DAQ = (Path(__file__).with_name("_rt_sleep.py").read_text() + r"""
+import mmap, os, struct, sys, time, tty
 from admittance.drivers.optoforce import encode_sample
 rate, priority, counts, log_path = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 master, slave = os.openpty()
@@ -337,14 +338,6 @@ tty.setraw(slave)
 os.set_blocking(master, False)
 with open(log_path, "r+b") as f:
     log = mmap.mmap(f.fileno(), 0)
-libc = ctypes.CDLL(None, use_errno=True)
-class Timespec(ctypes.Structure):
-    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
-CLOCK_MONOTONIC, TIMER_ABSTIME, EINTR = 1, 1, 4
-def sleep_until(ns):
-    ts = Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
-    while libc.clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, ctypes.byref(ts), None) == EINTR:
-        pass
 print(os.ttyname(slave), flush=True)
 try:
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -360,7 +353,7 @@ while True:
         written = 0  # nobody reads: the DAQ drops the frame
     struct.pack_into("<q", log, (k & 0xFFFF) * 8, written)
     k += 1
-"""
+""")
 DAQ_RATE_HZ = 1000
 DAQ_PRIORITY = 60
 COUNTS_PER_N = 451.89

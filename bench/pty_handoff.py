@@ -28,7 +28,6 @@ The machine is shared: read the two transports against each other within one run
 from __future__ import annotations
 
 import argparse
-import ctypes
 import os
 import select
 import struct
@@ -40,37 +39,19 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from loop_timing import cpu_burners  # noqa: E402
+from _rt_sleep import sleep_until  # noqa: E402
+from loop_timing import become_fifo as fifo, cpu_burners  # noqa: E402
 
 WRITER_PRIORITY, READER_PRIORITY = 60, 40
 FRAME = struct.Struct("<q")
 
 
-class Timespec(ctypes.Structure):
-    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
-
-
-def sleep_until(libc, ns: int) -> None:
-    ts = Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
-    while libc.clock_nanosleep(time.CLOCK_MONOTONIC, 1, ctypes.byref(ts), None) == 4:  # TIMER_ABSTIME; EINTR
-        pass
-
-
-def fifo(priority: int) -> bool:
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        return True
-    except PermissionError:
-        return False
-
-
 def writer(fd: int, rate_hz: float, frames: int) -> None:
     """The source: one frame per period at absolute deadlines; exits after ``frames``."""
-    libc = ctypes.CDLL(None, use_errno=True)
     fifo(WRITER_PRIORITY)
     period, t0 = 1e9 / rate_hz, time.monotonic_ns() + 50_000_000
     for k in range(frames):
-        sleep_until(libc, t0 + int(k * period))
+        sleep_until(t0 + int(k * period))
         os.write(fd, FRAME.pack(time.monotonic_ns()))
     os._exit(0)
 

@@ -253,6 +253,10 @@ class Supervisor:
             self.options.before_loop()
         self._start_loop(stack, bus_port)
         gate.open()
+        # The simulated hand's delay counts from the loop's start (the recording's t = 0), not
+        # from the end of the slower steps below: on a loaded machine those took seconds, and a
+        # recording's first seconds were then still (the wheel smoke's fidelity step).
+        start_hand()
         self._start_mcap(stack)
         if self.interface is not None:
             self.interface.serve()
@@ -263,7 +267,6 @@ class Supervisor:
         where = getattr(self.interface, "where", None)
         log.info("%s; zenoh %s/* %s; stop with Ctrl-C or SIGTERM", status, z.prefix,
                  where() if where is not None else "on " + (", ".join(z.listen) or "zenoh defaults"))
-        start_hand()
 
     def _step(self, text: str) -> None:
         """A start-order step: systemd's STATUS, and a debug line."""

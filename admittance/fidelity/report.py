@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.fidelity.recording import TARGET_KEYS, Recording, Segment
+from admittance.fidelity.recording import MIN_MOTION_RAD, TARGET_KEYS, Recording, Segment
 from admittance.fidelity.judge import judge, misfit_note, verdict_line
 from admittance.fidelity.servo import fit_servo
 from admittance.formats import paramfile
@@ -37,7 +37,9 @@ PLANT_NAMES = {"virtual_inertia": "motor_inertia", "virtual_damping": "damping",
 def analyse(recording: Recording, joint_id: int | None = None) -> dict:
     """The fidelity JSON of one joint (the only one, or ``joint_id``)."""
     joint_id = _pick_joint(recording, joint_id)
-    segments, excluded = _same_target(recording.of_joint(joint_id))
+    moving, still = _moving(recording, joint_id)
+    segments, excluded = _same_target(moving)
+    excluded = still + excluded
     rows = [s["tau"] != 0.0 for s in segments]
     rendering = _rms([s["theta"][m] - s["theta_model"][m] for s, m in zip(segments, rows)])
     target, target_source = _target(segments)
@@ -97,6 +99,24 @@ def _pick_joint(recording: Recording, joint_id: int | None) -> int:
     if joint_id not in ids:
         raise DataError(f"{recording.folder}: no joint {joint_id} in the recording (joints: {ids})")
     return joint_id
+
+
+def _moving(recording: Recording, joint_id: int) -> tuple[list[Segment], list[str]]:
+    """The joint's segments in which the model moved, and the names of those in which it did not.
+
+    A stretch before the hand started (or while it kept off) has a constant goal and a still
+    model: nothing for the servo fit, and not one row for `identify`'s equation error, which
+    refuses "too little motion" when such a stretch is all its training set got (a recording
+    cut in two by a hold or a read gap before a late hand: the wheel smoke's 1-in-3 failure)."""
+    moving, still = [], []
+    for s in recording.of_joint(joint_id):
+        (moving if np.ptp(s["theta_model"]) >= MIN_MOTION_RAD else still).append(s)
+    if not moving:
+        raise DataError(f"{recording.folder}: joint {joint_id}: the model moved less than "
+                        f"{1e3 * MIN_MOTION_RAD:.0f} mrad in every stretch between holds and read gaps "
+                        f"({len(still)} stretches; {recording.held_rows} held rows, {recording.gaps} gaps); "
+                        "record again, pushing the joint (on a loaded machine, raise [loop].stale_timeout_ms)")
+    return moving, [s.name for s in still]
 
 
 def _same_target(segments: list[Segment]) -> tuple[list[Segment], list[str]]:

@@ -140,6 +140,45 @@ fn initial_states(x0: &Bound<'_, PyAny>, n_sets: usize, n_trials: usize) -> PyRe
     Ok(data.chunks(2).map(|c| State { theta: c[0], omega: c[1] }).collect())
 }
 
+/// The inputs both simulations read alike, checked before the GIL is let go (in this order,
+/// so a call with several bad inputs names the same one as before): the friction law, the
+/// parameter sets (`read_params`), the (S, T, 2) initial states, and the trials' Rust sides.
+struct SimulationInputs<'a> {
+    law: FrictionLaw,
+    params: Vec<Params>,
+    x0: Vec<State>,
+    trials: Vec<&'a Trial>,
+}
+
+impl<'a> SimulationInputs<'a> {
+    fn read(
+        trials: &'a [Bound<'_, PyTrial>],
+        params: &Bound<'_, PyAny>,
+        read_params: impl FnOnce(&Bound<'_, PyAny>) -> PyResult<Vec<Params>>,
+        x0: &Bound<'_, PyAny>,
+        friction: &str,
+    ) -> PyResult<Self> {
+        let law: FrictionLaw = friction.parse().map_err(value_error)?;
+        let params = read_params(params)?;
+        let x0 = initial_states(x0, params.len(), trials.len())?;
+        let trials = trials.iter().map(|t| &t.get().inner).collect();
+        Ok(Self { law, params, x0, trials })
+    }
+
+    /// Each trial's flat output as an array of shape `shape(n_samples)`.
+    fn arrays<'py>(
+        &self,
+        py: Python<'py>,
+        outs: Vec<Vec<f64>>,
+        shape: impl Fn(usize) -> Vec<usize>,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        outs.into_iter()
+            .zip(&self.trials)
+            .map(|(buf, trial)| Ok(PyArray1::from_vec(py, buf).reshape(shape(trial.n_samples()))?.into_any()))
+            .collect()
+    }
+}
+
 /// Simulates every trial under every parameter set; see docs/architecture.md, Contract 1.
 #[pyfunction]
 #[pyo3(signature = (trials, params, x0, *, max_step=5e-4, friction="stick", return_velocity=false, threads=None))]
@@ -154,27 +193,13 @@ fn simulate_batch<'py>(
     return_velocity: bool,
     threads: Option<usize>,
 ) -> PyResult<Vec<Bound<'py, PyAny>>> {
-    let law: FrictionLaw = friction.parse().map_err(value_error)?;
-    let params = param_sets(params)?;
-    let x0 = initial_states(x0, params.len(), trials.len())?;
-    let trial_refs: Vec<&Trial> = trials.iter().map(|t| &t.get().inner).collect();
+    let inputs = SimulationInputs::read(&trials, params, param_sets, x0, friction)?;
+    let SimulationInputs { law, params, x0, trials: trial_refs } = &inputs;
     let output = if return_velocity { Output::ThetaOmega } else { Output::Theta };
-    let batch = Batch { trials: &trial_refs, params: &params, x0: &x0, law, max_step, output, threads };
+    let batch = Batch { trials: trial_refs, params, x0, law: *law, max_step, output, threads };
     let outs = py.detach(|| batch.run()).map_err(value_error)?;
     let n_sets = params.len();
-    outs.into_iter()
-        .zip(&trial_refs)
-        .map(|(buf, trial)| {
-            let flat = PyArray1::from_vec(py, buf);
-            let n = trial.n_samples();
-            let shaped = if return_velocity {
-                flat.reshape([n_sets, n, 2])?.into_any()
-            } else {
-                flat.reshape([n_sets, n])?.into_any()
-            };
-            Ok(shaped)
-        })
-        .collect()
+    inputs.arrays(py, outs, |n| if return_velocity { vec![n_sets, n, 2] } else { vec![n_sets, n] })
 }
 
 /// The angle of every trial under one parameter set and, from the same pass, its derivatives
@@ -193,23 +218,19 @@ fn simulate_sensitivities<'py>(
     friction: &str,
     threads: Option<usize>,
 ) -> PyResult<Vec<Bound<'py, PyAny>>> {
-    let law: FrictionLaw = friction.parse().map_err(value_error)?;
-    let p = param_vector(params)?;
-    let x0 = initial_states(x0, 1, trials.len())?;
+    let one_set = |p: &Bound<'_, PyAny>| Ok(vec![param_vector(p)?]);
+    let inputs = SimulationInputs::read(&trials, params, one_set, x0, friction)?;
     let wrt = wrt
         .iter()
         .map(|name| {
             param_index(name).ok_or_else(|| PyValueError::new_err(format!("wrt: {name:?} is not a parameter name")))
         })
         .collect::<PyResult<Vec<usize>>>()?;
-    let trial_refs: Vec<&Trial> = trials.iter().map(|t| &t.get().inner).collect();
-    let request = Sensitivities { trials: &trial_refs, params: &p, x0: &x0, wrt: &wrt, law, max_step, threads };
+    let SimulationInputs { law, params, x0, trials: trial_refs } = &inputs;
+    let request = Sensitivities { trials: trial_refs, params: &params[0], x0, wrt: &wrt, law: *law, max_step, threads };
     let rows = request.rows();
     let outs = py.detach(|| request.run()).map_err(value_error)?;
-    outs.into_iter()
-        .zip(&trial_refs)
-        .map(|(buf, trial)| Ok(PyArray1::from_vec(py, buf).reshape([rows, trial.n_samples()])?.into_any()))
-        .collect()
+    inputs.arrays(py, outs, |n| vec![rows, n])
 }
 
 /// Reads one parameter vector (`PARAM_NAMES` order) into `Params`.
