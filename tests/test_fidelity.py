@@ -13,6 +13,7 @@ simulator put in.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 
 import numpy as np
@@ -283,7 +284,7 @@ def test_a_servo_the_form_does_not_describe_is_refused_and_written_with_compensa
     assert "refused, compensation off" in line and "misses an effect" in line, line
 
 
-@pytest.mark.parametrize("broken", ["heldout_gain", "over_noise", "sigma"])
+@pytest.mark.parametrize("broken", ["heldout_gain", "no_heldout", "nan_heldout", "over_noise", "sigma"])
 def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
     from admittance.fidelity.judge import MAX_OVER_NOISE, MIN_HELDOUT_GAIN, judge
 
@@ -291,6 +292,9 @@ def test_each_criterion_of_the_verdict_refuses_on_its_own(broken):
                 params={"time_constant": 0.02}, sigma={"time_constant": 1e-4, "dead_time": 1e-5})
     assert judge(**good).passed
     bad = {"heldout_gain": dict(rmse_heldout=1.01e-2 / MIN_HELDOUT_GAIN),
+           # no held-out row scored: the empty mean's 0 (and baselines of 0) is no evidence
+           "no_heldout": dict(rmse_heldout=0.0, baseline={"goal": 0.0, "model": 0.0}),
+           "nan_heldout": dict(rmse_heldout=math.nan),
            "over_noise": dict(residual={"rmse_over_noise": MAX_OVER_NOISE * 1.01}),
            "sigma": dict(sigma={"time_constant": 0.01, "dead_time": 1e-5})}[broken]
     verdict = judge(**{**good, **bad})

@@ -60,8 +60,13 @@ def judge(rmse_heldout: float, baseline: dict[str, float], residual: dict, param
     """The verdict on one servo fit (the values of ``ServoFit.to_json``)."""
     reasons = []
     floor = min(baseline.values())
-    gain = floor / rmse_heldout if rmse_heldout > 0 else math.inf
-    if not gain >= MIN_HELDOUT_GAIN:  # NaN fails
+    # No held-out row scored gives an error of exactly 0 (an empty mean), not a perfect model: a
+    # fit that was never tested on unseen data is refused, never passed with an infinite gain.
+    gain = floor / rmse_heldout if rmse_heldout > 0 and floor > 0 else math.nan
+    if not (rmse_heldout > 0 and floor > 0):
+        reasons.append("no held-out error measured (no held-out row was scored): nothing shows the model predicts "
+                       "the horn on data it did not see")
+    elif not gain >= MIN_HELDOUT_GAIN:  # NaN fails
         reasons.append(f"held-out error {1e3 * rmse_heldout:.2f} mrad is only {gain:.1f}× below the baselines' "
                        f"{1e3 * floor:.2f} (needs {MIN_HELDOUT_GAIN:g}×)")
     over = residual.get("rmse_over_noise", math.inf)
