@@ -210,6 +210,8 @@ def test_holds_and_read_gaps_cut_the_segments(lag_recording):
     assert len(runs) == 3 and all(r["held"].sum() == 0 for r in runs)
     assert all(np.diff(r["t"]).max() <= MAX_GAP_S for r in runs)
     assert sum(r.n for r in runs) == keep.sum() - 1
+    short = {k: v[: int(0.5 / np.median(np.diff(t)))] for k, v in {**segment.columns, "t": t}.items()}
+    assert _runs(dataclasses.replace(segment, columns=short)) == [], "an uncut segment under MIN_RUN_S is dropped too"
 
 
 def test_the_session_mcap_gives_the_csv_folders_rows_targets_and_plant(lag_recording):

@@ -206,13 +206,17 @@ def _runs(segment: Segment) -> list[Segment]:
     held = segment.columns.get("held", np.zeros(segment.n)) > 0
     t = segment["t"]
     cut = held | np.concatenate([[False], np.diff(t) > MAX_GAP_S])
-    if not cut.any():
-        return [segment]
+
+    def long_enough(rows: np.ndarray) -> bool:
+        return rows.size >= MIN_SAMPLES and t[rows[-1]] - t[rows[0]] >= MIN_RUN_S
+
+    if not cut.any():  # whole, if it is long enough itself (a segment between two live sets can be 0.1 s)
+        return [segment] if long_enough(np.arange(segment.n)) else []
     runs = []
     starts = np.flatnonzero(cut)
     for k, rows in enumerate(np.split(np.arange(segment.n), starts)):
         rows = rows[~held[rows]]
-        if rows.size >= MIN_SAMPLES and t[rows[-1]] - t[rows[0]] >= MIN_RUN_S:
+        if long_enough(rows):
             columns = {c: v[rows] for c, v in segment.columns.items()}
             runs.append(dataclasses.replace(segment, name=f"{segment.name}[{k}]", columns=columns))
     return runs
