@@ -156,3 +156,32 @@ def test_crossvalidation_refuses_what_fits_one_trials_quirk(one_quirky_trial):
     spring = _verdict(j, "spring")
     assert spring["significance_sigma"] >= spring["required_sigma"] and spring["training_gain"] > 0.03
     assert not spring["accepted"] and spring["reason"].startswith("cross-validated gain")
+
+
+# --- the `unexplained` verdict: said for structure that matters, not for what Ljung–Box finds in many samples ---
+
+def _slow_structure(rng, n, share):
+    """Per trial, white noise of 2 mrad plus a slow swing holding ``share`` of the variance."""
+    t = np.arange(n) / 120.0
+    slow = np.sqrt(2.0 * share / (1.0 - share)) * 2e-3 * np.sin(2 * np.pi * 0.7 * t + rng.uniform(0, 6.3))
+    return rng.normal(0.0, 2e-3, n) + slow
+
+
+def test_a_correlation_too_small_to_matter_leaves_nothing_but_structure_that_matters_does():
+    """30 drops' worth of residual (30 × 600 samples at the 2 mrad noise): a slow part holding
+    2 % of the variance is found by Ljung–Box (not white) but is nothing left to explain; one
+    holding 10 % (the RMS still within the 1.1× floor) is. Without the materiality test the
+    first says `unexplained`; with it loosened past 10 % the second does not."""
+    from admittance.ident.angle_sensor import Sensor, noise_verdict
+
+    def verdict(share):
+        rng = np.random.default_rng(11)
+        residuals = [_slow_structure(rng, 600, share) for _ in range(30)]
+        return noise_verdict([np.zeros(600)] * 30, residuals, Sensor())
+
+    faint, clear = verdict(0.02), verdict(0.10)
+    assert not faint.white and faint.at_floor and faint.structure < 0.05
+    assert faint.nothing_left
+    assert not clear.white and clear.at_floor and clear.structure > 0.08
+    assert not clear.nothing_left
+
