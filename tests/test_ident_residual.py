@@ -63,3 +63,15 @@ def test_an_empty_piece_adds_nothing_to_the_autocorrelation_time():
     t = np.linspace(0, 6, 700)
     smooth = [0.003 * np.sin(3 * t)]
     assert autocorrelation_time([*smooth, np.empty(0), np.zeros(1)]) == autocorrelation_time(smooth)
+
+
+def test_ljung_box_ignores_an_empty_segment():
+    """A segment with no samples (a cut recording) changes nothing and warns of nothing."""
+    import warnings
+
+    rng = np.random.default_rng(3)
+    segments = [rng.normal(size=400), rng.normal(size=300)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with_empty = ljung_box([segments[0], np.array([]), segments[1]])
+    assert with_empty == ljung_box(segments)

@@ -127,6 +127,8 @@ def ljung_box(residuals: Sequence[np.ndarray], lags: int = LJUNG_BOX_LAGS) -> tu
     den = 0.0
     n_total = 0
     for r in residuals:
+        if r.size == 0:  # a segment with no samples adds nothing (and its mean is undefined)
+            continue
         x = r - r.mean()
         n = x.size
         n_total += n
