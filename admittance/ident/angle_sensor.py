@@ -18,7 +18,9 @@ data: the angles of an encoder log all sit on one lattice, so every sample-to-sa
 a whole multiple of Δ (:func:`infer_quantum`). Motion-capture angles never are.
 
 "Nothing left" (:func:`nothing_left`) then asks the question that fits the sensor. Without a
-grid: is the residual white (Ljung–Box) and at the second-difference noise level? With a grid:
+grid: is the residual at the second-difference noise level, and white (Ljung–Box) or with a
+structure too small to matter (:func:`structure_share`: with 30 drops Ljung–Box finds a
+correlation of 1 % of the variance, which no effect could be admitted for)? With a grid:
 could the sensor itself have produced this residual from the simulated motion? The check is a
 parametric bootstrap: the simulated angle is read through the same sensor (white noise of the
 measured size, then the same rounding) a few dozen times, and the observed residual's RMS and
