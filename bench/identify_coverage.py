@@ -166,34 +166,66 @@ def real_consistency(args) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for label, files, fmt, header, extra, window in real_sets():
             halves = [files[0::2], files[1::2]]
-            results = []
+            found, base = [], []
             for k, half in enumerate(halves):
                 folder = convert_files(half, fmt, Path(tmp) / f"{label.split()[0]}_{k}", header=header, extra=extra,
                                        **window)
                 tick = time.perf_counter()
-                result = identify_dataset(load_dataset(folder), IdentifySettings(hold_out=False))
-                j = result.to_json()
-                results.append(j)
+                found.append(identify_dataset(load_dataset(folder), IdentifySettings(hold_out=False)))
+                base.append(identify_dataset(load_dataset(folder), IdentifySettings(hold_out=False, max_effects=0)))
                 print(f"  {label} half {k} ({len(half)} trials): {time.perf_counter() - tick:.1f} s, named "
-                      f"{j['effects']}, model {j['model_effects']}", flush=True)
-            a, b = (r.get("uncertainty") or {} for r in results)
-            for name in sorted(set(a.get("interval95", {})) & set(b.get("interval95", {}))):
-                ia, ib = a["interval95"][name], b["interval95"][name]
-                overlap = ia[0] <= ib[1] and ib[0] <= ia[1]
-                rows.append({"set": label, "param": name, "half_a": ia, "half_b": ib, "overlap": overlap,
-                             "groups": [a.get("groups"), b.get("groups")]})
-                print(f"    {name:22s} [{ia[0]:.5g}, {ia[1]:.5g}] vs [{ib[0]:.5g}, {ib[1]:.5g}]: "
-                      f"{'overlap' if overlap else 'DISJOINT'}", flush=True)
+                      f"{found[-1].effects}, model {found[-1].model_effects}", flush=True)
+            # The halves compared as identified (their models may differ: a stand-in trades the
+            # inertia against a spring or a cogging term), in the base model's form, and in the
+            # form each half chose, fitted to the other half too: I, B, F of one model, twice.
+            forms = {"as identified": [_intervals(r) for r in found], "base model (both)": [_intervals(r) for r in base]}
+            for k, chooser in enumerate(found):
+                if chooser.model_effects:
+                    form = "+".join(chooser.model_effects)
+                    forms[f"{form} (both)"] = [_intervals(chooser if i == k else _in_form(other, chooser))
+                                               for i, other in enumerate(found)]
+            for form, (a, b) in forms.items():
+                names = ("motor_inertia", "damping", "coulomb") if form != "as identified" else sorted(set(a) & set(b))
+                for name in names:
+                    ia, ib = a[name], b[name]
+                    overlap = ia[0] <= ib[1] and ib[0] <= ia[1]
+                    rows.append({"set": label, "form": form, "param": name, "half_a": ia, "half_b": ib,
+                                 "overlap": overlap})
+                    print(f"    {form:32s} {name:16s} [{ia[0]:.5g}, {ia[1]:.5g}] vs [{ib[0]:.5g}, {ib[1]:.5g}]: "
+                          f"{'overlap' if overlap else 'DISJOINT'}", flush=True)
     print(f"load after: {Path('/proc/loadavg').read_text().strip()}")
-    print("\n| measured set | parameters in both halves | intervals overlapping |\n|---|---|---|")
-    for label in sorted({r["set"] for r in rows}) + ["all"]:
-        sel = [r for r in rows if label in ("all", r["set"])]
-        if sel:
-            held = sum(r["overlap"] for r in sel)
-            print(f"| {label} | {len(sel)} | {held} ({100 * held / len(sel):.0f} %) |")
+    print("\n| measured set | model form of both halves | parameters | intervals overlapping |\n|---|---|---|---|")
+    for label, form in sorted({(r["set"], r["form"]) for r in rows}):
+        sel = [r for r in rows if r["set"] == label and r["form"] == form]
+        held = sum(r["overlap"] for r in sel)
+        print(f"| {label} | {form} | {len(sel)} | {held} ({100 * held / len(sel):.0f} %) |")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
+
+
+def _intervals(result) -> dict:
+    """The reported 95 % intervals of an identify result, by parameter."""
+    return (result.intervals() or {}).get("interval95", {})
+
+
+def _in_form(result, form):
+    """``result``'s trials fitted in ``form``'s model (its effects and free parameters), started
+    from ``form``'s values and ``result``'s initial states; reported as identify reports."""
+    from dataclasses import replace
+
+    from admittance.ident.base import torque_scale_of
+    from admittance.ident.fit import fit_initial_states_multi, fit_output_error
+    from admittance.ident.model import Simulator
+    from admittance.ident.uncertainty import reported_uncertainty
+
+    data = result.dataset
+    sim = Simulator(data.trials, data.mode, result.settings.friction, result.settings.max_step,
+                    form.final.tau_scale).subset(result.training)
+    scale = torque_scale_of(data)
+    x0 = fit_initial_states_multi(sim, form.final.vector, [result.final.x0]).x0
+    fit = fit_output_error(sim, form.final.vector, form.final.free, x0, torque_scale=scale)
+    return replace(result, final=fit, uncertainty=reported_uncertainty(sim, fit, scale))
 
 
 if __name__ == "__main__":

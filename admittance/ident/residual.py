@@ -117,7 +117,8 @@ def analyse(sim: Simulator, fit: FitResult, sensor: Sensor | None = None) -> dic
     bins = where_it_lives(sim, fit, states)
     out = _verdict_dict(noise.rmse, noise.floor, noise.ljung_box_q, noise.ljung_box_p, bool(noise.white),
                         fit.residuals, bins)
-    out.update(noise_correlation=noise.correlation, nothing_left=bool(noise.nothing_left), sensor=sensor.as_dict())
+    out.update(noise_correlation=noise.correlation, nothing_left=bool(noise.nothing_left), sensor=sensor.as_dict(),
+               structure_share=noise.structure)
     out["summary"] = summary(out)
     return out
 
@@ -157,7 +158,10 @@ def summary(v: dict) -> str:
     """One sentence for the report and the CLI."""
     head = (f"residual RMS {1e3 * v['rmse']:.2f} mrad, {v['rmse_over_noise']:.2f}× the noise floor "
             f"({1e3 * v['noise_estimate']:.2f} mrad); ")
-    if v.get("nothing_left"):
+    if v.get("nothing_left") and not v["white"]:
+        head += (f"correlated (Ljung–Box p = {v['ljung_box_p']:.2g}) but immaterial ({100 * v['structure_share']:.1f} % of "
+                 f"the variance): nothing systematic left")
+    elif v.get("nothing_left"):
         head += f"no structure beyond the sensor's (Ljung–Box p = {v['ljung_box_p']:.2g}): nothing systematic left"
     elif v["white"]:
         head += f"white (Ljung–Box p = {v['ljung_box_p']:.2g}) but above the noise floor"
