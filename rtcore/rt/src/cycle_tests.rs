@@ -375,13 +375,14 @@ fn stalled(lost: u64, after: u64) -> (Vec<Record>, Record, Record) {
 fn a_stall_is_caught_up_over_the_next_cycles_without_a_goal_jump() {
     // 9 deadlines lost: caught up all at once the goal would jump 10 steps' motion (20 mrad, 13
     // ticks); two steps a cycle, it moves at most 4 mrad (3 ticks) a cycle.
-    let (records, _, twin) = stalled(9, 20);
-    let mut goal = records[0].goal_tick;
-    for (n, rec) in records.iter().enumerate().skip(1) {
+    let (records, before, twin) = stalled(9, 20);
+    let mut goal = before.goal_tick;
+    for (n, rec) in records.iter().enumerate() {
         assert!((rec.goal_tick - goal).abs() <= 3, "cycle {n} after the stall: the goal stepped {}", rec.goal_tick - goal);
         goal = rec.goal_tick;
     }
-    let steps: Vec<u64> = records.windows(2).map(|w| (w[1].deadline_ns - w[0].deadline_ns) / PERIOD).collect();
+    let deadlines: Vec<u64> = std::iter::once(&before).chain(&records).map(|r| r.deadline_ns).collect();
+    let steps: Vec<u64> = deadlines.windows(2).map(|w| (w[1] - w[0]) / PERIOD).collect();
     assert!(steps.iter().all(|&s| s <= CATCH_UP_STEPS_PER_CYCLE), "{steps:?}");
     // The model kept the deadlines' time: back on them, it is where the twin that never stalled is.
     let last = records.last().unwrap();
