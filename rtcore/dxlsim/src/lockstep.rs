@@ -121,10 +121,10 @@ pub struct LockstepHand {
 
 /// A loaded machine's effect on the loop, made repeatable: at each grid point a stall begins with
 /// `probability`, lasting 1..=`max_cycles` cycles (uniform, from the run's seed), during which the
-/// loop does not run while the servos, the hand and the sensor go on; the first cycle after it
-/// catches up as the real loop does (`cycle::steps_due`: the model integrates the lost steps, the
-/// goal then moves by all of them at once, and the horn read is as old as the stall). The
-/// wall-clock bench at load 1–2 counted overruns in 5–25 % of its cycles.
+/// loop does not run while the servos, the hand and the sensor go on; the cycles after it catch
+/// up as the real loop does (`cycle::steps_due`: the model integrates the lost steps, two a cycle,
+/// and the first horn read after it is as old as the stall). The wall-clock bench at load 1–2
+/// counted overruns in 5–25 % of its cycles.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Stalls {
     pub probability: f64,

@@ -9,7 +9,8 @@
 //! 3. `condition_force`: bias, deadband, low-pass.
 //! 4. `step_joints`: torque = force[axis] × lever_arm, the admittance steps due with limited
 //!    state (one per deadline: a skipped deadline is integrated too, so the model keeps the
-//!    deadlines' time; the deadline is the grid point, never the cycle's start, which a sample
+//!    deadlines' time, caught up at most two steps a cycle so that the goal never jumps by a
+//!    stall's motion; the deadline is the grid point, never the cycle's start, which a sample
 //!    may trigger anywhere in the window), or a hold (velocity zero, no integration) while the
 //!    force is stale.
 //!    The goal is the model's angle plus the servo compensation's lead (`compensation`). The
@@ -96,10 +97,19 @@ pub enum StartRefusal {
     Position(String),
 }
 
-/// At most this many steps catch up on skipped deadlines in one cycle (10 ms at 1 kHz); a
-/// longer stall loses the rest of its time rather than jumping the goal by that much motion
-/// (recordings cut their trial there: the model did not follow the torque over the lost time).
+/// At most this many skipped deadlines are caught up (10 ms at 1 kHz); a longer stall loses
+/// its time rather than move the goal by that much motion (recordings cut their trial there:
+/// the model did not follow the torque over the lost time).
 pub const MAX_CATCH_UP_STEPS: u64 = 10;
+
+/// At most this many model steps in one cycle: the skipped deadlines are caught up over the
+/// following cycles, the model running at twice the deadlines' pace until it is back on them.
+/// Why not all at once: the goal then jumped by every lost step's motion in one cycle, the
+/// servo drove the horn there as fast as it could, and the hand gripping it (read as old as
+/// the stall) was given energy before any damping could act: 2.1–14.3 mJ in the stalled
+/// sessions of bench/passivity.py against the guard's 2 mJ margin; spread, the goal moves
+/// at most twice the model's step a cycle (docs/fidelity.md, "The catch-up, spread").
+pub const CATCH_UP_STEPS_PER_CYCLE: u64 = 2;
 
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
@@ -459,20 +469,23 @@ impl Controller {
         self.lowpass.apply(&f)
     }
 
-    /// Model steps due at this deadline: as many as bring the model's own time (whole steps
-    /// of one period) nearest to the deadline, so the model keeps the deadlines' time through
-    /// an overrun (recordings and `identify` rely on it). Counted against the model's time,
-    /// not the previous deadline, so a grid that shifts or stretches by a bounded amount (a
-    /// phase-locked clock) keeps the two within half a period instead of drifting apart; a
-    /// grid that moved back gives a cycle of no step. A stall longer than the catch-up cap
-    /// loses the rest of its time (the model's time restarts at this deadline).
+    /// Model steps due at this deadline: towards the model's own time (whole steps of one
+    /// period) nearest to the deadline, so the model keeps the deadlines' time through an
+    /// overrun (recordings and `identify` rely on it), but at most
+    /// [`CATCH_UP_STEPS_PER_CYCLE`] a cycle: after a stall the model catches up over the next
+    /// cycles (its time, and the records' `deadline_ns`, trail the deadlines until then).
+    /// Counted against the model's time, not the previous deadline, so a grid that shifts or
+    /// stretches by a bounded amount (a phase-locked clock) keeps the two within half a period
+    /// instead of drifting apart; a grid that moved back gives a cycle of no step. A stall that
+    /// leaves more than [`MAX_CATCH_UP_STEPS`] due loses its time (the model's time restarts at
+    /// this deadline, after this cycle's steps).
     fn steps_due(&mut self, deadline_ns: u64) -> u64 {
         let Some(model_ns) = self.model_ns else {
             self.model_ns = Some(deadline_ns);
             return 1;
         };
         let due = deadline_ns.saturating_sub(model_ns).saturating_add(self.period_ns / 2) / self.period_ns;
-        let steps = due.min(MAX_CATCH_UP_STEPS);
+        let steps = due.min(CATCH_UP_STEPS_PER_CYCLE);
         self.model_ns = Some(if due > MAX_CATCH_UP_STEPS { deadline_ns } else { model_ns + steps * self.period_ns });
         steps
     }

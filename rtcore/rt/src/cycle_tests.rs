@@ -342,10 +342,67 @@ fn an_overrun_is_integrated_so_the_model_keeps_the_deadlines_time() {
         let expected = a * 1e-6 * steps * (steps + 1.0) / 2.0;
         let last = records.last().unwrap();
         assert!((last.theta - expected).abs() < 1e-12, "{mode:?}: {} vs {expected}", last.theta);
-        // Each record's deadline is the model's time: the grid point, the lost ones stepped over.
+        // Each record's deadline is the model's time: the lost ones caught up two steps a cycle.
         let deadlines: Vec<u64> = records.iter().map(|rec| (rec.deadline_ns - start) / PERIOD).collect();
-        assert_eq!(deadlines, [1, 2, 3, 4, 5, 8, 9, 10, 11, 12], "{mode:?}");
+        assert_eq!(deadlines, [1, 2, 3, 4, 5, 7, 9, 10, 11, 12], "{mode:?}");
     }
+}
+
+/// A damped joint pushed to a steady 2 rad/s (two ticks every three cycles), then cycles on the
+/// deadlines `stall_at + 1 + lost`.. after `lost` deadlines were skipped: (the records after
+/// the stall, the last before it, the record of an unstalled twin at the last deadline).
+fn stalled(lost: u64, after: u64) -> (Vec<Record>, Record, Record) {
+    let mut p = free_joint();
+    p.joints[0].gains.damping = 0.1;
+    let mut r = started(p.clone(), &[(1, 2048)]);
+    let mut twin = started(p, &[(1, 2048)]);
+    let start = r.clock.now_ns();
+    let settle = 3000;
+    let mut before = None;
+    for k in 1..=settle {
+        before = Some(cycle_at(&mut r, start + k * PERIOD, 2.0));
+        cycle_at(&mut twin, start + k * PERIOD, 2.0);
+    }
+    let records = (settle + 1 + lost..=settle + lost + after).map(|k| cycle_at(&mut r, start + k * PERIOD, 2.0)).collect();
+    let mut last = None;
+    for k in settle + 1..=settle + lost + after {
+        last = Some(cycle_at(&mut twin, start + k * PERIOD, 2.0));
+    }
+    (records, before.unwrap(), last.unwrap())
+}
+
+#[test]
+fn a_stall_is_caught_up_over_the_next_cycles_without_a_goal_jump() {
+    // 9 deadlines lost: caught up all at once the goal would jump 10 steps' motion (20 mrad, 13
+    // ticks); two steps a cycle, it moves at most 4 mrad (3 ticks) a cycle.
+    let (records, before, twin) = stalled(9, 20);
+    let mut goal = before.goal_tick;
+    for (n, rec) in records.iter().enumerate() {
+        assert!((rec.goal_tick - goal).abs() <= 3, "cycle {n} after the stall: the goal stepped {}", rec.goal_tick - goal);
+        goal = rec.goal_tick;
+    }
+    let deadlines: Vec<u64> = std::iter::once(&before).chain(&records).map(|r| r.deadline_ns).collect();
+    let steps: Vec<u64> = deadlines.windows(2).map(|w| (w[1] - w[0]) / PERIOD).collect();
+    assert!(steps.iter().all(|&s| s <= CATCH_UP_STEPS_PER_CYCLE), "{steps:?}");
+    // The model kept the deadlines' time: back on them, it is where the twin that never stalled is.
+    let last = records.last().unwrap();
+    assert_eq!(last.deadline_ns, twin.deadline_ns);
+    assert_eq!(last.theta, twin.theta, "the lost steps were all integrated");
+    assert_eq!(last.goal_tick, twin.goal_tick);
+}
+
+#[test]
+fn a_stall_beyond_the_cap_loses_its_time_and_still_moves_the_goal_little() {
+    let (records, before, _) = stalled(15, 3);
+    let first = &records[0];
+    assert!((before.omega - 2.0).abs() < 1e-3, "steady: {}", before.omega);
+    // Two steps, not the stall's 16: 4 mrad (3 ticks), not 32 mrad.
+    assert!((first.theta - before.theta - 2.0 * 2.0 * 1e-3).abs() < 1e-5, "{} → {}", before.theta, first.theta);
+    assert!((first.goal_tick - before.goal_tick).abs() <= 3);
+    // The model's time restarted at the late deadline: the records' gap (16 periods, more than
+    // the cap) shows the lost time, as recordings read it (`model_lapses`).
+    assert_eq!(first.deadline_ns - before.deadline_ns, 16 * PERIOD);
+    assert!(records.windows(2).all(|w| w[1].deadline_ns - w[0].deadline_ns == PERIOD));
 }
 
 fn lagging_servo() -> plant::servo::ServoModel {
