@@ -120,7 +120,13 @@ def test_one_sync_write_per_cycle_carries_every_joint(protocol):
         assert [data[k * record] for k in range(3)] == list(IDS)
     torque_on, torque_off = servos.sync_writes(regs["torque"])
     assert torque_on == bytes([1, 1, 2, 1, 3, 1]) and torque_off == bytes([1, 0, 2, 0, 3, 0])
-    assert loop.stats()["bus_errors"] == 0, loop.stats()
+    # Every reply the fake servos sent parsed: no corrupt, error-status or I/O failure. A reply
+    # can still miss its deadline when the machine is loaded (the fake is a Python thread), so
+    # timeouts are allowed, but only a few: a malformed read request goes unanswered every cycle.
+    stats = loop.stats()
+    kinds = stats["bus_error_kinds"]
+    assert {k: n for k, n in kinds.items() if k != "read_timeout"} == dict.fromkeys(kinds.keys() - {"read_timeout"}, 0), stats
+    assert kinds["read_timeout"] <= cycles // 10, stats
 
 
 def test_a_bus_that_stops_reading_costs_bus_errors_not_a_hang():
