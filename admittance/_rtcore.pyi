@@ -146,7 +146,7 @@ __all__ = ["__version__", "build_profile", "PARAM_NAMES", "PARAM_DEFAULTS", "Tri
     "encode_instruction", "encode_status", "encode_ping", "encode_read", "encode_write", "encode_reg_write",
     "encode_action", "encode_factory_reset", "encode_reboot", "encode_sync_read", "encode_fast_sync_read", "encode_sync_write",
     "encode_bulk_read", "encode_bulk_write", "model_table", "Decoder", "DxlClient", "motor_constants",
-    "baud_code", "MockBus", "SimulatedDaq", "AdmittanceLoop", "ForceSink", "LOOP_MODES", "FAULT_KINDS", "MAX_CATCH_UP_STEPS",
+    "baud_code", "MockBus", "SimulatedDaq", "AdmittanceLoop", "ForceSink", "LOOP_MODES", "FAULT_KINDS", "MAX_CATCH_UP_STEPS", "CATCH_UP_STEPS_PER_CYCLE",
     "MAX_JOINT_ID", "split_param_name", "LOOP_DEFAULTS", "LOOP_BOUNDS", "STOP_CAUSES", "UNSAFE_HARDWARE_ERRORS",
     "SERVO_PARAM_NAMES", "SERVO_DOMAIN", "SERVO_PARAM_DEFAULTS", "ServoTrial", "servo_simulate_batch", "servo_lead", "ForceReader",
     "run_lockstep"]
@@ -156,6 +156,7 @@ LOOP_BOUNDS: Final[dict[str, tuple[float, float]]]  # (low, high) of keys whose 
 LOOP_DEFAULTS: Final[_LoopDefaults]  # the loop's defaults the daemon's configuration shares
 LOOP_MODES: Final[list[str]]
 MAX_CATCH_UP_STEPS: Final[int]
+CATCH_UP_STEPS_PER_CYCLE: Final[int]
 MAX_JOINT_ID: Final[int]
 PARAM_DEFAULTS: Final[tuple[float, ...]]
 PARAM_NAMES: Final[tuple[str, ...]]

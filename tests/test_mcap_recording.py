@@ -163,7 +163,9 @@ def test_a_sigkilled_daemon_leaves_a_readable_mcap(tmp_path):
     read_cycles = set(cycles[read].tolist())
     assert all(c % 5 == 0 or (c % 5 == 1 and c - 1 not in read_cycles) for c in read_cycles)
     assert read.sum() > 0.5 * np.sum(cycles % 5 == 0)
-    assert load_recording(tmp_path / "rec").trials[0].n_samples > 50
+    # The cut file loads as a dataset. Its first trial may be short: a stall on a loaded
+    # machine (a hold, time the model lost) starts a new trial wherever it falls.
+    assert max(trial.n_samples for trial in load_recording(tmp_path / "rec").trials) > 50
 
 
 @settings(max_examples=examples(40), deadline=None)

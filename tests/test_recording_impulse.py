@@ -88,3 +88,31 @@ def test_the_refit_sees_where_a_step_fell_between_two_rows(tmp_path):
         t, refit = segment["t"], segment.impulse_tau
         impulses.append(float(np.sum(0.5 * (refit[1:] + refit[:-1]) * np.diff(t))))
     assert impulses[0] - impulses[1] == pytest.approx(8 * 0.3 * 1e-3, abs=1e-9)
+
+
+def test_a_catch_up_cycle_weighs_its_torque_by_the_steps_it_took(tmp_path):
+    """After a stall the model catches up at most CATCH_UP_STEPS_PER_CYCLE steps a cycle: the
+    records' ``t`` (the model's time) then advances by several periods a cycle, each integrated
+    with that cycle's torque. ``tau_mean`` keeps that impulse, a step in the torque falling
+    inside the catch-up included."""
+    from admittance._rtcore import CATCH_UP_STEPS_PER_CYCLE
+
+    n, stall_at, lost = 400, 203, 7
+    cycles = stepped(0.0, n, 206)
+    model = np.arange(n, dtype=float)
+    due = 0.0
+    for k in range(stall_at, n):  # the deadlines jump by `lost` periods at stall_at
+        deadline = k + lost
+        due = deadline - model[k - 1]
+        model[k] = model[k - 1] + min(due, CATCH_UP_STEPS_PER_CYCLE)
+    cycles["t"] = cycles["t_wake"] = model * 1e-3
+    assert np.diff(model).max() == CATCH_UP_STEPS_PER_CYCLE > 1, "the catch-up ran"
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=1e-3, segment_s=100.0)
+    for start in range(0, n, 37):
+        rec.append(1, {k: v[start:start + 37] for k, v in cycles.items()})
+    rec.close()
+    r = rows(tmp_path)
+    last = int(r["cycle"][-1])
+    impulse = float(np.sum(cycles["tau"][1:last + 1] * np.diff(cycles["t"][:last + 1])))
+    by_means = float(np.sum(r["tau_mean"][1:] * np.diff(r["t"])))
+    assert by_means == pytest.approx(impulse, abs=1e-12)

@@ -10,7 +10,8 @@ model did not follow the torque, and ``fault``, the fault bits) for `fidelity`, 
 checks. ``held`` and ``fault`` cover every cycle since the previous row: a row is written only
 on the cycles that read the servo, and a hold or a fault between two reads leaves no row of its
 own. ``tau_mean`` keeps the torque's impulse between rows: the mean of the torques the model
-stepped with from the previous row's time to this row's (``tau`` is one cycle's sample, and a
+stepped with from the previous row's time to this row's, each weighed by the steps taken with it
+(``tau`` is one cycle's sample, and a
 step in the hand's torque between two rows would otherwise move the refit's impulse by up to a
 whole row interval of it); the first row of a recording has its own ``tau``. ``held`` is 1 when the loop was not running (docs/realtime.md, the fault model): it held
 because the force was stale, or a fault held a joint. After a stall longer than the loop
@@ -242,7 +243,7 @@ class Recorder:
         self._pending[joint_id] = {k: v[-1:] for k, v in columns.items()}
         if len(columns["t"]) == 1:
             return None
-        columns = with_next_cycle(columns)
+        columns = with_next_cycle(columns, self.period_s)
         return {k: v[:-1] for k, v in columns.items()}
 
     def _write(self, joint_id: int, columns: dict[str, np.ndarray]) -> int:

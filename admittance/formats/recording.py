@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from admittance._rtcore import LOOP_MODES, MAX_CATCH_UP_STEPS
+from admittance._rtcore import CATCH_UP_STEPS_PER_CYCLE, LOOP_MODES, MAX_CATCH_UP_STEPS
 from admittance.errors import DataError
 from admittance.formats.converters import ConvertedTrial, write_dataset
 from admittance.formats.mcap_layout import MCAP_CYCLE_COLUMNS, MCAP_NAME
@@ -42,13 +42,21 @@ def with_defaults(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
             "passivity_damping": zeros, **columns}
 
 
-def with_next_cycle(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def with_next_cycle(columns: dict[str, np.ndarray], period_s: float | None = None) -> dict[str, np.ndarray]:
     """Consecutive cycles with what the cycle after each says about it (module doc): ``tau`` the
-    following cycle's torque, and ``superseded`` where the following cycle took no step."""
+    following cycle's torque, ``superseded`` where the following cycle took no step, and
+    ``steps``, the model steps it took with that torque (with the loop's ``period_s``: ``t`` is
+    the model's own time, which a catch-up after a stall advances by up to
+    ``CATCH_UP_STEPS_PER_CYCLE`` periods a cycle; 1 where that is unknown)."""
     follows = np.diff(columns["cycle"]) == 1
+    dt = np.diff(columns["t"])
     superseded = np.zeros(len(columns["cycle"]))
-    superseded[:-1] = follows & (np.diff(columns["t"]) <= 0)
-    return {**columns, "tau": next_cycle_tau(columns["tau"], columns["cycle"]), "superseded": superseded}
+    superseded[:-1] = follows & (dt <= 0)
+    steps = 1.0 - superseded
+    if period_s:
+        steps[:-1] = np.where(follows, np.clip(np.rint(dt / period_s), 0, CATCH_UP_STEPS_PER_CYCLE), steps[:-1])
+    return {**columns, "tau": next_cycle_tau(columns["tau"], columns["cycle"]), "superseded": superseded,
+            "steps": steps}
 
 
 def next_cycle_tau(tau: np.ndarray, cycle: np.ndarray) -> np.ndarray:
@@ -134,7 +142,8 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     """The CSV rows (``COLUMNS``) of consecutive cycles whose ``tau`` is already the next
     cycle's (:func:`with_next_cycle`): one row per cycle that read the servo (every cycle without
     reads) and was not superseded, times from ``t0``, ``held`` and ``fault`` gathered since the
-    previous row, ``tau_mean`` the mean torque since it. Also the (held, fault, torque sum, cycles)
+    previous row, ``tau_mean`` the mean torque since it (each cycle's weighed by its model
+    ``steps``). Also the (held, fault, torque sum, cycles)
     carry. With the loop's ``period_s``, a cycle where the
     model lost time counts as held (``previous_t``: the absolute deadline before ``columns``')."""
     columns = with_defaults(columns)
@@ -148,7 +157,7 @@ def recorded_rows(columns: dict[str, np.ndarray], *, measured_theta: bool, t0: f
     faults = columns["fault"]
     faults = np.where(np.isfinite(faults), faults, 0).astype(np.int64)  # NaN: an older file, none
     fault, fault_carry = since_previous_row(faults, keep, carry[1])
-    steps = (columns["superseded"] == 0).astype(float)  # a superseded cycle's torque was never integrated
+    steps = columns["steps"] if "steps" in columns else (columns["superseded"] == 0).astype(float)
     tau_mean, tau_carry = mean_since_previous_row(columns["tau"], steps, keep, tuple(carry[2:4]) or (0.0, 0.0))
     tau_mean = np.where(np.isfinite(tau_mean), tau_mean, columns["tau"])
     theta = columns["theta_present"] if measured_theta else columns["theta_model"]
@@ -255,13 +264,14 @@ def recording_segments(rec: Recording) -> dict[int, list[dict[str, np.ndarray]]]
     measured = bool(rec.session.get("measured_theta", True))
     t0, segment_s = float(rec.session["t0"]), float(rec.session.get("segment_s", 10.0))
     rate_hz = rec.session.get("rate_hz")
+    period_s = 1.0 / rate_hz if rate_hz else None
     divisors = {int(j["id"]): int(j.get("sync_read_divisor", 1)) for j in rec.session.get("joints", []) if "id" in j}
     out = {}
     for jid in sorted(rec.joints):
-        cols = with_next_cycle(dict(rec.joints[jid]))
+        cols = with_next_cycle(dict(rec.joints[jid]), period_s)
         if not np.isfinite(cols["t_wake"]).all():
             cols["t_wake"] = cols["t"]  # an older file
-        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0, period_s=1.0 / rate_hz if rate_hz else None)
+        rows, _ = recorded_rows(cols, measured_theta=measured, t0=t0, period_s=period_s)
         if not rows["t"].size:
             out[jid] = []
             continue

@@ -667,6 +667,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FAULT_KINDS", FaultKind::ALL.iter().map(|kind| kind.name()).collect::<Vec<_>>())?;
     // Model steps a late cycle catches up at most; a longer stall loses its time (recording.py).
     m.add("MAX_CATCH_UP_STEPS", rt::cycle::MAX_CATCH_UP_STEPS)?;
+    // Model steps a cycle takes at most while catching up (recording.py weighs its torque so).
+    m.add("CATCH_UP_STEPS_PER_CYCLE", rt::cycle::CATCH_UP_STEPS_PER_CYCLE)?;
     m.add("MAX_JOINT_ID", rt::params::MAX_JOINT_ID)?;
     m.add_function(wrap_pyfunction!(split_param_name, m)?)?;
     m.add("LOOP_DEFAULTS", loop_defaults(m.py())?)?;
