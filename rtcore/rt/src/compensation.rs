@@ -16,6 +16,17 @@
 //! (docs/fidelity.md, "smallest stable inertia"). So the acceleration is low-passed at twice the
 //! servo's natural frequency 1/√(m·T), where the servo stops following anyway.
 //!
+//! **A virtual joint lighter than the servo.** The model's own terms give the servo's inertia:
+//! for a position loop J·θ'' + K_d·θ' + K_p·(θ − u) = τ, T·m = J/K_p and s = 1/K_p, so
+//! J = T·m/s (0.0146 kg·m² on the MX-64 bench, whose motor inertia is 0.01467). The inertial
+//! term is then s·τ·J/I_v: it answers the hand's torque J/I_v times as hard as the servo's own
+//! give, and a gripping hand's inertial torque closes that loop. Below I_v = J the lead takes
+//! only the share I_v/J of the acceleration (`inertia_share`), so that the term never answers
+//! the torque harder than it would at I_v = J: a light joint's horn no longer follows the
+//! model's acceleration in full, and a gripped one does not wobble with the loop's stalls
+//! (measured: docs/fidelity.md, "The compensation's lead at light inertias"). At I_v ≥ J, and
+//! for a model without a give or an inertial term, nothing changes.
+//!
 //! **Gear play.** A model with `backlash` adds the play's inverse (`plant::servo::PlaySide`):
 //! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
 //! the hand leans on it, ahead of it while it drives a free horn), decided ahead on two horizons
@@ -87,6 +98,9 @@ pub struct Compensation {
     watch: Watch,
     /// The (model, weight) the watch turned off: kept off until a set brings another.
     refused: Option<(Option<ServoModel>, f64)>,
+    /// The virtual inertia rendered, kg·m² (`set_virtual_inertia`; infinite until set: the whole
+    /// acceleration).
+    inertia: f64,
 }
 
 impl Compensation {
@@ -105,6 +119,7 @@ impl Compensation {
             carry: 0.0,
             watch: Watch::default(),
             refused: None,
+            inertia: f64::INFINITY,
         }
     }
 
@@ -185,6 +200,20 @@ impl Compensation {
         self.held = true;
     }
 
+    /// The virtual inertia the model renders now (kg·m²), for the lead's acceleration share.
+    pub fn set_virtual_inertia(&mut self, inertia: f64) {
+        self.inertia = inertia;
+    }
+
+    /// The share of the model's acceleration the lead uses: min(1, I_v / J), J = T·m/s the
+    /// servo's own inertia as its model implies it (see the module doc). 1 when the model implies
+    /// none (no compliance or no inertial term) or the inertia is not a positive number.
+    fn inertia_share(&self, model: &ServoModel) -> f64 {
+        let own = model.time_constant * model.inertial_time / model.compliance;
+        let share = self.inertia / own;
+        if own.is_finite() && own > 0.0 && share.is_finite() && share > 0.0 { share.min(1.0) } else { 1.0 }
+    }
+
     /// The angle to send as the goal for a model at `theta` moving at `omega` with
     /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
     /// the last cycle is kept, so holding never moves the goal.
@@ -197,7 +226,7 @@ impl Compensation {
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
             let play = self.play.update(&model, omega, self.alpha, tau, h);
-            let led = lead(&model, omega, self.alpha, tau) + play;
+            let led = lead(&model, omega, self.alpha * self.inertia_share(&model), tau) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
             let led = if led.is_finite() { bound(led, MAX_LEAD) } else { self.lead };
@@ -347,5 +376,70 @@ mod tests {
         let mut c = Compensation::new(Some(LAG), 1.0);
         let moving = c.goal(0.2, 1.0, 0.0, 0.3, false, 1e-3);
         assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true, 1e-3), moving);
+    }
+
+    /// The MX-64 bench's servo model as `fidelity` identifies it under a gripping hand.
+    const MX: ServoModel = ServoModel {
+        time_constant: 0.017,
+        inertial_time: 0.0213,
+        dead_time: 0.0,
+        compliance: 0.0248,
+        deadband: 0.00206,
+        backlash: 0.0,
+        backlash_torque: 0.0,
+    };
+
+    /// The lead's acceleration part: the goal for `alpha` less the goal for none, settled
+    /// through the acceleration's filter (the model moving at 1 rad/s, no torque).
+    fn inertial_lead(c: &mut Compensation, alpha: f64) -> f64 {
+        let h = 1e-3;
+        for _ in 0..2000 {
+            c.goal(0.0, 1.0, alpha, 0.0, false, h);
+        }
+        let with = c.goal(0.0, 1.0, alpha, 0.0, false, h);
+        for _ in 0..2000 {
+            c.goal(0.0, 1.0, 0.0, 0.0, false, h);
+        }
+        with - c.goal(0.0, 1.0, 0.0, 0.0, false, h)
+    }
+
+    #[test]
+    fn a_virtual_joint_lighter_than_the_servo_leads_with_its_share_of_the_acceleration() {
+        // J = T·m/s = 0.0146 kg·m², the servo's own inertia as its model implies it.
+        let own = MX.time_constant * MX.inertial_time / MX.compliance;
+        let full = MX.time_constant * MX.inertial_time * 10.0;
+        let mut c = Compensation::new(Some(MX), 1.0);
+        assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9, "not set: the whole acceleration");
+        for (inertia, share) in [(own, 1.0), (4.0 * own, 1.0), (own / 4.0, 0.25), (own / 64.0, 1.0 / 64.0)] {
+            c.set_virtual_inertia(inertia);
+            let led = inertial_lead(&mut c, 10.0);
+            assert!((led - share * full).abs() < 1e-9 * full, "I = {inertia}: {led} against {}", share * full);
+        }
+        // Nothing the loop could hand it makes the goal non-finite or drops the lead.
+        for inertia in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            c.set_virtual_inertia(inertia);
+            assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9, "I = {inertia}: the whole acceleration");
+        }
+        // A model that implies no inertia of its own (no give to the hand) keeps the whole term.
+        let stiff = ServoModel { compliance: 0.0, ..MX };
+        let mut c = Compensation::new(Some(stiff), 1.0);
+        c.set_virtual_inertia(own / 16.0);
+        assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9);
+    }
+
+    #[test]
+    fn near_rest_the_friction_term_gains_no_more_than_the_lag_term() {
+        // At a light virtual inertia the model's velocity at rest is the force's noise and the hand's
+        // reaction: the friction term b·sgn ω must not turn it into a goal buzzing by ±b.
+        let mut c = Compensation::new(Some(MX), 1.0);
+        let h = 1e-3;
+        let at = |c: &mut Compensation, omega: f64| c.goal(0.0, omega, 0.0, 0.0, false, h);
+        for omega in [1e-4, 0.01, 0.05] {
+            let slope = (at(&mut c, omega) - at(&mut c, -omega)) / (2.0 * omega);
+            assert!(slope <= 2.0 * MX.time_constant + 1e-12, "ω = {omega}: a gain of {slope} s");
+        }
+        // Well beyond b/T the whole deadband is compensated.
+        let fast = at(&mut c, 2.0);
+        assert!((fast - (MX.time_constant * 2.0 + MX.deadband)).abs() < 0.01 * MX.deadband, "{fast}");
     }
 }
