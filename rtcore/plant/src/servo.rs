@@ -64,22 +64,8 @@ pub const PLAY_TORQUE_MIN: f64 = 0.01;
 pub const PLAY_VELOCITY_MIN: f64 = 0.02;
 
 /// Below this speed (rad/s) the compensation's friction term fades to zero (a smooth sign), so
-/// a reference that starts or reverses does not step the goal; a servo whose deadband is wide
-/// for its lag fades over more (`friction_fade_velocity`).
+/// a reference that starts or reverses does not step the goal.
 pub const FRICTION_FADE_VELOCITY: f64 = 0.02;
-
-/// rad/s: the speed over which the lead's friction term b·sgn ω fades in: at least
-/// `FRICTION_FADE_VELOCITY`, and at least b/T, the speed at which the servo's own lag error T·ω
-/// is one deadband. Near rest the term's gain is b/v: with v = 0.02 rad/s it was 6× the lag's T on
-/// the MX-64 bench (b 2 mrad, T 17 ms), a relay on the model's velocity, which at a light virtual
-/// inertia is the force's noise (0.07–0.14 rad/s RMS there): the goal buzzed by ±b with the sign
-/// of that noise, and a gripping hand's inertial torque closed the loop into a sustained wobble
-/// (docs/fidelity.md, "The compensation's noise"). At b/T the gain at rest is at most T, the
-/// lag term's own; a reference slower than b/T keeps at most one deadband of error.
-#[inline]
-pub fn friction_fade_velocity(model: &ServoModel) -> f64 {
-    FRICTION_FADE_VELOCITY.max(model.deadband / model.time_constant)
-}
 
 /// Each parameter's physical domain, in `SERVO_PARAM_NAMES` order: what a Dynamixel's position
 /// loop can be (a lag up to 1 s, a horn that gives at most 0.5 rad per N·m, a deadband up to
@@ -203,12 +189,18 @@ pub fn step(state: &mut State, model: &ServoModel, goal: f64, tau: f64, h: f64) 
 /// held, so everything needed is the reference's own state: no numerical differentiation.
 #[inline]
 pub fn lead(model: &ServoModel, omega: f64, alpha: f64, tau: f64) -> f64 {
+    lead_fading(model, omega, alpha, tau, FRICTION_FADE_VELOCITY)
+}
+
+/// `lead` with its friction term fading in over `fade_velocity` rad/s instead of
+/// `FRICTION_FADE_VELOCITY` (the RT loop's compensation widens it at light virtual inertias).
+#[inline]
+pub fn lead_fading(model: &ServoModel, omega: f64, alpha: f64, tau: f64, fade_velocity: f64) -> f64 {
     let d = model.dead_time;
     let omega_ahead = omega + alpha * d;
     let travel = omega * d + 0.5 * alpha * d * d;
     let lag = model.time_constant * (model.inertial_time * alpha + omega_ahead);
-    let v = friction_fade_velocity(model);
-    let fade = omega_ahead / (omega_ahead * omega_ahead + v * v).sqrt();
+    let fade = omega_ahead / (omega_ahead * omega_ahead + fade_velocity * fade_velocity).sqrt();
     travel + lag + model.deadband * fade - model.compliance * tau
 }
 

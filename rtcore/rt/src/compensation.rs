@@ -27,6 +27,14 @@
 //! (measured: docs/fidelity.md, "The compensation's lead at light inertias"). At I_v ≥ J, and
 //! for a model without a give or an inertial term, nothing changes.
 //!
+//! The friction term b·sgn ω is a relay on the model's velocity, smoothed over
+//! `FRICTION_FADE_VELOCITY` (0.02 rad/s): near rest its gain is b/0.02 s, 6× the lag's T on the
+//! MX-64 bench, and at a light virtual inertia the model's velocity at rest is the hand's
+//! torque over a small inertia (0.07–0.14 rad/s RMS in the gripped sessions): the goal then
+//! flips by ±b with it. The fade widens by the same share, 0.02/share rad/s, up to b/T, where
+//! the gain at rest equals the lag term's T (`friction_fade`); a reference slower than that
+//! keeps at most one deadband of error. At a share of 1 it is the plain 0.02.
+//!
 //! **Gear play.** A model with `backlash` adds the play's inverse (`plant::servo::PlaySide`):
 //! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
 //! the hand leans on it, ahead of it while it drives a free horn), decided ahead on two horizons
@@ -56,7 +64,7 @@
 //! daemon's line. It stays off for that model and weight; a parameter set with another model or
 //! weight tries again.
 use crate::joint::bound;
-use plant::servo::{lead, PlaySide, ServoModel};
+use plant::servo::{lead_fading, PlaySide, ServoModel, FRICTION_FADE_VELOCITY};
 
 /// The shortest blend of the weight, s.
 pub const MIN_BLEND_S: f64 = 0.2;
@@ -77,6 +85,14 @@ struct Watch {
     lead: f64,
     /// s the weight has been at its (non-zero) target.
     settled: f64,
+}
+
+/// rad/s: the speed over which the lead's friction term b·sgn ω fades in, for a virtual joint
+/// leading with `share` of its acceleration (`inertia_share`): `FRICTION_FADE_VELOCITY` divided
+/// by the share, but never beyond b/T, the speed at which the servo's own lag error T·ω is one
+/// deadband (see the module doc). At a share of 1 it is the plain `lead`'s.
+fn friction_fade(model: &ServoModel, share: f64) -> f64 {
+    (FRICTION_FADE_VELOCITY / share).min(model.deadband / model.time_constant).max(FRICTION_FADE_VELOCITY)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -226,7 +242,8 @@ impl Compensation {
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
             let play = self.play.update(&model, omega, self.alpha, tau, h);
-            let led = lead(&model, omega, self.alpha * self.inertia_share(&model), tau) + play;
+            let share = self.inertia_share(&model);
+            let led = lead_fading(&model, omega, self.alpha * share, tau, friction_fade(&model, share)) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
             let led = if led.is_finite() { bound(led, MAX_LEAD) } else { self.lead };
@@ -428,18 +445,26 @@ mod tests {
     }
 
     #[test]
-    fn near_rest_the_friction_term_gains_no_more_than_the_lag_term() {
-        // At a light virtual inertia the model's velocity at rest is the force's noise and the hand's
-        // reaction: the friction term b·sgn ω must not turn it into a goal buzzing by ±b.
-        let mut c = Compensation::new(Some(MX), 1.0);
+    fn at_a_light_virtual_inertia_the_friction_term_gains_no_more_near_rest_than_the_lag_term() {
+        // There the model's velocity at rest is the hand's torque over a small inertia: the
+        // friction term b·sgn ω must not turn it into a goal flipping by ±b.
+        let own = MX.time_constant * MX.inertial_time / MX.compliance;
         let h = 1e-3;
         let at = |c: &mut Compensation, omega: f64| c.goal(0.0, omega, 0.0, 0.0, false, h);
+        let slope = |c: &mut Compensation, omega: f64| (at(c, omega) - at(c, -omega)) / (2.0 * omega);
+        let mut c = Compensation::new(Some(MX), 1.0);
+        c.set_virtual_inertia(own / 64.0);
         for omega in [1e-4, 0.01, 0.05] {
-            let slope = (at(&mut c, omega) - at(&mut c, -omega)) / (2.0 * omega);
-            assert!(slope <= 2.0 * MX.time_constant + 1e-12, "ω = {omega}: a gain of {slope} s");
+            let gain = slope(&mut c, omega);
+            assert!(gain <= 2.0 * MX.time_constant + 1e-12, "ω = {omega}: a gain of {gain} s");
         }
         // Well beyond b/T the whole deadband is compensated.
         let fast = at(&mut c, 2.0);
         assert!((fast - (MX.time_constant * 2.0 + MX.deadband)).abs() < 0.01 * MX.deadband, "{fast}");
+        // At I_v ≥ J, the plain lead's fade (0.02 rad/s): b/0.02 + T near rest.
+        c.set_virtual_inertia(own);
+        let gain = slope(&mut c, 1e-4);
+        let plain = MX.deadband / FRICTION_FADE_VELOCITY + MX.time_constant;
+        assert!((gain - plain).abs() < 1e-3 * plain, "{gain} against {plain}");
     }
 }
