@@ -20,11 +20,12 @@
 //! for a position loop J·θ'' + K_d·θ' + K_p·(θ − u) = τ, T·m = J/K_p and s = 1/K_p, so
 //! J = T·m/s (0.0146 kg·m² on the MX-64 bench, whose motor inertia is 0.01467). The inertial
 //! term is then s·τ·J/I_v: it answers the hand's torque J/I_v times as hard as the servo's own
-//! give, and a gripping hand's inertial torque closes that loop. Below I_v = J the lead takes
-//! only the share I_v/J of the acceleration (`inertia_share`), so that the term never answers
-//! the torque harder than it would at I_v = J: a light joint's horn no longer follows the
+//! give, and a gripping hand's inertial torque closes that loop. Below I_v = J/2 the lead takes
+//! only the share 2·I_v/J of the acceleration (`inertia_share`; the half is `LIGHT_BELOW`, a
+//! margin for J's estimate), so that the term never answers the torque harder than it would at
+//! I_v = J/2: a light joint's horn no longer follows the
 //! model's acceleration in full, and a gripped one does not wobble with the loop's stalls
-//! (measured: docs/fidelity.md, "The compensation's lead at light inertias"). At I_v ≥ J, and
+//! (measured: docs/fidelity.md, "The compensation's lead at light inertias"). At I_v ≥ J/2, and
 //! for a model without a give or an inertial term, nothing changes.
 //!
 //! The friction term b·sgn ω is a relay on the model's velocity, smoothed over
@@ -75,6 +76,10 @@ pub const MAX_LEAD: f64 = 0.3;
 pub const RELEASE_S: f64 = 0.05;
 /// s: the window of the watch's mean squares (several periods of a hand's slowest motion).
 pub const WATCH_S: f64 = 1.0;
+/// The lead's acceleration share falls below 1 only for a virtual inertia under this fraction of
+/// J = T·m/s (`inertia_share`): J is the fit's estimate (0.01499 kg·m² on the MX-64 bench against
+/// its 0.01467), and a joint rendering about the servo's own inertia keeps its whole lead.
+pub const LIGHT_BELOW: f64 = 0.5;
 
 /// The running mean squares the watch compares (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -221,11 +226,11 @@ impl Compensation {
         self.inertia = inertia;
     }
 
-    /// The share of the model's acceleration the lead uses: min(1, I_v / J), J = T·m/s the
-    /// servo's own inertia as its model implies it (see the module doc). 1 when the model implies
-    /// none (no compliance or no inertial term) or the inertia is not a positive number.
+    /// The share of the model's acceleration the lead uses: min(1, I_v / (LIGHT_BELOW·J)), J = T·m/s
+    /// the servo's own inertia as its model implies it (see the module doc). 1 when the model
+    /// implies none (no compliance or no inertial term) or the inertia is not a positive number.
     fn inertia_share(&self, model: &ServoModel) -> f64 {
-        let own = model.time_constant * model.inertial_time / model.compliance;
+        let own = LIGHT_BELOW * model.time_constant * model.inertial_time / model.compliance;
         let share = self.inertia / own;
         if own.is_finite() && own > 0.0 && share.is_finite() && share > 0.0 { share.min(1.0) } else { 1.0 }
     }
@@ -427,7 +432,7 @@ mod tests {
         let full = MX.time_constant * MX.inertial_time * 10.0;
         let mut c = Compensation::new(Some(MX), 1.0);
         assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9, "not set: the whole acceleration");
-        for (inertia, share) in [(own, 1.0), (4.0 * own, 1.0), (own / 4.0, 0.25), (own / 64.0, 1.0 / 64.0)] {
+        for (inertia, share) in [(own, 1.0), (own / 2.0, 1.0), (4.0 * own, 1.0), (own / 4.0, 0.5), (own / 64.0, 1.0 / 32.0)] {
             c.set_virtual_inertia(inertia);
             let led = inertial_lead(&mut c, 10.0);
             assert!((led - share * full).abs() < 1e-9 * full, "I = {inertia}: {led} against {}", share * full);

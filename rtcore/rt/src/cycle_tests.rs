@@ -781,7 +781,7 @@ fn a_joint_lighter_than_the_servo_leads_with_its_share_of_the_acceleration() {
     // The MX-64 bench's servo model (J = T·m/s = 0.0146 kg·m²) on a joint at the daemon's floor
     // of 1e-4 kg·m², pushed from rest: α = τ/I reaches 10³ rad/s², whose whole inertial lead
     // (T·m·α) would be clipped at MAX_LEAD; the loop hands the compensation the joint's inertia, so
-    // it leads with the share I/J of it, T·m·τ/J at most (docs/fidelity.md, "The compensation's
+    // it leads with the share 2·I/J of it, 2·T·m·τ/J at most (docs/fidelity.md, "The compensation's
     // lead at light inertias").
     let model = plant::servo::ServoModel {
         inertial_time: 0.0213,
@@ -804,7 +804,7 @@ fn a_joint_lighter_than_the_servo_leads_with_its_share_of_the_acceleration() {
         let fade = plant::servo::FRICTION_FADE_VELOCITY.max(model.deadband / model.time_constant);
         let rest = plant::servo::lead_fading(&model, rec.omega, 0.0, rec.torque, fade);
         let inertial = (rec.goal_tick - 2048) as f64 / tick - rec.theta - rest;
-        let bound = model.time_constant * model.inertial_time * rec.torque.abs() / own + 0.5 / tick;
+        let bound = model.time_constant * model.inertial_time * rec.torque.abs() / (crate::compensation::LIGHT_BELOW * own) + 0.5 / tick;
         assert!(inertial.abs() <= bound + 1e-12, "an inertial lead of {inertial} rad (at most {bound})");
         fastest = fastest.max(rec.omega);
     }
