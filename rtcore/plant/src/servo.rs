@@ -189,11 +189,18 @@ pub fn step(state: &mut State, model: &ServoModel, goal: f64, tau: f64, h: f64) 
 /// held, so everything needed is the reference's own state: no numerical differentiation.
 #[inline]
 pub fn lead(model: &ServoModel, omega: f64, alpha: f64, tau: f64) -> f64 {
+    lead_fading(model, omega, alpha, tau, FRICTION_FADE_VELOCITY)
+}
+
+/// `lead` with its friction term fading in over `fade_velocity` rad/s instead of
+/// `FRICTION_FADE_VELOCITY` (the RT loop's compensation widens it at light virtual inertias).
+#[inline]
+pub fn lead_fading(model: &ServoModel, omega: f64, alpha: f64, tau: f64, fade_velocity: f64) -> f64 {
     let d = model.dead_time;
     let omega_ahead = omega + alpha * d;
     let travel = omega * d + 0.5 * alpha * d * d;
     let lag = model.time_constant * (model.inertial_time * alpha + omega_ahead);
-    let fade = omega_ahead / (omega_ahead * omega_ahead + FRICTION_FADE_VELOCITY * FRICTION_FADE_VELOCITY).sqrt();
+    let fade = omega_ahead / (omega_ahead * omega_ahead + fade_velocity * fade_velocity).sqrt();
     travel + lag + model.deadband * fade - model.compliance * tau
 }
 

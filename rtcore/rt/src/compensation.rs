@@ -16,6 +16,26 @@
 //! (docs/fidelity.md, "smallest stable inertia"). So the acceleration is low-passed at twice the
 //! servo's natural frequency 1/√(m·T), where the servo stops following anyway.
 //!
+//! **A virtual joint lighter than the servo.** The model's own terms give the servo's inertia:
+//! for a position loop J·θ'' + K_d·θ' + K_p·(θ − u) = τ, T·m = J/K_p and s = 1/K_p, so
+//! J = T·m/s (0.0146 kg·m² on the MX-64 bench, whose motor inertia is 0.01467). The inertial
+//! term is then s·τ·J/I_v: it answers the hand's torque J/I_v times as hard as the servo's own
+//! give, and a gripping hand's inertial torque closes that loop. Below I_v = J/2 the lead takes
+//! only the share 2·I_v/J of the acceleration (`inertia_share`; the half is `LIGHT_BELOW`, a
+//! margin for J's estimate), so that the term never answers the torque harder than it would at
+//! I_v = J/2: a light joint's horn no longer follows the
+//! model's acceleration in full, and a gripped one does not wobble with the loop's stalls
+//! (measured: docs/fidelity.md, "The compensation's lead at light inertias"). At I_v ≥ J/2, and
+//! for a model without a give or an inertial term, nothing changes.
+//!
+//! The friction term b·sgn ω is a relay on the model's velocity, smoothed over
+//! `FRICTION_FADE_VELOCITY` (0.02 rad/s): near rest its gain is b/0.02 s, 6× the lag's T on the
+//! MX-64 bench, and at a light virtual inertia the model's velocity at rest is the hand's
+//! torque over a small inertia (0.07–0.14 rad/s RMS in the gripped sessions): the goal then
+//! flips by ±b with it. The fade widens by the same share, 0.02/share rad/s, up to b/T, where
+//! the gain at rest equals the lag term's T (`friction_fade`); a reference slower than that
+//! keeps at most one deadband of error. At a share of 1 it is the plain 0.02.
+//!
 //! **Gear play.** A model with `backlash` adds the play's inverse (`plant::servo::PlaySide`):
 //! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
 //! the hand leans on it, ahead of it while it drives a free horn), decided ahead on two horizons
@@ -45,7 +65,7 @@
 //! daemon's line. It stays off for that model and weight; a parameter set with another model or
 //! weight tries again.
 use crate::joint::bound;
-use plant::servo::{lead, PlaySide, ServoModel};
+use plant::servo::{lead_fading, PlaySide, ServoModel, FRICTION_FADE_VELOCITY};
 
 /// The shortest blend of the weight, s.
 pub const MIN_BLEND_S: f64 = 0.2;
@@ -56,6 +76,10 @@ pub const MAX_LEAD: f64 = 0.3;
 pub const RELEASE_S: f64 = 0.05;
 /// s: the window of the watch's mean squares (several periods of a hand's slowest motion).
 pub const WATCH_S: f64 = 1.0;
+/// The lead's acceleration share falls below 1 only for a virtual inertia under this fraction of
+/// J = T·m/s (`inertia_share`): J is the fit's estimate (0.01499 kg·m² on the MX-64 bench against
+/// its 0.01467), and a joint rendering about the servo's own inertia keeps its whole lead.
+pub const LIGHT_BELOW: f64 = 0.5;
 
 /// The running mean squares the watch compares (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -66,6 +90,14 @@ struct Watch {
     lead: f64,
     /// s the weight has been at its (non-zero) target.
     settled: f64,
+}
+
+/// rad/s: the speed over which the lead's friction term b·sgn ω fades in, for a virtual joint
+/// leading with `share` of its acceleration (`inertia_share`): `FRICTION_FADE_VELOCITY` divided
+/// by the share, but never beyond b/T, the speed at which the servo's own lag error T·ω is one
+/// deadband (see the module doc). At a share of 1 it is the plain `lead`'s.
+fn friction_fade(model: &ServoModel, share: f64) -> f64 {
+    (FRICTION_FADE_VELOCITY / share).min(model.deadband / model.time_constant).max(FRICTION_FADE_VELOCITY)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,6 +119,9 @@ pub struct Compensation {
     watch: Watch,
     /// The (model, weight) the watch turned off: kept off until a set brings another.
     refused: Option<(Option<ServoModel>, f64)>,
+    /// The virtual inertia rendered, kg·m² (`set_virtual_inertia`; infinite until set: the whole
+    /// acceleration).
+    inertia: f64,
 }
 
 impl Compensation {
@@ -105,6 +140,7 @@ impl Compensation {
             carry: 0.0,
             watch: Watch::default(),
             refused: None,
+            inertia: f64::INFINITY,
         }
     }
 
@@ -185,6 +221,20 @@ impl Compensation {
         self.held = true;
     }
 
+    /// The virtual inertia the model renders now (kg·m²), for the lead's acceleration share.
+    pub fn set_virtual_inertia(&mut self, inertia: f64) {
+        self.inertia = inertia;
+    }
+
+    /// The share of the model's acceleration the lead uses: min(1, I_v / (LIGHT_BELOW·J)), J = T·m/s
+    /// the servo's own inertia as its model implies it (see the module doc). 1 when the model
+    /// implies none (no compliance or no inertial term) or the inertia is not a positive number.
+    fn inertia_share(&self, model: &ServoModel) -> f64 {
+        let own = LIGHT_BELOW * model.time_constant * model.inertial_time / model.compliance;
+        let share = self.inertia / own;
+        if own.is_finite() && own > 0.0 && share.is_finite() && share > 0.0 { share.min(1.0) } else { 1.0 }
+    }
+
     /// The angle to send as the goal for a model at `theta` moving at `omega` with
     /// acceleration `alpha` under the hand torque `tau`. With `hold` (stale force) the lead of
     /// the last cycle is kept, so holding never moves the goal.
@@ -197,7 +247,8 @@ impl Compensation {
             let share = if corner.is_finite() { h * corner / (1.0 + h * corner) } else { 1.0 }; // m = 0: no filter
             self.alpha += (alpha - self.alpha) * share;
             let play = self.play.update(&model, omega, self.alpha, tau, h);
-            let led = lead(&model, omega, self.alpha, tau) + play;
+            let share = self.inertia_share(&model);
+            let led = lead_fading(&model, omega, self.alpha * share, tau, friction_fade(&model, share)) + play;
             // Finite inputs and a validated model give a finite lead; a NaN would still reach the
             // goal tick as tick 0 (a jump across the range), so it is refused here too.
             let led = if led.is_finite() { bound(led, MAX_LEAD) } else { self.lead };
@@ -347,5 +398,78 @@ mod tests {
         let mut c = Compensation::new(Some(LAG), 1.0);
         let moving = c.goal(0.2, 1.0, 0.0, 0.3, false, 1e-3);
         assert_eq!(c.goal(0.2, 0.0, 0.0, 0.0, true, 1e-3), moving);
+    }
+
+    /// The MX-64 bench's servo model as `fidelity` identifies it under a gripping hand.
+    const MX: ServoModel = ServoModel {
+        time_constant: 0.017,
+        inertial_time: 0.0213,
+        dead_time: 0.0,
+        compliance: 0.0248,
+        deadband: 0.00206,
+        backlash: 0.0,
+        backlash_torque: 0.0,
+    };
+
+    /// The lead's acceleration part: the goal for `alpha` less the goal for none, settled
+    /// through the acceleration's filter (the model moving at 1 rad/s, no torque).
+    fn inertial_lead(c: &mut Compensation, alpha: f64) -> f64 {
+        let h = 1e-3;
+        for _ in 0..2000 {
+            c.goal(0.0, 1.0, alpha, 0.0, false, h);
+        }
+        let with = c.goal(0.0, 1.0, alpha, 0.0, false, h);
+        for _ in 0..2000 {
+            c.goal(0.0, 1.0, 0.0, 0.0, false, h);
+        }
+        with - c.goal(0.0, 1.0, 0.0, 0.0, false, h)
+    }
+
+    #[test]
+    fn a_virtual_joint_lighter_than_the_servo_leads_with_its_share_of_the_acceleration() {
+        // J = T·m/s = 0.0146 kg·m², the servo's own inertia as its model implies it.
+        let own = MX.time_constant * MX.inertial_time / MX.compliance;
+        let full = MX.time_constant * MX.inertial_time * 10.0;
+        let mut c = Compensation::new(Some(MX), 1.0);
+        assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9, "not set: the whole acceleration");
+        for (inertia, share) in [(own, 1.0), (own / 2.0, 1.0), (4.0 * own, 1.0), (own / 4.0, 0.5), (own / 64.0, 1.0 / 32.0)] {
+            c.set_virtual_inertia(inertia);
+            let led = inertial_lead(&mut c, 10.0);
+            assert!((led - share * full).abs() < 1e-9 * full, "I = {inertia}: {led} against {}", share * full);
+        }
+        // Nothing the loop could hand it makes the goal non-finite or drops the lead.
+        for inertia in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            c.set_virtual_inertia(inertia);
+            assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9, "I = {inertia}: the whole acceleration");
+        }
+        // A model that implies no inertia of its own (no give to the hand) keeps the whole term.
+        let stiff = ServoModel { compliance: 0.0, ..MX };
+        let mut c = Compensation::new(Some(stiff), 1.0);
+        c.set_virtual_inertia(own / 16.0);
+        assert!((inertial_lead(&mut c, 10.0) - full).abs() < 1e-9);
+    }
+
+    #[test]
+    fn at_a_light_virtual_inertia_the_friction_term_gains_no_more_near_rest_than_the_lag_term() {
+        // There the model's velocity at rest is the hand's torque over a small inertia: the
+        // friction term b·sgn ω must not turn it into a goal flipping by ±b.
+        let own = MX.time_constant * MX.inertial_time / MX.compliance;
+        let h = 1e-3;
+        let at = |c: &mut Compensation, omega: f64| c.goal(0.0, omega, 0.0, 0.0, false, h);
+        let slope = |c: &mut Compensation, omega: f64| (at(c, omega) - at(c, -omega)) / (2.0 * omega);
+        let mut c = Compensation::new(Some(MX), 1.0);
+        c.set_virtual_inertia(own / 64.0);
+        for omega in [1e-4, 0.01, 0.05] {
+            let gain = slope(&mut c, omega);
+            assert!(gain <= 2.0 * MX.time_constant + 1e-12, "ω = {omega}: a gain of {gain} s");
+        }
+        // Well beyond b/T the whole deadband is compensated.
+        let fast = at(&mut c, 2.0);
+        assert!((fast - (MX.time_constant * 2.0 + MX.deadband)).abs() < 0.01 * MX.deadband, "{fast}");
+        // At I_v ≥ J, the plain lead's fade (0.02 rad/s): b/0.02 + T near rest.
+        c.set_virtual_inertia(own);
+        let gain = slope(&mut c, 1e-4);
+        let plain = MX.deadband / FRICTION_FADE_VELOCITY + MX.time_constant;
+        assert!((gain - plain).abs() < 1e-3 * plain, "{gain} against {plain}");
     }
 }

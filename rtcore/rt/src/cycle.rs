@@ -700,6 +700,7 @@ fn compensated_goal(slot: &mut JointSlot, alpha: f64, hold: bool, h: f64) -> Opt
     // A model brought to rest within one step (a stick, a position limit) decelerated by ω/h:
     // the reference stops, and the servo is to hold, not to brake that hard.
     let alpha = if omega == 0.0 { 0.0 } else { alpha };
+    slot.compensation.set_virtual_inertia(slot.gains.inertia);
     let led = slot.compensation.goal(theta, omega, alpha, slot.torque, hold, h);
     if !led.is_finite() {
         return None; // checked before the limits: max/min would turn a NaN into a bound

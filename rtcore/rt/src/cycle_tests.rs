@@ -775,3 +775,39 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn a_joint_lighter_than_the_servo_leads_with_its_share_of_the_acceleration() {
+    // The MX-64 bench's servo model (J = T·m/s = 0.0146 kg·m²) on a joint at the daemon's floor
+    // of 1e-4 kg·m², pushed from rest: α = τ/I reaches 10³ rad/s², whose whole inertial lead
+    // (T·m·α) would be clipped at MAX_LEAD; the loop hands the compensation the joint's inertia, so
+    // it leads with the share 2·I/J of it, 2·T·m·τ/J at most (docs/fidelity.md, "The compensation's
+    // lead at light inertias").
+    let model = plant::servo::ServoModel {
+        inertial_time: 0.0213,
+        compliance: 0.0248,
+        deadband: 0.00206,
+        ..plant::servo::ServoModel::first_order_lag(0.017)
+    };
+    let mut p = free_joint();
+    p.joints[0].gains.inertia = 1e-4;
+    p.joints[0].gains.damping = 0.0347;
+    p.joints[0].servo = Some(model);
+    p.joints[0].compensation = 1.0;
+    let mut r = started(p, &[(1, 2048)]);
+    let tick = 4096.0 / std::f64::consts::TAU;
+    let own = model.time_constant * model.inertial_time / model.compliance;
+    let mut fastest: f64 = 0.0;
+    for _ in 0..40 {
+        let rec = r.cycle_with(Some(4.0));
+        // The goal less the model's angle and the lead's terms without the acceleration.
+        let fade = plant::servo::FRICTION_FADE_VELOCITY.max(model.deadband / model.time_constant);
+        let rest = plant::servo::lead_fading(&model, rec.omega, 0.0, rec.torque, fade);
+        let inertial = (rec.goal_tick - 2048) as f64 / tick - rec.theta - rest;
+        let bound = model.time_constant * model.inertial_time * rec.torque.abs() / (crate::compensation::LIGHT_BELOW * own) + 0.5 / tick;
+        assert!(inertial.abs() <= bound + 1e-12, "an inertial lead of {inertial} rad (at most {bound})");
+        fastest = fastest.max(rec.omega);
+    }
+    // 0.4 N·m over 0.0347 N·m·s/rad: 11.5 rad/s within 40 ms, an acceleration of 10³ rad/s².
+    assert!(fastest > 5.0, "the push accelerated the joint: {fastest} rad/s");
+}
