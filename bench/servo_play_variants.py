@@ -9,15 +9,15 @@ rebuilding the extension:
 
 - ``now``: this tree's ``PlaySide`` (the oracle is checked against ``_rtcore.servo_lead`` on every
   session, to 1e-9 rad, so its figures are the Rust's);
-- ``before``: the ``PlaySide`` of commit 7887d4f (one horizon, dead time⁺ + half a crossing, for
-  both ways the horn changes sides; the torque extrapolated as τ + (τ − τ̄) beyond 0.01 N·m);
+- ``before``: the ``PlaySide`` of commit e15122c (h21g's two horizons: the held one dead time⁺ +
+  (2 − x)·crossing/2, at most a whole crossing; the present torque extrapolated to both; the
+  travel rule at the edge of the horn's friction);
+- ``now, held horizon of before`` and ``now, no noise margin``: ``now`` with one of its changes
+  undone (the held horizon of ``before``; the travel rule at the friction's edge): what each adds;
 - ``now, forecast``: ``now`` with the hand's *true* torque at each horizon (the bench's hand is a
   known function): what a perfect torque forecast would add;
 - ``now, true servo``: ``now`` with the oracle servo's own T, m, s, b, play and horn friction
-  instead of the fitted ones: what a perfect fit would add;
-- ``before, crossing ×0.5``: ``before`` with a crossing twice as fast (goal excursions four times
-  larger): what the crossing's speed would add, and where the servo's torque limit (the oracle's
-  duty cap, which the servo form does not have) takes it back.
+  instead of the fitted ones: what a perfect fit would add.
 
 ``--torque-noise SIGMA`` adds white noise (N·m, seeded) to the torque the compensation sees (the
 recording and the fit are unchanged): a force sensor's noise. ``--rest-noise SIGMA`` instead counts
@@ -49,6 +49,7 @@ from servo_forms import play_phases, table  # noqa: E402
 H = 1.0 / RATE
 NAMES = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque")
 TORQUE_MIN, VELOCITY_MIN = 0.01, 0.02  # plant::servo::PLAY_TORQUE_MIN, PLAY_VELOCITY_MIN
+NOISE_WINDOW = 1.0  # plant::servo::PLAY_NOISE_WINDOW
 
 
 def lead_oracle(p, w, a, q):
@@ -81,29 +82,10 @@ class PlayOracle:
         return c + T * (m * (a - 2 * b + c) / stage ** 2 + (b - c) / stage)
 
 
-class Before(PlayOracle):
-    """Commit 7887d4f: one horizon, dead time⁺ + half a crossing, for every change of side."""
-
-    def __init__(self, p, speed=1.0, forecast=None):
-        super().__init__(p, speed)
-        self.torque, self.forecast = 0.0, forecast
-        self.ahead = max(p[2], 0.0) + 0.5 * self.crossing
-
-    def decide(self, t, w, a, q):
-        qb = self.p[6]
-        self.torque += (q - self.torque) * H / (self.ahead + H)
-        tau = 2 * q - self.torque if abs(q) > TORQUE_MIN else q
-        omega = w + a * self.ahead
-        if abs(tau) > max(qb, TORQUE_MIN):
-            self.side = math.copysign(1.0, tau)
-        elif abs(tau) <= qb and abs(omega) > VELOCITY_MIN:
-            self.side = -math.copysign(1.0, omega)
-
-
-class Now(PlayOracle):
-    """This tree's PlaySide: a free and a held horizon (plant::servo::play_horizons), the torque's
-    rate from two low-passes in cascade; ``forecast`` (the hand's true torque) replaces the
-    extrapolation."""
+class TwoHorizons(PlayOracle):
+    """Commit e15122c's PlaySide (h21g): a free and a held horizon, the held one dead time⁺ +
+    (2 − x)·crossing/2, the torque's rate from two low-passes in cascade, the present torque
+    extrapolated to both; ``forecast`` (the hand's true torque) replaces the extrapolation."""
 
     def __init__(self, p, speed=1.0, forecast=None):
         super().__init__(p, speed)
@@ -115,25 +97,87 @@ class Now(PlayOracle):
         dead = max(self.p[2], 0.0)
         return dead + 0.5 * self.crossing * share, dead + 0.5 * self.crossing * (2 - share)
 
-    def decide(self, t, w, a, q):
-        qb, share = self.p[6], H / (self.smoothing + H)
+    def rate(self, q):
+        share = H / (self.smoothing + H)
         self.filters[0] += (q - self.filters[0]) * share
         self.filters[1] += (self.filters[0] - self.filters[1]) * share
-        rate = (self.filters[0] - self.filters[1]) / self.smoothing
-        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        return (self.filters[0] - self.filters[1]) / self.smoothing
+
+    def predict(self, t, q, rate, free, held):
         if self.forecast is not None:
-            tau_free, tau_held = self.forecast(t + free), self.forecast(t + held)
-        elif abs(q) > TORQUE_MIN or abs(rate * held) > TORQUE_MIN:
-            tau_free, tau_held = q + rate * free, q + rate * held
-        else:
-            tau_free = tau_held = q
-        push, omega = max(qb, TORQUE_MIN), w + a * free
+            return self.forecast(t + free), self.forecast(t + held)
+        if abs(q) > TORQUE_MIN or abs(rate * held) > TORQUE_MIN:
+            return q + rate * free, q + rate * held
+        return q, q
+
+    def choose(self, tau_free, tau_held, omega, free_below):
+        push = max(self.p[6], TORQUE_MIN)
         if abs(tau_held) > push:
             self.side = math.copysign(1.0, tau_held)
         elif abs(tau_free) > push:
             self.side = math.copysign(1.0, tau_free)
-        elif abs(tau_free) <= qb and abs(omega) > VELOCITY_MIN:
+        elif abs(tau_free) <= free_below and abs(omega) > VELOCITY_MIN:
             self.side = -math.copysign(1.0, omega)
+
+    def decide(self, t, w, a, q):
+        rate = self.rate(q)
+        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        tau_free, tau_held = self.predict(t, q, rate, free, held)
+        self.choose(tau_free, tau_held, w + a * free, self.p[6])
+
+
+def crossing_left(u):
+    """plant::servo::crossing_left: the three stages' Erlang survival."""
+    return math.exp(-u) * (1 + u + 0.5 * u * u)
+
+
+def held_lead(r):
+    """plant::servo::held_lead: the root of crossing_left(u) = r·u, by the same bisection."""
+    low, high = 0.0, 40.0
+    for _ in range(48):
+        mid = 0.5 * (low + high)
+        if crossing_left(mid) > r * mid or not r > 0:
+            low = mid
+        else:
+            high = mid
+    return 0.5 * (low + high)
+
+
+class Now(TwoHorizons):
+    """This tree's PlaySide: the held horizon where the error before and after the hand takes hold
+    is least (``held_lead``), the held torque from the first low-pass, the rest gate over a
+    crossing, and the travel rule only one measured noise σ within q_b. ``held_of_before`` and
+    ``margin`` switch the first and the last off (ablations)."""
+
+    def __init__(self, p, speed=1.0, forecast=None, held_of_before=False, margin=True):
+        super().__init__(p, speed, forecast)
+        self.held_of_before, self.margin = held_of_before, margin
+        self.last, self.noise = None, 0.0
+
+    def horizons(self, omega):
+        free, held = super().horizons(omega)
+        if self.held_of_before:
+            return free, held
+        stage = self.crossing / 3
+        runaway = max(abs(omega), VELOCITY_MIN) * stage / self.p[5]
+        return free, max(self.p[2], 0.0) + stage * held_lead(runaway)
+
+    def predict(self, t, q, rate, free, held):
+        if self.forecast is not None:
+            return self.forecast(t + free), self.forecast(t + held)
+        if abs(q) > TORQUE_MIN or abs(rate * (max(self.p[2], 0.0) + self.crossing)) > TORQUE_MIN:
+            return q + rate * free, self.filters[0] + rate * (held + self.smoothing)
+        return q, q
+
+    def decide(self, t, w, a, q):
+        one, two = self.last if self.last is not None else (q, q)
+        self.noise += ((q - 2 * one + two) ** 2 / 6 - self.noise) * H / (NOISE_WINDOW + H)
+        self.last = (q, one)
+        rate = self.rate(q)
+        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        tau_free, tau_held = self.predict(t, q, rate, free, held)
+        below = self.p[6] - (math.sqrt(self.noise) if self.margin else 0.0)
+        self.choose(tau_free, tau_held, w + a * free, below)
 
 
 def offsets(play: PlayOracle, w, a, q):
@@ -153,8 +197,9 @@ def true_params(truth: GearedOracle) -> list[float]:
 
 
 def variants(hand):
-    return {"now": (Now, {}), "before": (Before, {}), "now, forecast": (Now, {"forecast": hand}),
-            "now, true servo": (Now, {"true": True}), "before, crossing ×0.5": (Before, {"speed": 0.5})}
+    return {"now": (Now, {}), "before": (TwoHorizons, {}), "now, held horizon of before": (Now, {"held_of_before": True}),
+            "now, no noise margin": (Now, {"margin": False}), "now, forecast": (Now, {"forecast": hand}),
+            "now, true servo": (Now, {"true": True})}
 
 
 def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
@@ -194,7 +239,7 @@ def rest_flips(row: dict, sigma: float, seconds: float = 60.0, seed: int = 3) ->
     q, w = rng.normal(0.0, sigma, n), rng.normal(0.0, 0.005, n)
     p = [row["servo"][k] for k in NAMES]
     out = {}
-    for name, kind in (("before", Before), ("now", Now)):
+    for name, kind in (("before", TwoHorizons), ("now", Now)):
         play, flips, side = kind(p), 0, 0.0
         for i in range(n):
             play.decide(i * H, w[i], 0.0, q[i])
