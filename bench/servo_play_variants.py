@@ -110,9 +110,9 @@ class TwoHorizons(PlayOracle):
             return q + rate * free, q + rate * held
         return q, q
 
-    def choose(self, tau_free, tau_held, omega, free_below):
+    def choose(self, tau_free, tau_held, omega, free_below, held_margin=0.0):
         push = max(self.p[6], TORQUE_MIN)
-        if abs(tau_held) > push:
+        if abs(tau_held) > push + held_margin:
             self.side = math.copysign(1.0, tau_held)
         elif abs(tau_free) > push:
             self.side = math.copysign(1.0, tau_free)
@@ -143,11 +143,19 @@ def held_lead(r):
     return 0.5 * (low + high)
 
 
+def held_torque_noise(share, c):
+    """plant::servo::held_torque_noise: the held torque's variance per unit of white noise's."""
+    x = (1 - share) ** 2
+    return ((1 + c) ** 2 * share ** 2 / (1 - x) - 2 * c * (1 + c) * share ** 3 / (1 - x) ** 2
+            + c * c * share ** 4 * (1 + x) / (1 - x) ** 3)
+
+
 class Now(TwoHorizons):
     """This tree's PlaySide: the held horizon where the error before and after the hand takes hold
     is least (``held_lead``), the held torque from the first low-pass, the rest gate over a
-    crossing, and the travel rule only one measured noise σ within q_b. ``held_of_before`` and
-    ``margin`` switch the first and the last off (ablations)."""
+    crossing, the travel rule only one measured noise σ within q_b, and at rest the held torque
+    beyond the push by twice its own noise. ``held_of_before`` and ``margin`` switch the first
+    and the travel rule's margin off (ablations)."""
 
     def __init__(self, p, speed=1.0, forecast=None, held_of_before=False, margin=True):
         super().__init__(p, speed, forecast)
@@ -174,10 +182,15 @@ class Now(TwoHorizons):
         self.noise += ((q - 2 * one + two) ** 2 / 6 - self.noise) * H / (NOISE_WINDOW + H)
         self.last = (q, one)
         rate = self.rate(q)
-        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        ahead = w + a * max(self.p[2], 0.0)
+        free, held = self.horizons(ahead)
         tau_free, tau_held = self.predict(t, q, rate, free, held)
         below = self.p[6] - (math.sqrt(self.noise) if self.margin else 0.0)
-        self.choose(tau_free, tau_held, w + a * free, below)
+        beyond = 0.0
+        if abs(ahead) <= VELOCITY_MIN and self.noise > 0:  # at rest: beyond twice the held torque's noise
+            share = H / (self.smoothing + H)
+            beyond = 2 * math.sqrt(self.noise * held_torque_noise(share, (held + self.smoothing) / self.smoothing))
+        self.choose(tau_free, tau_held, w + a * free, below, beyond)
 
 
 def offsets(play: PlayOracle, w, a, q):
