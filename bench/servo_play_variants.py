@@ -168,7 +168,7 @@ class Now(TwoHorizons):
             return free, held
         stage = self.crossing / 3
         runaway = max(abs(omega), VELOCITY_MIN) * stage / self.p[5]
-        return free, max(self.p[2], 0.0) + stage * held_lead(runaway)
+        return free, max(max(self.p[2], 0.0) + stage * held_lead(runaway), held)
 
     def predict(self, t, q, rate, free, held):
         if self.forecast is not None:

@@ -275,15 +275,20 @@ pub fn held_lead(r: f64) -> f64 {
 /// is least (`held_lead`): the free horn left early falls behind at the reference's speed, the
 /// share of the crossing not done when the hand takes hold shows whole; the reference's speed
 /// taken at least `PLAY_VELOCITY_MIN` (slower is the noise's: at rest the crossing is then about
-/// done, a few stage times early, instead of running on). Both add the dead time ahead (a
-/// positive one: the goal acts that late).
+/// done, a few stage times early, instead of running on). That balance takes the horn free
+/// before the hand takes hold; a hand that reverses through the friction's band in less than a
+/// crossing holds it the other way until then, and the horn follows the motor one to one: there
+/// the held horizon stays no shorter than before, (2 − x)·crossing/2 (the crossing centred on
+/// the switch, `play_ahead`, for a fast reference). Both add the dead time ahead (a positive one:
+/// the goal acts that late).
 pub fn play_horizons(model: &ServoModel, omega: f64) -> (f64, f64) {
     let crossing = play_crossing(model);
     let share = (2.0 * omega.abs() * crossing / model.backlash).min(1.0); // a NaN ω gives 1 (min)
     let dead = model.dead_time.max(0.0);
     let stage = crossing / 3.0;
     let runaway = omega.abs().max(PLAY_VELOCITY_MIN) * stage / model.backlash; // a NaN ω: the floor
-    (dead + 0.5 * crossing * share, dead + stage * held_lead(runaway))
+    let through = dead + 0.5 * crossing * (2.0 - share);
+    (dead + 0.5 * crossing * share, (dead + stage * held_lead(runaway)).max(through))
 }
 
 /// The held torque's noise (`PlaySide`), as a multiple of a white torque noise's variance: the
@@ -884,6 +889,9 @@ mod tests {
         let (free, fast_held) = play_horizons(&GEARED, fast);
         assert!((free - play_ahead(&GEARED)).abs() < 1e-12 && fast_held < held, "{free}, {fast_held} vs {held}");
         assert_eq!(play_horizons(&GEARED, 0.0).1, play_horizons(&GEARED, -PLAY_VELOCITY_MIN).1);
+        // Far faster, the balance would start after the switch's centre; a hand reversing through
+        // the band holds the horn the other way until then: no later than play_ahead.
+        assert!((play_horizons(&GEARED, 20.0 * fast).1 - play_ahead(&GEARED)).abs() < 1e-12);
     }
 
     #[test]
