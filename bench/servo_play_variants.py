@@ -19,6 +19,10 @@ rebuilding the extension:
 - ``now, true servo``: ``now`` with the oracle servo's own T, m, s, b, play and horn friction
   instead of the fitted ones: what a perfect fit would add.
 
+Each row also gives the horn error around the moments the hand's torque leaves the horn's
+friction band (it takes hold of the horn) and enters it (it lets go), in ms bins from that moment:
+where a crossing of the play costs.
+
 ``--torque-noise SIGMA`` adds white noise (N·m, seeded) to the torque the compensation sees (the
 recording and the fit are unchanged): a force sensor's noise. ``--rest-noise SIGMA`` instead counts
 how often ``before`` and ``now`` flip the side (the goal crossing the play) with the joint at rest
@@ -201,6 +205,27 @@ def offsets(play: PlayOracle, w, a, q):
     return out
 
 
+BINS = ((-30, 0), (0, 10), (10, 20), (20, 30), (30, 60))  # ms from the moment the torque crosses ±q_b
+
+
+def around_switches(cols: dict, free: float) -> dict:
+    """The horn error's RMS (mrad) in ``BINS`` around the moments the hand's torque leaves the
+    horn's friction band (it takes hold: "take-hold") and enters it (it lets go: "let-go"), over
+    all such moments of the session, and the take-hold's share of the session's mean square in
+    the 30 ms after."""
+    tau, error = cols["tau"], cols["theta_present"] - cols["theta_model"]
+    state = np.sign(np.where(np.abs(tau) > free, tau, 0.0))
+    switches = np.nonzero(np.r_[False, state[1:] != state[:-1]])[0]
+    switches = switches[(switches > 60) & (switches < len(tau) - 60)]
+    out = {}
+    for kind, mask in (("take-hold", state[switches] != 0), ("let-go", state[switches] == 0)):
+        window = np.array([error[k - 30:k + 60] for k in switches[mask]])
+        out[kind] = [float(1e3 * np.sqrt(np.nanmean(window[:, a + 30:b + 30] ** 2))) for a, b in BINS]
+        if kind == "take-hold":
+            out["take-hold share"] = float(np.nansum(window[:, 30:60] ** 2) / np.nansum(error ** 2))
+    return out
+
+
 def true_params(truth: GearedOracle) -> list[float]:
     """The oracle servo's own values in the servo form (docs/fidelity.md: T = D/K, m = I/D, s = 1/K,
     b = F/K); the horn is read 0.3 ms after the goal is written (a dead time of −0.3 ms)."""
@@ -237,9 +262,12 @@ def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
         with tempfile.TemporaryDirectory(prefix="servo-play-") as tmp:
             error = session(Path(tmp) / "on", GearedOracle(backlash=play), lead=lead, hand=HANDS[hand], trace=trace)
         phases = play_phases(trace, GearedOracle(backlash=play).free)
-        out[name] = {"error": error, "ratio": row["off"] / error, "phases": phases}
+        switches = around_switches(trace, GearedOracle(backlash=play).free)
+        out[name] = {"error": error, "ratio": row["off"] / error, "phases": phases, "switches": switches}
         print(f"| {row['form']} | {name} | {1e3 * error:.3f} | {row['off'] / error:.2f}× | "
-              + " / ".join(f"{100 * share:.0f} %" for _, share, _ in phases) + " |", flush=True)
+              + " / ".join(f"{100 * share:.0f} %" for _, share, _ in phases) + " | "
+              + "; ".join(f"{kind} " + " / ".join(f"{rms:.2f}" for rms in switches[kind]) for kind in ("take-hold", "let-go"))
+              + f" ({100 * switches['take-hold share']:.0f} % of the mean square 0–30 ms after a take-hold) |", flush=True)
     return out
 
 
@@ -283,7 +311,8 @@ def main() -> int:
         parser.error(f"no geared form with the {args.hand} hand in {args.fits}")
     header = ("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
               "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms "
-              "before it next does / elsewhere |")
+              "before it next does / elsewhere | horn error RMS (mrad) around the hand taking hold and letting go, "
+              "ms from the switch: −30–0 / 0–10 / 10–20 / 20–30 / 30–60 |")
     if args.rest_noise:
         return table("at rest", "| servo form | session | flips |",
                      lambda: [rest_flips(row, args.rest_noise) for row in rows], args.json)
