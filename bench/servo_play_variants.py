@@ -140,7 +140,7 @@ def held_lead(r):
     low, high = 0.0, 40.0
     for _ in range(48):
         mid = 0.5 * (low + high)
-        if crossing_left(mid) > r * mid or not r > 0:
+        if crossing_left(mid) > r * mid:
             low = mid
         else:
             high = mid

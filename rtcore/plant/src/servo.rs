@@ -245,13 +245,13 @@ pub fn crossing_left(u: f64) -> f64 {
 /// hold the horn jumps to the motor, still `crossing_left(u)`·β from its side. The squared error,
 /// r²·u³/3 before plus ∫ from u of crossing_left² after (in β²·stage), is least where its two
 /// rates meet: crossing_left(u) = r·u (a unique root: the left falls, the right rises). Found by
-/// bisection in a fixed number of steps (RT: no loop that depends on the data); a NaN or
-/// non-positive r gives the bracket's end (bounded: 40 stage times).
+/// bisection in a fixed number of steps (RT: no loop that depends on the data), within 0–40
+/// stage times whatever r (a non-positive r gives 40, a NaN one 0).
 pub fn held_lead(r: f64) -> f64 {
     let (mut low, mut high) = (0.0, 40.0);
     for _ in 0..48 {
         let mid = 0.5 * (low + high);
-        if crossing_left(mid) > r * mid || !(r > 0.0) {
+        if crossing_left(mid) > r * mid {
             low = mid;
         } else {
             high = mid;
