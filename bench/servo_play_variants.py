@@ -9,15 +9,19 @@ rebuilding the extension:
 
 - ``now``: this tree's ``PlaySide`` (the oracle is checked against ``_rtcore.servo_lead`` on every
   session, to 1e-9 rad, so its figures are the Rust's);
-- ``before``: the ``PlaySide`` of commit 7887d4f (one horizon, dead time⁺ + half a crossing, for
-  both ways the horn changes sides; the torque extrapolated as τ + (τ − τ̄) beyond 0.01 N·m);
+- ``before``: the ``PlaySide`` of commit e15122c (h21g's two horizons: the held one dead time⁺ +
+  (2 − x)·crossing/2, at most a whole crossing; the present torque extrapolated to both; the
+  travel rule at the edge of the horn's friction);
+- ``now, held horizon of before`` and ``now, no noise margin``: ``now`` with one of its changes
+  undone (the held horizon of ``before``; the travel rule at the friction's edge): what each adds;
 - ``now, forecast``: ``now`` with the hand's *true* torque at each horizon (the bench's hand is a
   known function): what a perfect torque forecast would add;
 - ``now, true servo``: ``now`` with the oracle servo's own T, m, s, b, play and horn friction
-  instead of the fitted ones: what a perfect fit would add;
-- ``before, crossing ×0.5``: ``before`` with a crossing twice as fast (goal excursions four times
-  larger): what the crossing's speed would add, and where the servo's torque limit (the oracle's
-  duty cap, which the servo form does not have) takes it back.
+  instead of the fitted ones: what a perfect fit would add.
+
+Each row also gives the horn error around the moments the hand's torque leaves the horn's
+friction band (it takes hold of the horn) and enters it (it lets go), in ms bins from that moment:
+where a crossing of the play costs.
 
 ``--torque-noise SIGMA`` adds white noise (N·m, seeded) to the torque the compensation sees (the
 recording and the fit are unchanged): a force sensor's noise. ``--rest-noise SIGMA`` instead counts
@@ -49,6 +53,7 @@ from servo_forms import play_phases, table  # noqa: E402
 H = 1.0 / RATE
 NAMES = ("time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque")
 TORQUE_MIN, VELOCITY_MIN = 0.01, 0.02  # plant::servo::PLAY_TORQUE_MIN, PLAY_VELOCITY_MIN
+NOISE_WINDOW = 1.0  # plant::servo::PLAY_NOISE_WINDOW
 
 
 def lead_oracle(p, w, a, q):
@@ -81,29 +86,10 @@ class PlayOracle:
         return c + T * (m * (a - 2 * b + c) / stage ** 2 + (b - c) / stage)
 
 
-class Before(PlayOracle):
-    """Commit 7887d4f: one horizon, dead time⁺ + half a crossing, for every change of side."""
-
-    def __init__(self, p, speed=1.0, forecast=None):
-        super().__init__(p, speed)
-        self.torque, self.forecast = 0.0, forecast
-        self.ahead = max(p[2], 0.0) + 0.5 * self.crossing
-
-    def decide(self, t, w, a, q):
-        qb = self.p[6]
-        self.torque += (q - self.torque) * H / (self.ahead + H)
-        tau = 2 * q - self.torque if abs(q) > TORQUE_MIN else q
-        omega = w + a * self.ahead
-        if abs(tau) > max(qb, TORQUE_MIN):
-            self.side = math.copysign(1.0, tau)
-        elif abs(tau) <= qb and abs(omega) > VELOCITY_MIN:
-            self.side = -math.copysign(1.0, omega)
-
-
-class Now(PlayOracle):
-    """This tree's PlaySide: a free and a held horizon (plant::servo::play_horizons), the torque's
-    rate from two low-passes in cascade; ``forecast`` (the hand's true torque) replaces the
-    extrapolation."""
+class TwoHorizons(PlayOracle):
+    """Commit e15122c's PlaySide (h21g): a free and a held horizon, the held one dead time⁺ +
+    (2 − x)·crossing/2, the torque's rate from two low-passes in cascade, the present torque
+    extrapolated to both; ``forecast`` (the hand's true torque) replaces the extrapolation."""
 
     def __init__(self, p, speed=1.0, forecast=None):
         super().__init__(p, speed)
@@ -115,25 +101,100 @@ class Now(PlayOracle):
         dead = max(self.p[2], 0.0)
         return dead + 0.5 * self.crossing * share, dead + 0.5 * self.crossing * (2 - share)
 
-    def decide(self, t, w, a, q):
-        qb, share = self.p[6], H / (self.smoothing + H)
+    def rate(self, q):
+        share = H / (self.smoothing + H)
         self.filters[0] += (q - self.filters[0]) * share
         self.filters[1] += (self.filters[0] - self.filters[1]) * share
-        rate = (self.filters[0] - self.filters[1]) / self.smoothing
-        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        return (self.filters[0] - self.filters[1]) / self.smoothing
+
+    def predict(self, t, q, rate, free, held):
         if self.forecast is not None:
-            tau_free, tau_held = self.forecast(t + free), self.forecast(t + held)
-        elif abs(q) > TORQUE_MIN or abs(rate * held) > TORQUE_MIN:
-            tau_free, tau_held = q + rate * free, q + rate * held
-        else:
-            tau_free = tau_held = q
-        push, omega = max(qb, TORQUE_MIN), w + a * free
-        if abs(tau_held) > push:
+            return self.forecast(t + free), self.forecast(t + held)
+        if abs(q) > TORQUE_MIN or abs(rate * held) > TORQUE_MIN:
+            return q + rate * free, q + rate * held
+        return q, q
+
+    def choose(self, tau_free, tau_held, omega, free_below, held_margin=0.0):
+        push = max(self.p[6], TORQUE_MIN)
+        if abs(tau_held) > push + held_margin:
             self.side = math.copysign(1.0, tau_held)
         elif abs(tau_free) > push:
             self.side = math.copysign(1.0, tau_free)
-        elif abs(tau_free) <= qb and abs(omega) > VELOCITY_MIN:
+        elif abs(tau_free) <= free_below and abs(omega) > VELOCITY_MIN:
             self.side = -math.copysign(1.0, omega)
+
+    def decide(self, t, w, a, q):
+        rate = self.rate(q)
+        free, held = self.horizons(w + a * max(self.p[2], 0.0))
+        tau_free, tau_held = self.predict(t, q, rate, free, held)
+        self.choose(tau_free, tau_held, w + a * free, self.p[6])
+
+
+def crossing_left(u):
+    """plant::servo::crossing_left: the three stages' Erlang survival."""
+    return math.exp(-u) * (1 + u + 0.5 * u * u)
+
+
+def held_lead(r):
+    """plant::servo::held_lead: the root of crossing_left(u) = r·u, by the same bisection."""
+    low, high = 0.0, 40.0
+    for _ in range(48):
+        mid = 0.5 * (low + high)
+        if crossing_left(mid) > r * mid:
+            low = mid
+        else:
+            high = mid
+    return 0.5 * (low + high)
+
+
+def held_torque_noise(share, c):
+    """plant::servo::held_torque_noise: the held torque's variance per unit of white noise's."""
+    x = (1 - share) ** 2
+    return ((1 + c) ** 2 * share ** 2 / (1 - x) - 2 * c * (1 + c) * share ** 3 / (1 - x) ** 2
+            + c * c * share ** 4 * (1 + x) / (1 - x) ** 3)
+
+
+class Now(TwoHorizons):
+    """This tree's PlaySide: the held horizon where the error before and after the hand takes hold
+    is least (``held_lead``), the held torque from the first low-pass, the rest gate over a
+    crossing, the travel rule only one measured noise σ within q_b, and at rest the held torque
+    beyond the push by twice its own noise. ``held_of_before`` and ``margin`` switch the first
+    and the travel rule's margin off (ablations)."""
+
+    def __init__(self, p, speed=1.0, forecast=None, held_of_before=False, margin=True):
+        super().__init__(p, speed, forecast)
+        self.held_of_before, self.margin = held_of_before, margin
+        self.last, self.noise = None, 0.0
+
+    def horizons(self, omega):
+        free, held = super().horizons(omega)
+        if self.held_of_before:
+            return free, held
+        stage = self.crossing / 3
+        runaway = max(abs(omega), VELOCITY_MIN) * stage / self.p[5]
+        return free, max(max(self.p[2], 0.0) + stage * held_lead(runaway), held)
+
+    def predict(self, t, q, rate, free, held):
+        if self.forecast is not None:
+            return self.forecast(t + free), self.forecast(t + held)
+        if abs(q) > TORQUE_MIN or abs(rate * (max(self.p[2], 0.0) + self.crossing)) > TORQUE_MIN:
+            return q + rate * free, self.filters[0] + rate * (held + self.smoothing)
+        return q, q
+
+    def decide(self, t, w, a, q):
+        one, two = self.last if self.last is not None else (q, q)
+        self.noise += ((q - 2 * one + two) ** 2 / 6 - self.noise) * H / (NOISE_WINDOW + H)
+        self.last = (q, one)
+        rate = self.rate(q)
+        ahead = w + a * max(self.p[2], 0.0)
+        free, held = self.horizons(ahead)
+        tau_free, tau_held = self.predict(t, q, rate, free, held)
+        below = self.p[6] - (math.sqrt(self.noise) if self.margin else 0.0)
+        beyond = 0.0
+        if abs(ahead) <= VELOCITY_MIN and self.noise > 0:  # at rest: beyond twice the held torque's noise
+            share = H / (self.smoothing + H)
+            beyond = 2 * math.sqrt(self.noise * held_torque_noise(share, (held + self.smoothing) / self.smoothing))
+        self.choose(tau_free, tau_held, w + a * free, below, beyond)
 
 
 def offsets(play: PlayOracle, w, a, q):
@@ -141,6 +202,27 @@ def offsets(play: PlayOracle, w, a, q):
     for i in range(len(w)):
         play.decide(i * H, w[i], a[i], q[i])
         out[i] = play.cross()
+    return out
+
+
+BINS = ((-30, 0), (0, 10), (10, 20), (20, 30), (30, 60))  # ms from the moment the torque crosses ±q_b
+
+
+def around_switches(cols: dict, free: float) -> dict:
+    """The horn error's RMS (mrad) in ``BINS`` around the moments the hand's torque leaves the
+    horn's friction band (it takes hold: "take-hold") and enters it (it lets go: "let-go"), over
+    all such moments of the session, and the take-hold's share of the session's mean square in
+    the 30 ms after."""
+    tau, error = cols["tau"], cols["theta_present"] - cols["theta_model"]
+    state = np.sign(np.where(np.abs(tau) > free, tau, 0.0))
+    switches = np.nonzero(np.r_[False, state[1:] != state[:-1]])[0]
+    switches = switches[(switches > 60) & (switches < len(tau) - 60)]
+    out = {}
+    for kind, mask in (("take-hold", state[switches] != 0), ("let-go", state[switches] == 0)):
+        window = np.array([error[k - 30:k + 60] for k in switches[mask]])
+        out[kind] = [float(1e3 * np.sqrt(np.nanmean(window[:, a + 30:b + 30] ** 2))) for a, b in BINS]
+        if kind == "take-hold":
+            out["take-hold share"] = float(np.nansum(window[:, 30:60] ** 2) / np.nansum(error ** 2))
     return out
 
 
@@ -153,8 +235,9 @@ def true_params(truth: GearedOracle) -> list[float]:
 
 
 def variants(hand):
-    return {"now": (Now, {}), "before": (Before, {}), "now, forecast": (Now, {"forecast": hand}),
-            "now, true servo": (Now, {"true": True}), "before, crossing ×0.5": (Before, {"speed": 0.5})}
+    return {"now": (Now, {}), "before": (TwoHorizons, {}), "now, held horizon of before": (Now, {"held_of_before": True}),
+            "now, no noise margin": (Now, {"margin": False}), "now, forecast": (Now, {"forecast": hand}),
+            "now, true servo": (Now, {"true": True})}
 
 
 def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
@@ -179,9 +262,12 @@ def measure(row: dict, hand: str, noise: float, seed: int) -> dict:
         with tempfile.TemporaryDirectory(prefix="servo-play-") as tmp:
             error = session(Path(tmp) / "on", GearedOracle(backlash=play), lead=lead, hand=HANDS[hand], trace=trace)
         phases = play_phases(trace, GearedOracle(backlash=play).free)
-        out[name] = {"error": error, "ratio": row["off"] / error, "phases": phases}
+        switches = around_switches(trace, GearedOracle(backlash=play).free)
+        out[name] = {"error": error, "ratio": row["off"] / error, "phases": phases, "switches": switches}
         print(f"| {row['form']} | {name} | {1e3 * error:.3f} | {row['off'] / error:.2f}× | "
-              + " / ".join(f"{100 * share:.0f} %" for _, share, _ in phases) + " |", flush=True)
+              + " / ".join(f"{100 * share:.0f} %" for _, share, _ in phases) + " | "
+              + "; ".join(f"{kind} " + " / ".join(f"{rms:.2f}" for rms in switches[kind]) for kind in ("take-hold", "let-go"))
+              + f" ({100 * switches['take-hold share']:.0f} % of the mean square 0–30 ms after a take-hold) |", flush=True)
     return out
 
 
@@ -194,7 +280,7 @@ def rest_flips(row: dict, sigma: float, seconds: float = 60.0, seed: int = 3) ->
     q, w = rng.normal(0.0, sigma, n), rng.normal(0.0, 0.005, n)
     p = [row["servo"][k] for k in NAMES]
     out = {}
-    for name, kind in (("before", Before), ("now", Now)):
+    for name, kind in (("before", TwoHorizons), ("now", Now)):
         play, flips, side = kind(p), 0, 0.0
         for i in range(n):
             play.decide(i * H, w[i], 0.0, q[i])
@@ -225,7 +311,8 @@ def main() -> int:
         parser.error(f"no geared form with the {args.hand} hand in {args.fits}")
     header = ("| servo form | play's inverse | horn error (mrad) | gain | share of the mean square: hand within the "
               "horn's friction / 0–30 ms after the torque left or entered that band / 30–60 ms after / 0–30 ms "
-              "before it next does / elsewhere |")
+              "before it next does / elsewhere | horn error RMS (mrad) around the hand taking hold and letting go, "
+              "ms from the switch: −30–0 / 0–10 / 10–20 / 20–30 / 30–60 |")
     if args.rest_noise:
         return table("at rest", "| servo form | session | flips |",
                      lambda: [rest_flips(row, args.rest_noise) for row in rows], args.json)

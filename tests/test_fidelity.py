@@ -95,8 +95,9 @@ def test_the_gear_play_is_fitted_where_the_data_show_it_and_left_out_where_they_
 
 def test_a_wide_play_is_crossed_on_the_side_decided_for_a_free_or_a_held_horn(tmp_path):
     # A 1° play under the multi-sine hand: 4.0× when the side was decided half a crossing ahead
-    # whatever the horn's state; deciding into a free horn only as early as the reference runs
-    # away from it, and into a held one up to a whole crossing ahead, gives 5.0× (bench/servo_forms.py).
+    # whatever the horn's state; 5.0× deciding into a free horn only as early as the reference runs
+    # away from it and into a held one a whole crossing ahead; 5.5× deciding into a held one where
+    # the error before and after the hand takes hold is least (held_lead; bench/servo_forms.py).
     import math
 
     from oracles.servo import GearedOracle
@@ -105,7 +106,7 @@ def test_a_wide_play_is_crossed_on_the_side_decided_for_a_free_or_a_held_horn(tm
     fit = fit_of(tmp_path / "off")
     assert fit.model()["backlash"] == pytest.approx(math.radians(1.0), rel=0.1), fit.model()
     on = session(tmp_path / "on", GearedOracle(backlash=math.radians(1.0)), lead=lead_of(fit))
-    assert on < off / 4.5, f"{1e3 * off:.2f} → {1e3 * on:.2f} mrad"
+    assert on < off / 5.2, f"{1e3 * off:.2f} → {1e3 * on:.2f} mrad"
 
 
 def test_a_small_play_does_not_leave_the_fit_in_the_lag_form_s_dead_time_valley(tmp_path):

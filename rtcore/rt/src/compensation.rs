@@ -40,9 +40,10 @@
 //! the motor is sent to the side of the play the horn must be pushed from (behind the horn while
 //! the hand leans on it, ahead of it while it drives a free horn), decided ahead on two horizons
 //! (`play_horizons`: into a free horn only as early as the reference runs away from it, into a
-//! held one up to a whole crossing early; the hand's torque extrapolated from its rate, the
-//! model's speed from its acceleration) with hystereses in the torque and the speed so that the
-//! force's noise at rest does not make the goal chatter, and crossing it along a shaped path
+//! held one as early as makes the error before and after the hand takes hold least, `held_lead`;
+//! the hand's torque extrapolated from its rate, the model's speed from its acceleration) with
+//! hystereses in the torque (one of them the torque's measured noise) and the speed so that the
+//! force's noise does not make the goal chatter, and crossing it along a shaped path
 //! driven by the servo's own inverse, in about the servo's natural time (`play_crossing`). It is
 //! part of the lead (so of the watch's uncompensated prediction, the clip and the blend).
 //!
