@@ -116,8 +116,8 @@ def test_a_silent_sensor_is_stale_once_and_fresh_again(sim):
     with reader:
         captured_until(reader, 10)
         assert wait_until(lambda: not reader.stats()["stale"])
-        # The simulated sensor is a Python thread: a loaded machine can pause it past 50 ms
-        # before the silence, which is a real (counted) stale event. Count from here.
+        # A loaded machine can starve the simulated DAQ's thread past the stale limit before the
+        # silence: a real (counted) stale event, over when it sends again. Count from here.
         before = reader.stats()["stale_events"]
         sim.silence(True)
         assert wait_until(lambda: reader.stats()["stale"])
@@ -175,9 +175,9 @@ def test_a_sensor_at_half_its_rate_is_not_stale(tmp_path):
             samples = captured_until(reader, 200)
             stats = reader.stats()
     assert len(samples) >= 200
-    # Stale means a silence longer than stale_after_s, whatever the configured rate. The simulated
-    # sensor is a Python thread that a loaded machine can really pause that long (the reader's
-    # longest gap, or its being stale now, then says so); without one, a 2 ms period is never stale.
+    # Stale means a silence longer than stale_after_s, whatever the configured rate. A loaded
+    # machine can starve the simulated DAQ's thread that long (the reader's longest gap, or its
+    # being stale now, then says so); without such a silence, a 2 ms period is never stale.
     if stats["max_gap_ns"] <= 0.2e9 and not stats["stale"]:
         assert stats["stale_events"] == 0 and "stale" not in events.kinds(), stats
 
