@@ -28,8 +28,8 @@ import tomli_w
 from admittance import data
 from admittance.daemon.messages import STATS_KEYS
 
-from daemon_process import (ADMITTANCE, START_TIMEOUT_S, read_recording, run_daemon, running_daemon, wait_alive,
-                            wait_for_cycles, wait_for_state)
+from daemon_process import (ADMITTANCE, QUERY_TIMEOUT_S, START_TIMEOUT_S, read_recording, run_daemon, running_daemon,
+                            wait_alive, wait_for_cycles, wait_for_state)
 from helpers import free_endpoint, wait_until
 from oracles import virtual_joint
 
@@ -131,16 +131,17 @@ def test_a_parameter_change_over_zenoh_takes_effect_without_a_jump(tmp_path):
         wait_alive(endpoint, PREFIX)
         with Client([endpoint]) as client:
             wait_for_speed(client, 0.95 * (tau - coulomb) / b1)
-            assert client.query_params(PREFIX, {"virtual_damping": b2}) == {"accepted": True}
-            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2
-            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "virtual_inertia": -1.0})
+            assert client.query_params(PREFIX, {"virtual_damping": b2}, QUERY_TIMEOUT_S) == {"accepted": True}
+            assert client.query_params(PREFIX, timeout=QUERY_TIMEOUT_S)["params"]["1.virtual_damping"] == b2
+            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "virtual_inertia": -1.0}, QUERY_TIMEOUT_S)
             assert rejected["accepted"] is False and "inertia" in rejected["reason"]
-            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2  # all or nothing
+            # all or nothing
+            assert client.query_params(PREFIX, timeout=QUERY_TIMEOUT_S)["params"]["1.virtual_damping"] == b2
             # mx64.toml has no [servo] model: compensation cannot be turned on, and nothing else changes
-            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "servo_compensation": 1})
+            rejected = client.query_params(PREFIX, {"virtual_damping": 0.2, "servo_compensation": 1}, QUERY_TIMEOUT_S)
             assert rejected["accepted"] is False and "servo model" in rejected["reason"]
-            assert client.query_params(PREFIX)["params"]["1.servo_compensation"] == 0.0
-            assert client.query_params(PREFIX)["params"]["1.virtual_damping"] == b2
+            assert client.query_params(PREFIX, timeout=QUERY_TIMEOUT_S)["params"]["1.servo_compensation"] == 0.0
+            assert client.query_params(PREFIX, timeout=QUERY_TIMEOUT_S)["params"]["1.virtual_damping"] == b2
             wait_for_cycles(client, PREFIX, int(RATE_HZ))  # the 0.5 s ramp, then several I/B
     assert daemon.returncode == 0, daemon.stderr
     rec = read_recording(tmp_path / "rec")
