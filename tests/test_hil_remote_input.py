@@ -26,7 +26,7 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, QUERY_TIMEOUT_S, read_recording, wait_alive, wait_for_cycles,
+from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, read_recording, wait_alive, wait_for_cycles,
                             wait_for_state)
 from helpers import examples, free_endpoint
 
@@ -75,7 +75,7 @@ def ask(client, key: str, payload: bytes | None) -> list[dict]:
 
     kwargs = {} if payload is None else {"payload": payload}
     out = []
-    for reply in client._session.get(key, timeout=QUERY_TIMEOUT_S, **kwargs):
+    for reply in client._session.get(key, timeout=10.0, **kwargs):
         assert reply.ok is not None, reply.err.payload.to_string()
         message = decode(reply.ok.payload.to_bytes(), dict)
         assert "params" in message or ("accepted" in message and len(message.get("reason", "")) < 400), message
