@@ -26,6 +26,9 @@ ADMITTANCE = Path(sys.executable).with_name("admittance")
 # which takes well under a second when idle and has taken tens of seconds under load.
 START_TIMEOUT_S = 60.0
 EXIT_TIMEOUT_S = 60.0
+# A Zenoh query to the daemon is answered from its main thread's poll: Client's 3 s default was
+# missed at load 22-27 (the reply is zenoh's "Timeout"). A daemon that never answers still fails.
+QUERY_TIMEOUT_S = 30.0
 
 
 def run_daemon(config: Path, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +23,7 @@ import pytest
 import tomli_w
 
 from admittance import _rtcore
+from admittance.drivers.force_reader import EVENT_REPEAT_S
 from admittance.errors import EXIT_TEMPFAIL, EXIT_UNAVAILABLE
 from admittance.formats.recording import gap_seconds
 
@@ -107,13 +109,16 @@ def test_servo_faults_are_recovered_told_once_and_marked(tmp_path, bench):
     config, endpoint = fault_config(tmp_path, bench)
     from admittance.daemon.zenoh_iface import Client
 
+    started = time.monotonic()
     with running_daemon(config, *run_args(tmp_path)) as daemon:
         wait_alive(endpoint, PREFIX)
         with Client([endpoint]) as client:
             wait_for_state(client, PREFIX, healthy, "a healthy loop")
             inject(bench, "servo 1 hardware-error 0x20")
-            wait_for_state(client, PREFIX, lambda m: m["joints"][0].get("fault", 0) & bit("servo_error"),
-                           "the servo error")
+            # The loop's count, not a state message showing the bit: the bit lasts only while the
+            # reboot does, and the test's ring of 16 messages drops it when a loaded machine
+            # stalls this process (the state never showed it, at load 25).
+            wait_for_stats(client, lambda s: s["faults"]["servo_error"] >= 1, "the servo error")
             wait_for_stats(client, lambda s: servo(s)["recoveries"] >= 1 and servo(s)["phase"] == "ok", "the reboot")
             assert bench.bus.servo_state(1)["torque_enabled"] and bench.bus.servo_state(1)["hardware_error"] == 0
             inject(bench, "servo 1 torque-off")
@@ -124,11 +129,18 @@ def test_servo_faults_are_recovered_told_once_and_marked(tmp_path, bench):
                                    and servo(s)["phase"] == "ok", "the brown-out's recovery")
             assert bench.bus.servo_state(1)["torque_enabled"]
             wait_for_state(client, PREFIX, healthy, "the loop running again")
+    run_s = time.monotonic() - started
     assert daemon.returncode == 0, daemon.stderr
     assert told(daemon.stderr, "servo 1 shut down (overload); rebooting it") == 1, daemon.stderr
-    assert told(daemon.stderr, "servo 1 found with its torque off") == 1, daemon.stderr
-    assert told(daemon.stderr, "servo 1 does not answer") == 1, daemon.stderr
     final = json.loads((tmp_path / "stats.json").read_text())
+    # Each kind is told at once, then at most once per EVENT_REPEAT_S, never more often than it
+    # happened. The brown-out comes back with its torque off (a second torque-off), told again
+    # when it falls outside the first's window, as on a loaded machine, where the simulated
+    # servos can also miss 100 ms of reads (a second silence, counted).
+    window_told = 1 + int(run_s // EVENT_REPEAT_S)
+    for text, count in (("servo 1 found with its torque off", servo(final)["torque_offs"]),
+                        ("servo 1 does not answer", servo(final)["silences"])):
+        assert 1 <= told(daemon.stderr, text) <= min(count, window_told), (text, count, run_s, daemon.stderr)
     assert final["bus"]["link"] == "serial", "mock-bench's servos, through its pty like any adapter's"
     assert final["faults"]["servo_error"] >= 1 and final["faults"]["torque_off"] >= 1
     assert final["faults"]["servo_silent"] >= 1 and servo(final)["reboots"] == 1

@@ -142,14 +142,14 @@ def test_a_file_cut_short_reads_up_to_its_last_complete_chunk(tmp_path):
 def test_a_sigkilled_daemon_leaves_a_readable_mcap(tmp_path):
     from admittance.daemon.zenoh_iface import Client
 
-    from daemon_process import running_daemon, wait_alive, wait_for_cycles
+    from daemon_process import QUERY_TIMEOUT_S, running_daemon, wait_alive, wait_for_cycles
     from test_hil_daemon import PREFIX, daemon_config
 
     config, endpoint = daemon_config(tmp_path, loop={"sync_read_divisor": 5})
     with running_daemon(config, "--record", str(tmp_path / "rec"), stop=signal.SIGKILL) as daemon:
         wait_alive(endpoint, PREFIX)
         with Client([endpoint]) as client:
-            assert client.query_params(PREFIX, {"virtual_damping": 0.2}) == {"accepted": True}
+            assert client.query_params(PREFIX, {"virtual_damping": 0.2}, QUERY_TIMEOUT_S) == {"accepted": True}
             wait_for_cycles(client, PREFIX, 1500)
     assert daemon.returncode == -signal.SIGKILL
     rec = read_recording(tmp_path / "rec")

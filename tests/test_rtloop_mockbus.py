@@ -20,6 +20,8 @@ from oracles import virtual_joint
 RATE_HZ = 500.0
 INERTIA, DAMPING = 0.02, 0.01
 LEVER = 0.1
+HOLDING = _rtcore.LOOP_MODES.index("holding")  # a record's mode
+CATCH_UP_STEPS_PER_CYCLE = 2  # rtcore/rt/src/cycle.rs: the model steps one cycle may take after a stall
 
 
 def wait_for(condition, what: str, limit_s: float = 20.0, push=None) -> None:
@@ -46,7 +48,10 @@ def config(port: str, **overrides) -> dict:
     joint = {"id": 1, "model": "MX-64", "virtual_inertia": INERTIA, "virtual_damping": DAMPING,
              "virtual_coulomb": 0.0, "axis": "x", "lever_arm": LEVER}
     cfg = {"port": port, "rate_hz": RATE_HZ, "rt_priority": 0, "lock_memory": False,
-           "sync_read_divisor": 5, "stale_timeout_ms": 1000.0, "joints": [joint]}
+           "sync_read_divisor": 5, "stale_timeout_ms": 1000.0, "joints": [joint],
+           # The simulated bus answers from a thread of its own, which a loaded machine can starve
+           # past the default 100 ms: the recovery's hold (servo_silent) is not under test here.
+           "faults": {"servo_silent_ms": 2000.0}}
     cfg.update(overrides)
     return cfg
 
@@ -70,12 +75,14 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     h = 1.0 / RATE_HZ
     # plant::admittance with F = 0, on the torque each cycle used: the velocity first (damping
     # implicit, ω' = (ω + h·τ/I)/(1 + h·B/I)), then θ += h·ω'; one step per deadline since the
-    # last cycle (a cycle after an overrun takes the skipped deadlines' steps too, at most 10:
-    # docs/realtime.md), whatever started the cycle: `deadline_ns` is the model's time. A cycle
-    # that held on a stale force (mode holding: this test's pushing thread stalled on a loaded
-    # machine) stops the model instead.
+    # last cycle, whatever started the cycle: `deadline_ns` is the model's time. After an overrun
+    # the skipped deadlines are caught up at most CATCH_UP_STEPS_PER_CYCLE a cycle, and a stall of
+    # more than MAX_CATCH_UP_STEPS loses its time: the model's time jumps to the deadline after
+    # that cycle's (two) steps (docs/realtime.md). So a cycle took min(its model-time steps, 2).
+    # A cycle that held on a stale force (mode holding: this test's pushing thread stalled on a
+    # loaded machine) stops the model instead.
     deadline = rec["deadline_ns"].astype(np.int64)
-    steps = np.minimum(np.round(np.diff(deadline) / (1e9 / RATE_HZ)).astype(int), 10)
+    steps = np.minimum(np.round(np.diff(deadline) / (1e9 / RATE_HZ)).astype(int), CATCH_UP_STEPS_PER_CYCLE)
     omega_want, theta_want = rec["omega"][:-1].copy(), rec["theta"][:-1].copy()
     for i, n in enumerate(steps):
         for _ in range(n):
@@ -94,8 +101,13 @@ def test_goal_positions_follow_the_model_for_a_pushed_force(bus):
     read = rec["present_tick"][rec["present_tick"] != -1]
     assert len(read) > 0 and np.all((read >= 0) & (read <= 4095))
     stats = loop.stats()
-    # A read may time out on a loaded machine (a bus error, counted); most must succeed.
-    assert stats["sync_reads"] > stats["bus_errors"] and stats["sensor_stale_events"] == 0
+    # Every reply the simulated bus sent parsed and every write went out: no corrupt, error-status,
+    # I/O or write failure. A reply can miss its cycle when a loaded machine starves the bus's
+    # thread (a timeout, counted, retried next cycle: at load 30 more than half did), so timeouts
+    # are not counted against the loop; that reads work at all is the positions read above.
+    kinds = stats["bus_error_kinds"]
+    assert {k: n for k, n in kinds.items() if k != "read_timeout" and n} == {}, stats
+    assert stats["sync_reads"] > 0 and stats["sensor_stale_events"] == 0, stats
     assert stats["latency_us"]["count"] > 0
 
 
@@ -103,17 +115,24 @@ def test_stale_force_holds_the_position(bus):
     loop = _rtcore.AdmittanceLoop(config(bus.port_path, stale_timeout_ms=20.0))
     loop.start()
     run_with_force(loop, 3.0, 30)
-    # No more samples: the data goes stale, the joint holds.
-    wait_for(lambda: loop.stats()["sensor_stale_events"] >= 1, "the stale event")
-    held_from = loop.heartbeat()
+    # No more samples: the data goes stale, the joint holds. A loaded machine can also pause this
+    # test's pushing thread past 20 ms while it pushes: a real hold that the next sample ended, so
+    # the hold under test is the one the loop is in now, and every hold is one stale event.
+    wait_for(lambda: loop.stats()["mode"] == "holding", "the hold on stale force")
+    held_from, events = loop.heartbeat(), loop.stats()["sensor_stale_events"]
     wait_for(lambda: loop.heartbeat() >= held_from + 30, "30 held cycles")
     loop.stop("hold")
     rec = loop.drain_telemetry()
     held = rec[rec["cycle"] >= held_from]
+    assert len(held) >= 30 and np.all(held["mode"] == HOLDING)
     assert np.all(held["omega"] == 0.0)
     assert np.all(held["theta"] == held["theta"][0])
     assert np.all(held["goal_tick"] == held["goal_tick"][0])
-    assert loop.stats()["sensor_stale_events"] == 1
+    holding = (rec["mode"] == HOLDING).astype(int)
+    holds = int(holding[0]) + int(np.count_nonzero(np.diff(holding) == 1))
+    stats = loop.stats()
+    assert stats["telemetry_drops"] == 0 and events >= 1
+    assert stats["sensor_stale_events"] == events == holds, "one stale event per hold, none while it lasts"
 
 
 def test_stats_has_every_key_of_the_daemon_contract(bus):
