@@ -150,8 +150,17 @@ def gripped(run, work: Path, servo: str, lag: float, params: Path, inertia: floa
 PASSIVE_ORDER = (("off", 0), ("on", 1), ("off_again", 0), ("on_again", 1))
 
 
-def passive(run, work: Path, servo: str, lag: float, params: Path, seconds: float) -> list[dict]:
-    """The rendering error of the linear joint, guard off and on, interleaved."""
+def rows_rendering_rmse(folder: Path) -> float:
+    """RMS(horn − model) over every recorded row: the rendering error of a stalled session, which
+    `fidelity` refuses to analyse (no 1 s stretch without a 30 ms gap between reads)."""
+    parts = [np.genfromtxt(path, delimiter=",", names=True) for path in sorted(folder.glob("joint1_*.csv"))]
+    error = np.concatenate([np.atleast_1d(p["theta"] - p["theta_model"]) for p in parts])
+    return float(np.sqrt(np.mean(error ** 2)))
+
+
+def passive(run, work: Path, servo: str, lag: float, params: Path, seconds: float, stalled: bool) -> list[dict]:
+    """The rendering error of the linear joint, guard off and on, interleaved (``stalled``: from the
+    rows, :func:`rows_rendering_rmse`; else `fidelity`'s)."""
     rows = []
     profiles = [("sine 1 Hz", f"sine:amplitude={fb.sine_amplitude(1.0, fb.LINEAR):.5f},frequency=1.0"),
                 ("multi-sine 0.3–3 Hz", str(fb.multisine(work / "multisine.csv", seconds, fb.LINEAR)))]
@@ -162,7 +171,8 @@ def passive(run, work: Path, servo: str, lag: float, params: Path, seconds: floa
             folder, stats = run(work, name, params=params, profile=profile, seconds=seconds,
                                 joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
                                 bench={"servo_lag_s": lag})
-            row[key] = {"rendering_rmse": fb.analyse(folder)["rendering_rmse"], **energy_figures(folder, stats)}
+            rmse = rows_rendering_rmse(folder) if stalled else fb.analyse(folder)["rendering_rmse"]
+            row[key] = {"rendering_rmse": rmse, **energy_figures(folder, stats)}
         off, on, again, on_again = (row[k]["rendering_rmse"] for k, _ in PASSIVE_ORDER)
         print(f"| {servo} | {label} | {1e3 * off:.4f} | {1e3 * on:.4f} | {100 * (on / off - 1):+.2f} % | "
               f"{1e3 * again:.4f} | {1e3 * on_again:.4f} | {100 * ((on + on_again) / (off + again) - 1):+.2f} % | "
@@ -228,12 +238,14 @@ def main() -> int:
                           f"{1e3 * r['generated_j']:.1f} | {port_mj(r)} | {r['episodes']} | "
                           f"{r['damping_max']:.3g} |", flush=True)
         if not args.skip_fidelity:
+            if stalls[0] > 0:
+                print("rendering error: RMS(horn − model) over every recorded row (fidelity refuses a stalled session)")
             print("| servo | hand | rendering error guard off (mrad) | guard on (mrad) | change | off again (mrad) | "
                   "on again (mrad) | change, both pairs | guard episodes | lowest balance (mJ below 0) |")
             print("|---|---|---|---|---|---|---|---|---|---|")
             for servo in args.servos:
                 params, _ = fb.identify_servo(work, servo, fb.SERVOS[servo], args.identify_seconds, None, identify_run)
-                results["passive"] += passive(run, work, servo, fb.SERVOS[servo], params, 12.0)
+                results["passive"] += passive(run, work, servo, fb.SERVOS[servo], params, 12.0, stalls[0] > 0)
     print(f"load after: {os.getloadavg()}", flush=True)
     on = [r for r in results["gripped"] if r["guard"]]
     print(f"guard on: {sum(r['sustained'] for r in on)} of {len(on)} gripped sessions with a sustained oscillation; "
