@@ -1,0 +1,99 @@
+"""The rules that make identify's phases other than the effect search cheaper (issue 19 item 2).
+
+- fit.EndPoints: a fit that starts exactly where a remembered fit ended, on those trials or a
+  subset (a cross-validation fold, a jackknife replicate), takes the residuals and Jacobian
+  blocks from it instead of simulating them again. Exact: the tests check the result is the
+  same bit for bit, that the simulations are saved, and that a start that differs in one
+  trial's initial state or in a fixed parameter reuses nothing.
+- base.fit_base compares the friction grid's starts on at most base.GRID_TRIALS trials and
+  finishes the best on all, keeping it only when it beats the equation-error fit there. Not
+  exact: the test checks a friction basin ten times off is still left on a set larger than the
+  subset, and that the grid ran on the subset.
+
+Each was removed by mutation and these tests failed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from admittance.formats.dataset import load_dataset
+from admittance.ident import fit as fitmod
+from admittance.ident.equation_error import initial_states
+from admittance.ident.fit import _Problem, fit_output_error
+from admittance.ident.model import Simulator, free_params, vector_from
+from admittance.ident.synthetic import MX64, SynthSpec, generate
+
+FREE = ("motor_inertia", "damping", "coulomb")
+
+
+@pytest.fixture(scope="module")
+def drops(tmp_path_factory):
+    ds = load_dataset(generate(tmp_path_factory.mktemp("reuse"), SynthSpec(n_trials=6, duration=3.0, seed=3)))
+    return Simulator(ds.trials, ds.mode), initial_states(ds.trials)
+
+
+def _remember(sim, vector, x0):
+    """Remember ``vector``/``x0`` on every trial of ``sim`` as a fit's end point."""
+    problem = _Problem(sim, vector, FREE, True, 0.3)
+    z = np.concatenate([vector[:3], x0.ravel()])
+    r = problem.residuals(z)
+    fitmod.ENDPOINTS.clear()
+    fitmod.ENDPOINTS.remember(problem, z, r, problem.jacobian(z, r, np.full(z.size, np.inf)))
+
+
+def _refit(sim, vector, x0):
+    return fit_output_error(sim, vector, FREE, x0, torque_scale=0.3, max_iter=2)
+
+
+def test_a_fit_started_at_a_remembered_end_point_reuses_its_jacobian_exactly(drops):
+    sim, x0 = drops
+    vector = vector_from({**MX64, "damping": 1.1 * MX64["damping"]})
+    keep = [0, 2, 3, 5]
+    fitmod.ENDPOINTS.clear()
+    fresh = _refit(sim.subset(keep), vector, x0[keep])
+    _remember(sim, vector, x0)
+    reused = _refit(sim.subset(keep), vector, x0[keep])
+    # One residual and one Jacobian (1 + 3 + 2 rows) per trial of the subset were not simulated.
+    assert fresh.simulations - reused.simulations == (1 + len(FREE) + 2) * len(keep)
+    np.testing.assert_array_equal(reused.vector, fresh.vector)
+    np.testing.assert_array_equal(reused.x0, fresh.x0)
+    for a, b in zip(reused.residuals, fresh.residuals):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_start_that_differs_in_one_state_or_a_fixed_parameter_reuses_nothing(drops):
+    sim, x0 = drops
+    vector = vector_from({**MX64, "damping": 1.1 * MX64["damping"]})
+    fitmod.ENDPOINTS.clear()
+    fresh = _refit(sim, vector, x0)
+    _remember(sim, vector, x0)
+    moved = x0.copy()
+    moved[4, 0] += 1e-4
+    assert _refit(sim, vector, moved).simulations == fresh.simulations
+    _remember(sim, vector, x0)
+    other = vector_from({**MX64, "damping": 1.1 * MX64["damping"], "torque_bias": 1e-3})
+    assert _refit(sim, other, x0).simulations == fresh.simulations
+    fitmod.ENDPOINTS.clear()
+
+
+def test_the_friction_grid_on_a_subset_still_leaves_a_basin_ten_times_off(tmp_path):
+    """As test_ident_fit's friction-basin test, on more trials than the grid compares starts on."""
+    from oracles import ivp as ivp_oracle
+    from admittance.ident import base
+    from admittance.ident.equation_error import initial_state_starts
+    from admittance.ident.angle_sensor import Sensor
+
+    n = base.GRID_TRIALS + 4
+    ds = load_dataset(ivp_oracle.generate(tmp_path, ivp_oracle.OracleSpec(seed=1, n_trials=n)))
+    sim = Simulator(ds.trials, ds.mode)
+    start = vector_from({"motor_inertia": MX64["motor_inertia"], "damping": 0.2 * MX64["damping"],
+                         "coulomb": 5 * MX64["coulomb"]})
+    fit, record = base.fit_base(sim, start, free_params("geometry", [], False), initial_state_starts(ds.trials),
+                                Sensor(), 0.3)
+    grid = [r for r in record if "trials" in r]
+    assert len(grid) == len(base.FRICTION_GRID) and all(r["trials"] == base.GRID_TRIALS for r in grid)
+    assert len(base.grid_trials(ds.trials)) == base.GRID_TRIALS
+    assert fit.rmse < 0.0021
+    np.testing.assert_allclose(fit.vector[:3], [MX64[k] for k in FREE], rtol=0.02)
