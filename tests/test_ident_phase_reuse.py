@@ -97,3 +97,33 @@ def test_the_friction_grid_on_a_subset_still_leaves_a_basin_ten_times_off(tmp_pa
     assert len(base.grid_trials(ds.trials)) == base.GRID_TRIALS
     assert fit.rmse < 0.0021
     np.testing.assert_allclose(fit.vector[:3], [MX64[k] for k in FREE], rtol=0.02)
+
+
+def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate(drops, monkeypatch):
+    """uncertainty.jackknife linearises the full fit once (fit.remember_end_point); each replicate
+    then starts from it. The spread is the same to the last bit, with fewer simulations."""
+    from admittance.ident import uncertainty
+
+    sim, x0 = drops
+    full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
+    counted = []
+    run = Simulator.run
+    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
+                        or run(self, rows, *a, **k))
+
+    def spread(reuse: bool):
+        fitmod.ENDPOINTS.clear()
+        counted.clear()
+        with monkeypatch.context() as m:
+            if not reuse:  # neither the rule nor the memo: every replicate simulates its own start
+                m.setattr(uncertainty, "remember_end_point", lambda *a: None)
+                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
+            out = uncertainty.jackknife(sim, full, 0.3, max_groups=3)
+        return out, sum(counted)
+
+    plain, plain_sims = spread(False)
+    reused, reused_sims = spread(True)
+    assert reused == plain
+    # Three replicates of four trials each: 3 × 4 × (1 + 3 + 2) rows saved, 6 × (3 + 2) spent once.
+    assert plain_sims - reused_sims == 3 * 4 * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
+    fitmod.ENDPOINTS.clear()

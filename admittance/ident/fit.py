@@ -335,6 +335,23 @@ class EndPoints:
 ENDPOINTS = EndPoints()
 
 
+def remember_end_point(sim: Simulator, fit: FitResult, torque_scale: float) -> None:
+    """Make ``fit``'s end point (on ``sim``'s trials, its own torque scale) known to
+    :data:`ENDPOINTS`, its Jacobian simulated now when the fit ended without one there (it
+    stopped after a successful step). For a phase that then starts several fits exactly there
+    (the jackknife's replicates, the base model's cross-validation folds): one Jacobian
+    instead of one per fit."""
+    if not fit.free:
+        return
+    sim = sim.with_tau_scale(fit.tau_scale)
+    problem = _Problem(sim, fit.vector, fit.free, True, torque_scale)
+    lower, upper = _z_bounds(problem)
+    g = np.array([fit.value(n) for n in problem.free], dtype=float)
+    z = np.clip(np.concatenate([g, fit.x0.ravel()]), lower, upper)
+    if ENDPOINTS.lookup(problem, z) is None:
+        ENDPOINTS.remember(problem, z, fit.residuals, problem.jacobian(z, fit.residuals, upper))
+
+
 def _z_bounds(problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
     lo, hi = bounds_for(problem.free)
     n_x = 2 * problem.n_trials
