@@ -127,3 +127,38 @@ def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate
     # Three replicates of four trials each: 3 × 4 × (1 + 3 + 2) rows saved, 6 × (3 + 2) spent once.
     assert plain_sims - reused_sims == 3 * 4 * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
     fitmod.ENDPOINTS.clear()
+
+
+def test_cross_validation_simulates_the_full_fits_jacobian_once_for_every_fold(drops, monkeypatch):
+    """search.cross_validate linearises the model fitted on all units once; each fold's refit then
+    starts from it. The held-out residuals are the same to the last bit, with fewer simulations."""
+    from admittance.ident import search
+    from admittance.ident.angle_sensor import Sensor
+    from admittance.ident.base import search_context
+
+    sim, x0 = drops
+    full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
+    ctx, _ = search_context(sim, full, Sensor(), 0.3, search.SearchSettings(1, 0.03, 3.0))
+    counted = []
+    run = Simulator.run
+    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
+                        or run(self, rows, *a, **k))
+
+    def scored(reuse: bool):
+        fitmod.ENDPOINTS.clear()
+        counted.clear()
+        with monkeypatch.context() as m:
+            if not reuse:  # neither the rule nor the memo
+                m.setattr(search, "remember_end_point", lambda *a: None)
+                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
+            out = search.cross_validate(ctx, full)
+        return out.residuals, sum(counted)
+
+    plain, plain_sims = scored(False)
+    reused, reused_sims = scored(True)
+    for a, b in zip(reused, plain):
+        np.testing.assert_array_equal(a, b)
+    folds = ctx.folds
+    trained = sum(len(folds.train(k)) for k in range(folds.n_folds))
+    assert plain_sims - reused_sims == trained * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
+    fitmod.ENDPOINTS.clear()

@@ -36,8 +36,7 @@ from admittance.formats.dataset import Dataset
 from admittance.ident.datacheck import Finding, screen
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
-from admittance.ident.fit import (FitResult, fit_initial_states_multi, fit_output_error, remember_end_point, rmse,
-                                  screen_starts)
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
 from admittance.ident.model import (
     EFFECTS,
     INDEX,
@@ -354,8 +353,6 @@ def _search(sim_train: Simulator, base: FitResult, sensor: Sensor, torque_scale:
     context = search_context(sim_train, base, sensor, torque_scale, search_settings, progress)
     if context is None:
         return SearchOutcome([], base, [], [], None, stopped="too few trials to cross-validate")
-    # The base model's cross-validation starts every fold where the base fit on the units ended.
-    remember_end_point(context[0].sim, context[1], torque_scale)
     return search_effects(*context)
 
 
