@@ -2,7 +2,9 @@
 
 **The base fit** (:func:`fit_base`) starts from the equation error and, unless that already
 leaves nothing but sensor noise, from a small grid over friction (:data:`FRICTION_GRID`):
-each grid start runs a few LM iterations, the best end point is carried on. The equation error
+each grid start runs a few LM iterations on at most :data:`GRID_TRIALS` trials spread over
+loads and directions, the best end point is carried on to every trial and kept when it beats
+the equation-error fit there. The equation error
 cannot see a term the base model lacks and puts it somewhere: on a quadratic-drag set it put
 the drag into damping and left the Coulomb level ten times too low, a local minimum the
 output-error LM never left (training error 10 mrad; from the truth, 4.8).
