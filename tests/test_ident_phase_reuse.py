@@ -5,6 +5,9 @@
   blocks from it instead of simulating them again. Exact: the tests check the result is the
   same bit for bit, that the simulations are saved, and that a start that differs in one
   trial's initial state or in a fixed parameter reuses nothing.
+- fit.remember_end_point, called by uncertainty.jackknife and search.cross_validate: the full
+  fit's Jacobian simulated once for every replicate and fold. Exact: the same spread and
+  held-out residuals bit for bit, and exactly the simulations counted saved.
 - base.fit_base compares the friction grid's starts on at most base.GRID_TRIALS trials and
   finishes the best on all, keeping it only when it beats the equation-error fit there. Not
   exact: the test checks a friction basin ten times off is still left on a set larger than the
@@ -99,6 +102,26 @@ def test_the_friction_grid_on_a_subset_still_leaves_a_basin_ten_times_off(tmp_pa
     np.testing.assert_allclose(fit.vector[:3], [MX64[k] for k in FREE], rtol=0.02)
 
 
+def _with_and_without(monkeypatch, module, call):
+    """``call()`` twice, from an empty memo: without the rule (``module.remember_end_point``) and
+    the memo, then with both. Returns ((result, simulations) without, (result, simulations) with)."""
+    counted = []
+    run = Simulator.run
+    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
+                        or run(self, rows, *a, **k))
+    out = []
+    for reuse in (False, True):
+        fitmod.ENDPOINTS.clear()
+        counted.clear()
+        with monkeypatch.context() as m:
+            if not reuse:  # every refit simulates its own start
+                m.setattr(module, "remember_end_point", lambda *a: None)
+                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
+            out.append((call(), sum(counted)))
+    fitmod.ENDPOINTS.clear()
+    return out
+
+
 def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate(drops, monkeypatch):
     """uncertainty.jackknife linearises the full fit once (fit.remember_end_point); each replicate
     then starts from it. The spread is the same to the last bit, with fewer simulations."""
@@ -106,27 +129,11 @@ def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate
 
     sim, x0 = drops
     full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
-    counted = []
-    run = Simulator.run
-    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
-                        or run(self, rows, *a, **k))
-
-    def spread(reuse: bool):
-        fitmod.ENDPOINTS.clear()
-        counted.clear()
-        with monkeypatch.context() as m:
-            if not reuse:  # neither the rule nor the memo: every replicate simulates its own start
-                m.setattr(uncertainty, "remember_end_point", lambda *a: None)
-                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
-            out = uncertainty.jackknife(sim, full, 0.3, max_groups=3)
-        return out, sum(counted)
-
-    plain, plain_sims = spread(False)
-    reused, reused_sims = spread(True)
+    (plain, plain_sims), (reused, reused_sims) = _with_and_without(
+        monkeypatch, uncertainty, lambda: uncertainty.jackknife(sim, full, 0.3, max_groups=3))
     assert reused == plain
     # Three replicates of four trials each: 3 × 4 × (1 + 3 + 2) rows saved, 6 × (3 + 2) spent once.
     assert plain_sims - reused_sims == 3 * 4 * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
-    fitmod.ENDPOINTS.clear()
 
 
 def test_cross_validation_simulates_the_full_fits_jacobian_once_for_every_fold(drops, monkeypatch):
@@ -139,26 +146,10 @@ def test_cross_validation_simulates_the_full_fits_jacobian_once_for_every_fold(d
     sim, x0 = drops
     full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
     ctx, _ = search_context(sim, full, Sensor(), 0.3, search.SearchSettings(1, 0.03, 3.0))
-    counted = []
-    run = Simulator.run
-    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
-                        or run(self, rows, *a, **k))
-
-    def scored(reuse: bool):
-        fitmod.ENDPOINTS.clear()
-        counted.clear()
-        with monkeypatch.context() as m:
-            if not reuse:  # neither the rule nor the memo
-                m.setattr(search, "remember_end_point", lambda *a: None)
-                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
-            out = search.cross_validate(ctx, full)
-        return out.residuals, sum(counted)
-
-    plain, plain_sims = scored(False)
-    reused, reused_sims = scored(True)
+    (plain, plain_sims), (reused, reused_sims) = _with_and_without(
+        monkeypatch, search, lambda: search.cross_validate(ctx, full).residuals)
     for a, b in zip(reused, plain):
         np.testing.assert_array_equal(a, b)
     folds = ctx.folds
     trained = sum(len(folds.train(k)) for k in range(folds.n_folds))
     assert plain_sims - reused_sims == trained * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
-    fitmod.ENDPOINTS.clear()
