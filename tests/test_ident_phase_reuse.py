@@ -8,10 +8,6 @@
 - fit.remember_end_point, called by uncertainty.jackknife and search.cross_validate: the full
   fit's Jacobian simulated once for every replicate and fold. Exact: the same spread and
   held-out residuals bit for bit, and exactly the simulations counted saved.
-- base.fit_base compares the friction grid's starts on at most base.GRID_TRIALS trials and
-  finishes the best on all, keeping it only when it beats the equation-error fit there. Not
-  exact: the test checks a friction basin ten times off is still left on a set larger than the
-  subset, and that the grid ran on the subset.
 
 Each was removed by mutation and these tests failed.
 """
@@ -79,27 +75,6 @@ def test_a_start_that_differs_in_one_state_or_a_fixed_parameter_reuses_nothing(d
     other = vector_from({**MX64, "damping": 1.1 * MX64["damping"], "torque_bias": 1e-3})
     assert _refit(sim, other, x0).simulations == fresh.simulations
     fitmod.ENDPOINTS.clear()
-
-
-def test_the_friction_grid_on_a_subset_still_leaves_a_basin_ten_times_off(tmp_path):
-    """As test_ident_fit's friction-basin test, on more trials than the grid compares starts on."""
-    from oracles import ivp as ivp_oracle
-    from admittance.ident import base
-    from admittance.ident.equation_error import initial_state_starts
-    from admittance.ident.angle_sensor import Sensor
-
-    n = base.GRID_TRIALS + 4
-    ds = load_dataset(ivp_oracle.generate(tmp_path, ivp_oracle.OracleSpec(seed=1, n_trials=n)))
-    sim = Simulator(ds.trials, ds.mode)
-    start = vector_from({"motor_inertia": MX64["motor_inertia"], "damping": 0.2 * MX64["damping"],
-                         "coulomb": 5 * MX64["coulomb"]})
-    fit, record = base.fit_base(sim, start, free_params("geometry", [], False), initial_state_starts(ds.trials),
-                                Sensor(), 0.3)
-    grid = [r for r in record if "trials" in r]
-    assert len(grid) == len(base.FRICTION_GRID) and all(r["trials"] == base.GRID_TRIALS for r in grid)
-    assert len(base.grid_trials(ds.trials)) == base.GRID_TRIALS
-    assert fit.rmse < 0.0021
-    np.testing.assert_allclose(fit.vector[:3], [MX64[k] for k in FREE], rtol=0.02)
 
 
 def _with_and_without(monkeypatch, module, call):

@@ -2,9 +2,7 @@
 
 **The base fit** (:func:`fit_base`) starts from the equation error and, unless that already
 leaves nothing but sensor noise, from a small grid over friction (:data:`FRICTION_GRID`):
-each grid start runs a few LM iterations on at most :data:`GRID_TRIALS` trials spread over
-loads and directions, the best end point is carried on to every trial and kept when it beats
-the equation-error fit there. The equation error
+each grid start runs a few LM iterations, the best end point is carried on. The equation error
 cannot see a term the base model lacks and puts it somewhere: on a quadratic-drag set it put
 the drag into damping and left the Coulomb level ten times too low, a local minimum the
 output-error LM never left (training error 10 mrad; from the truth, 4.8).
@@ -21,18 +19,14 @@ import numpy as np
 
 from admittance.ident.crossval import Folds, make_folds, small_oscillation_period
 from admittance.ident.equation_error import initial_state_starts
-from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, screen_starts
 from admittance.ident.model import INDEX, Simulator
 from admittance.ident.search import SearchContext, SearchSettings, nothing_left
-from admittance.ident.split import stratum_order
 from admittance.ident.angle_sensor import Sensor
 
 # (Coulomb, damping) multipliers of the equation-error start.
 FRICTION_GRID = ((3.0, 1.0), (10.0, 0.25), (0.3, 1.0), (3.0, 0.25))
 GRID_ITERATIONS = 12  # LM iterations per grid start before the best one is finished
-# Trials the grid starts are compared on (issue 19 item 2): a friction basin ten times off
-# shows on any few trials, and a grid start costs 12 iterations × (P + 4) simulations per trial.
-GRID_TRIALS = 8
 
 
 def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts: list[np.ndarray],
@@ -47,38 +41,21 @@ def fit_base(sim: Simulator, start: np.ndarray, free: tuple[str, ...], x0_starts
     if nothing_left(sim, fit, sensor):
         return fit, record
     level = max(start[INDEX["coulomb"]], 0.02 * torque_scale)
-    picked = grid_trials(sim.trials)
-    grid_sim = sim.subset(picked)
-    best, best_rmse = None, rmse([fit.residuals[k] for k in picked])  # the equation-error fit on those trials
+    best = fit
     for f_mult, b_mult in FRICTION_GRID:
         vector = start.copy()
         vector[INDEX["coulomb"]] = level * f_mult
         vector[INDEX["damping"]] = start[INDEX["damping"]] * b_mult
-        trial = fit_output_error(grid_sim, vector, free, x0[picked], torque_scale=torque_scale,
-                                 max_iter=GRID_ITERATIONS, progress=progress, label="base fit (friction grid)")
-        record.append({"start": f"coulomb ×{f_mult:g}, damping ×{b_mult:g}", "rmse": trial.rmse,
-                       "trials": len(picked)})
-        if trial.rmse < best_rmse * (1 - 1e-6):
-            best, best_rmse = trial, trial.rmse
-    if best is None:
-        return fit, record
-    # The best grid start carried to every trial: the other trials from the states every grid
-    # start began with, as on the whole set before.
-    x0_all = np.array(x0, dtype=float)
-    x0_all[picked] = best.x0
-    finished = fit_output_error(sim, best.vector, free, x0_all, torque_scale=torque_scale, progress=progress,
+        trial = fit_output_error(sim, vector, free, x0, torque_scale=torque_scale, max_iter=GRID_ITERATIONS,
+                                 progress=progress, label="base fit (friction grid)")
+        record.append({"start": f"coulomb ×{f_mult:g}, damping ×{b_mult:g}", "rmse": trial.rmse})
+        if trial.rmse < best.rmse * (1 - 1e-6):
+            best = trial
+    if best is not fit:
+        best = fit_output_error(sim, best.vector, free, best.x0, torque_scale=torque_scale, progress=progress,
                                 label="base fit")
-    record.append({"start": "best grid start, finished", "rmse": finished.rmse})
-    # Judged on a subset, a start is only a candidate: on every trial it must still win.
-    return (finished if finished.rmse < fit.rmse * (1 - 1e-6) else fit), record
-
-
-def grid_trials(trials) -> list[int]:
-    """At most :data:`GRID_TRIALS` of ``trials`` (indices, sorted), spread over loads and directions
-    (every k-th in stratified order, split.py): the friction grid's starts are compared on these."""
-    order = stratum_order(trials)
-    count = min(len(order), GRID_TRIALS)
-    return sorted(order[(k * len(order)) // count] for k in range(count))
+        record.append({"start": "best grid start, finished", "rmse": best.rmse})
+    return best, record
 
 
 def search_context(sim: Simulator, base: FitResult, sensor: Sensor, torque_scale: float, settings: SearchSettings,
