@@ -248,13 +248,16 @@ def fit_output_error(
     lower, upper = _z_bounds(problem)
     g0 = np.array([sim.tau_scale if n == TAU_SCALE else vector[INDEX[n]] for n in problem.free], dtype=float)
     z = np.clip(np.concatenate([g0, np.asarray(x0, dtype=float).ravel()]), lower, upper)
-    r = problem.residuals(z)
+    known = ENDPOINTS.lookup(problem, z)  # a fit that ended exactly here: its residuals and Jacobian
+    r = known[0] if known else problem.residuals(z)
     cost = _cost(r)
     lam = 1e-3
     jac: list[np.ndarray] = []
+    jac_at = None
     iteration = 0
     for iteration in range(1, max_iter + 1):
-        jac = problem.jacobian(z, r, upper)
+        jac = known[1] if known and iteration == 1 else problem.jacobian(z, r, upper)
+        jac_at = z
         a, b = normal_equations(jac, r, problem.n_g, fit_x0)
         z_new, r_new, cost_new, lam = _lm_step(problem, z, a, b, cost, lam, lower, upper, tol)
         if z_new is None:
@@ -266,7 +269,87 @@ def fit_output_error(
             progress(f"{label}: iteration {iteration}, rmse {1e3 * rmse(r):.3f} mrad")
         if improvement <= tol * cost or step < 1e-10:
             break
+    if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
+        ENDPOINTS.remember(problem, z, r, jac)
     return _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+
+
+class EndPoints:
+    """The last few fits' end points with their residuals and Jacobians, per trial.
+
+    The phases after a fit start new fits exactly where it ended: each cross-validation fold
+    and each jackknife replicate refits the model without some trials from the full fit's
+    values and initial states, and a converged fit handed to the next phase is refitted from
+    itself. A trial's residual and Jacobian block depend only on the shared parameters, that
+    trial's own initial state, the step, the friction law and the torque scale, so a block
+    computed for the full fit is, bit for bit, the one a subset fit would simulate again
+    (1 + P + 2 simulations per trial). :meth:`lookup` hands them over only on an exact match
+    of all of these; anything else is simulated as before, so no result can change."""
+
+    SIZE = 6  # fits remembered (a few MB each on 30 trials)
+
+    def __init__(self):
+        self._entries: list[tuple] = []
+
+    @staticmethod
+    def _key(problem: _Problem) -> tuple:
+        sim = problem.sim
+        return (problem.free, problem.fit_x0, sim.max_step, sim.friction, sim.tau_scale, sim.mode,
+                problem.torque_scale)
+
+    @staticmethod
+    def _point(problem: _Problem, g: np.ndarray) -> np.ndarray:
+        """Every parameter the simulation sees: the free ones and the fixed rest of the vector."""
+        return np.concatenate([problem.rows(g[None, :])[0], g])
+
+    def remember(self, problem: _Problem, z: np.ndarray, residuals: list[np.ndarray], jac: list[np.ndarray]) -> None:
+        g, x0 = problem.split(z)
+        # The trial objects themselves are kept: identity is what a later lookup matches on.
+        slots = {id(tr): k for k, tr in enumerate(problem.sim.trials)}
+        entry = (self._key(problem), self._point(problem, g), x0.copy(), slots, list(problem.sim.trials),
+                 residuals, jac)
+        self._entries = [entry, *self._entries[: self.SIZE - 1]]
+
+    def lookup(self, problem: _Problem, z: np.ndarray):
+        """(residuals, Jacobian blocks) for ``problem`` at ``z`` when a remembered fit ended exactly
+        there on a superset of its trials; else None."""
+        if JACOBIAN != "differences":
+            return None
+        g, x0 = problem.split(z)
+        key, point = self._key(problem), self._point(problem, g)
+        for n, (entry_key, point_end, x0_end, slots, _, residuals, jac) in enumerate(self._entries):
+            if entry_key != key or not np.array_equal(point_end, point):
+                continue
+            picked = [slots.get(id(tr)) for tr in problem.sim.trials]
+            if any(k is None for k in picked) or not np.array_equal(x0_end[picked], x0):
+                continue
+            # Most recently used first: the full fit every fold and replicate starts from stays.
+            self._entries.insert(0, self._entries.pop(n))
+            return [residuals[k] for k in picked], [jac[k] for k in picked]
+        return None
+
+    def clear(self) -> None:
+        self._entries = []
+
+
+ENDPOINTS = EndPoints()
+
+
+def remember_end_point(sim: Simulator, fit: FitResult, torque_scale: float) -> None:
+    """Make ``fit``'s end point (on ``sim``'s trials, its own torque scale) known to
+    :data:`ENDPOINTS`, its Jacobian simulated now when the fit ended without one there (it
+    stopped after a successful step). For a phase that then starts several fits exactly there
+    (the jackknife's replicates, the base model's cross-validation folds): one Jacobian
+    instead of one per fit."""
+    if not fit.free:
+        return
+    sim = sim.with_tau_scale(fit.tau_scale)
+    problem = _Problem(sim, fit.vector, fit.free, True, torque_scale)
+    lower, upper = _z_bounds(problem)
+    g = np.array([fit.value(n) for n in problem.free], dtype=float)
+    z = np.clip(np.concatenate([g, fit.x0.ravel()]), lower, upper)
+    if ENDPOINTS.lookup(problem, z) is None:
+        ENDPOINTS.remember(problem, z, fit.residuals, problem.jacobian(z, fit.residuals, upper))
 
 
 def _z_bounds(problem: _Problem) -> tuple[np.ndarray, np.ndarray]:

@@ -31,7 +31,7 @@ from typing import Sequence
 
 import numpy as np
 
-from admittance.ident.fit import FitResult, fit_output_error
+from admittance.ident.fit import FitResult, fit_output_error, remember_end_point
 from admittance.ident.model import Simulator
 from admittance.formats.dataset import TrialData
 from admittance.ident.split import stratum_order
@@ -94,6 +94,7 @@ def jackknife(sim: Simulator, fit: FitResult, torque_scale: float, max_groups: i
     groups = trial_groups(sim.trials, max_groups)
     if len(groups) < MIN_GROUPS:
         return {}
+    remember_end_point(sim, fit, torque_scale)  # every replicate starts there: one Jacobian for all
     replicates = []
     for left_out in groups:
         keep = [i for i in range(len(sim.trials)) if i not in left_out]

@@ -1,0 +1,130 @@
+"""The rules that make identify's phases other than the effect search cheaper (issue 19 item 2).
+
+- fit.EndPoints: a fit that starts exactly where a remembered fit ended, on those trials or a
+  subset (a cross-validation fold, a jackknife replicate), takes the residuals and Jacobian
+  blocks from it instead of simulating them again. Exact: the tests check the result is the
+  same bit for bit, that the simulations are saved, and that a start that differs in one
+  trial's initial state or in a fixed parameter reuses nothing.
+- fit.remember_end_point, called by uncertainty.jackknife and search.cross_validate: the full
+  fit's Jacobian simulated once for every replicate and fold. Exact: the same spread and
+  held-out residuals bit for bit, and exactly the simulations counted saved.
+
+Each was removed by mutation and these tests failed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from admittance.formats.dataset import load_dataset
+from admittance.ident import fit as fitmod
+from admittance.ident.equation_error import initial_states
+from admittance.ident.fit import _Problem, fit_output_error
+from admittance.ident.model import Simulator, free_params, vector_from
+from admittance.ident.synthetic import MX64, SynthSpec, generate
+
+FREE = ("motor_inertia", "damping", "coulomb")
+
+
+@pytest.fixture(scope="module")
+def drops(tmp_path_factory):
+    ds = load_dataset(generate(tmp_path_factory.mktemp("reuse"), SynthSpec(n_trials=6, duration=3.0, seed=3)))
+    return Simulator(ds.trials, ds.mode), initial_states(ds.trials)
+
+
+def _remember(sim, vector, x0):
+    """Remember ``vector``/``x0`` on every trial of ``sim`` as a fit's end point."""
+    problem = _Problem(sim, vector, FREE, True, 0.3)
+    z = np.concatenate([vector[:3], x0.ravel()])
+    r = problem.residuals(z)
+    fitmod.ENDPOINTS.clear()
+    fitmod.ENDPOINTS.remember(problem, z, r, problem.jacobian(z, r, np.full(z.size, np.inf)))
+
+
+def _refit(sim, vector, x0):
+    return fit_output_error(sim, vector, FREE, x0, torque_scale=0.3, max_iter=2)
+
+
+def test_a_fit_started_at_a_remembered_end_point_reuses_its_jacobian_exactly(drops):
+    sim, x0 = drops
+    vector = vector_from({**MX64, "damping": 1.1 * MX64["damping"]})
+    keep = [0, 2, 3, 5]
+    fitmod.ENDPOINTS.clear()
+    fresh = _refit(sim.subset(keep), vector, x0[keep])
+    _remember(sim, vector, x0)
+    reused = _refit(sim.subset(keep), vector, x0[keep])
+    # One residual and one Jacobian (1 + 3 + 2 rows) per trial of the subset were not simulated.
+    assert fresh.simulations - reused.simulations == (1 + len(FREE) + 2) * len(keep)
+    np.testing.assert_array_equal(reused.vector, fresh.vector)
+    np.testing.assert_array_equal(reused.x0, fresh.x0)
+    for a, b in zip(reused.residuals, fresh.residuals):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_start_that_differs_in_one_state_or_a_fixed_parameter_reuses_nothing(drops):
+    sim, x0 = drops
+    vector = vector_from({**MX64, "damping": 1.1 * MX64["damping"]})
+    fitmod.ENDPOINTS.clear()
+    fresh = _refit(sim, vector, x0)
+    _remember(sim, vector, x0)
+    moved = x0.copy()
+    moved[4, 0] += 1e-4
+    assert _refit(sim, vector, moved).simulations == fresh.simulations
+    _remember(sim, vector, x0)
+    other = vector_from({**MX64, "damping": 1.1 * MX64["damping"], "torque_bias": 1e-3})
+    assert _refit(sim, other, x0).simulations == fresh.simulations
+    fitmod.ENDPOINTS.clear()
+
+
+def _with_and_without(monkeypatch, module, call):
+    """``call()`` twice, from an empty memo: without the rule (``module.remember_end_point``) and
+    the memo, then with both. Returns ((result, simulations) without, (result, simulations) with)."""
+    counted = []
+    run = Simulator.run
+    monkeypatch.setattr(Simulator, "run", lambda self, rows, *a, **k: counted.append(rows.shape[0] * len(self.trials))
+                        or run(self, rows, *a, **k))
+    out = []
+    for reuse in (False, True):
+        fitmod.ENDPOINTS.clear()
+        counted.clear()
+        with monkeypatch.context() as m:
+            if not reuse:  # every refit simulates its own start
+                m.setattr(module, "remember_end_point", lambda *a: None)
+                m.setattr(fitmod.ENDPOINTS, "lookup", lambda problem, z: None)
+            out.append((call(), sum(counted)))
+    fitmod.ENDPOINTS.clear()
+    return out
+
+
+def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate(drops, monkeypatch):
+    """uncertainty.jackknife linearises the full fit once (fit.remember_end_point); each replicate
+    then starts from it. The spread is the same to the last bit, with fewer simulations."""
+    from admittance.ident import uncertainty
+
+    sim, x0 = drops
+    full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
+    (plain, plain_sims), (reused, reused_sims) = _with_and_without(
+        monkeypatch, uncertainty, lambda: uncertainty.jackknife(sim, full, 0.3, max_groups=3))
+    assert reused == plain
+    # Three replicates of four trials each: 3 × 4 × (1 + 3 + 2) rows saved, 6 × (3 + 2) spent once.
+    assert plain_sims - reused_sims == 3 * 4 * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
+
+
+def test_cross_validation_simulates_the_full_fits_jacobian_once_for_every_fold(drops, monkeypatch):
+    """search.cross_validate linearises the model fitted on all units once; each fold's refit then
+    starts from it. The held-out residuals are the same to the last bit, with fewer simulations."""
+    from admittance.ident import search
+    from admittance.ident.angle_sensor import Sensor
+    from admittance.ident.base import search_context
+
+    sim, x0 = drops
+    full = fit_output_error(sim, vector_from(MX64), FREE, x0, torque_scale=0.3)
+    ctx, _ = search_context(sim, full, Sensor(), 0.3, search.SearchSettings(1, 0.03, 3.0))
+    (plain, plain_sims), (reused, reused_sims) = _with_and_without(
+        monkeypatch, search, lambda: search.cross_validate(ctx, full).residuals)
+    for a, b in zip(reused, plain):
+        np.testing.assert_array_equal(a, b)
+    folds = ctx.folds
+    trained = sum(len(folds.train(k)) for k in range(folds.n_folds))
+    assert plain_sims - reused_sims == trained * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
