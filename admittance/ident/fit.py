@@ -87,6 +87,7 @@ class FitResult:
     seconds: float
     jacobian: list[np.ndarray] = field(repr=False, default_factory=list)  # per trial (n_g+2, n_k)
     covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))  # of the free globals
+    damping: float = 1e-3  # the LM's damping at the end: a fit carried on from here starts with it
 
     @property
     def rmse(self) -> float:
@@ -237,6 +238,7 @@ def fit_output_error(
     tol: float = 1e-5,
     progress: Progress | None = None,
     label: str = "fit",
+    damping: float = 1e-3,
 ) -> FitResult:
     """Levenberg–Marquardt on simulated − measured θ over all trials of ``sim``.
 
@@ -250,7 +252,7 @@ def fit_output_error(
     z = np.clip(np.concatenate([g0, np.asarray(x0, dtype=float).ravel()]), lower, upper)
     r = problem.residuals(z)
     cost = _cost(r)
-    lam = 1e-3
+    lam = damping
     jac: list[np.ndarray] = []
     iteration = 0
     for iteration in range(1, max_iter + 1):
@@ -266,7 +268,9 @@ def fit_output_error(
             progress(f"{label}: iteration {iteration}, rmse {1e3 * rmse(r):.3f} mrad")
         if improvement <= tol * cost or step < 1e-10:
             break
-    return _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result = _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result.damping = lam
+    return result
 
 
 def _z_bounds(problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
