@@ -113,13 +113,18 @@ def test_a_candidate_within_reach_of_the_floor_or_without_one_is_refitted(monkey
     assert refitted
 
 
-def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool) -> tuple[bool, bool, str]:
+def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool,
+                    trailing_over_floor: float = 100.0) -> tuple[bool, bool, str]:
     """search._judge on a candidate that ran only its first short refits, whose linearised reach
     is ``reach_over_floor`` noise variances above a model at the floor (``at_floor``: whether
-    the round has one). Returns (carried on, refitted, the reason it was refused)."""
+    the round has one), and whose first short refits trailed that model's first ones by
+    ``trailing_over_floor`` noise variances. Returns (carried on, refitted, the reason it was refused)."""
     floor_model = SimpleNamespace(rmse=FLOOR)
     reach = FLOOR**2 * (1.0 + reach_over_floor)
-    entries = [[SimpleNamespace(rmse=FLOOR * 30), "linearised", False]]
+    leader_first = 3.0 * FLOOR
+    leader = Screened([[SimpleNamespace(rmse=leader_first), "linearised", True]], reach=FLOOR**2, complete=True)
+    first = np.sqrt(leader_first**2 + trailing_over_floor * FLOOR**2)
+    entries = [[SimpleNamespace(rmse=first), "linearised", False]]
     carried, refits = [], []
     monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
     monkeypatch.setattr(search, "carry_on", lambda ctx, evidence, screened: carried.append(screened))
@@ -127,7 +132,7 @@ def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool) -> tup
     monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
     evidence = Evidence("cogging")
     search._judge(SimpleNamespace(sim=None, sensor=None), SimpleNamespace(full=None), evidence, False,
-                  floor_model if at_floor else None, Screened(entries, reach))
+                  floor_model if at_floor else None, Screened(entries, reach), leader if at_floor else None)
     return bool(carried), bool(refits), evidence.reason
 
 
@@ -135,6 +140,14 @@ def test_a_screened_candidate_out_of_reach_of_a_model_at_the_floor_is_refused_th
     carried, refitted, reason = _screened_judge(monkeypatch, 10.0, at_floor=True)
     assert not carried and not refitted
     assert "linearised step" in reason and "not refitted further" in reason
+
+
+def test_a_screened_candidate_level_with_the_leader_after_the_same_iterations_is_carried_on(monkeypatch):
+    """Like with like: one that stood within FAR_BEHIND of the model at the floor after the same
+    first iterations is carried on whatever its linearisation says (on driven trials a torque
+    bias and an asymmetric Coulomb level take the same steps; their reaches differed)."""
+    carried, refitted, _ = _screened_judge(monkeypatch, 10.0, at_floor=True, trailing_over_floor=0.001)
+    assert carried and refitted
 
 
 def test_a_screened_candidate_within_reach_or_without_a_floor_is_carried_on_and_refitted(monkeypatch):
@@ -150,11 +163,13 @@ def test_the_round_carries_on_at_once_only_the_candidates_within_reach_of_the_fl
     reaches = {"stribeck": 1.5, "cogging": 40.0, "quadratic_drag": 2.9}  # noise variances above the floor
     monkeypatch.setattr(candidate_screen, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
     monkeypatch.setattr(candidate_screen, "explore_linearised",
-                        lambda sim, current, evidence, *a, **k: [[evidence.effect, "linearised", False]])
+                        lambda sim, current, evidence, *a, **k: [[SimpleNamespace(rmse=FLOOR, name=evidence.effect),
+                                                                  "linearised", False]])
     monkeypatch.setattr(candidate_screen, "linearised_reach",
-                        lambda entries: FLOOR**2 * (1.0 + reaches[entries[0][0]]))
+                        lambda entries: FLOOR**2 * (1.0 + reaches[entries[0][0].name]))
     carried = []
-    monkeypatch.setattr(candidate_screen, "explore_further", lambda sim, entries, *a: carried.append(entries[0][0]))
+    monkeypatch.setattr(candidate_screen, "explore_further",
+                        lambda sim, entries, *a: carried.append(entries[0][0].name))
     ctx = SimpleNamespace(sim=None, sensor=None, torque_scale=1.0, x0_starts=[], say=lambda m: None)
     out = candidate_screen.explore_round(ctx, None, [Evidence(name) for name in reaches])
     assert carried == ["stribeck", "quadratic_drag"]

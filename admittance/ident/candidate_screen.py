@@ -58,12 +58,18 @@ FAR_BEHIND = 3.0
 @dataclass
 class Screened:
     """One candidate's short refits: ``[fit, label, finished]`` per start (as
-    :func:`effects.refit_candidate` takes them), how low their linearisation reaches (mean
-    square, rad²) and whether they ran the full :data:`effects.EXPLORE_ITERATIONS`."""
+    :func:`effects.refit_candidate` takes them), how low their linearisation reaches after the
+    first :data:`SCREEN_ITERATIONS` (mean square, rad²), the lowest mean square those reached
+    (``first``), and whether they ran the full :data:`effects.EXPLORE_ITERATIONS`."""
 
     entries: list[list]
     reach: float
+    first: float = float("inf")
     complete: bool = False
+
+    def __post_init__(self):
+        if self.entries and self.first == float("inf"):
+            self.first = min(entry[0].rmse ** 2 for entry in self.entries)
 
 
 def explore_round(ctx, current: FitResult, ranking: Sequence[Evidence]) -> list[Screened]:
