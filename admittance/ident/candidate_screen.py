@@ -22,13 +22,18 @@ candidate whose reach is within :data:`FAR_BEHIND` noise variances of the sensor
 set the floor or tie with the one that does: its starts are carried on to
 :data:`effects.EXPLORE_ITERATIONS` at once, before any candidate is judged, so the candidates
 that matter are judged in the order of their twelve-iteration error as before. The others are
-carried on only when their turn comes and no candidate of the round has reached the floor
-(search._judge); once one has, a candidate whose reach is more than :data:`FAR_BEHIND` noise
-variances worse than that model is refused there (search._out_of_reach): on 30 drops with a
-Stribeck term the other candidates stood 16–911 noise variances behind after twelve iterations,
-and nine of the twelve were spent on confirming it. Not exact: a start whose error falls, after
-its third iteration, far below what its own linearisation predicts would be lost (no family row
-of bench/identify_families.py was; docs/identification.md, *Speed*).
+carried on when their turn comes (search._judge), unless a candidate of the round already
+leaves nothing but sensor noise and this one is out of its reach (search._out_of_reach): its
+reach more than :data:`FAR_BEHIND` noise variances worse than that model, *and* after the same
+first iterations it stood that far behind where that one stood then. On 30 drops with a
+Stribeck term the six other candidates were refused so after three iterations instead of
+twelve. The reach alone is an estimate, not a bound (with stick friction the linearisation
+sees neither the kinks nor what later steps find), hence the second, like-with-like condition:
+on driven trials a torque bias and an asymmetric Coulomb level are one equation and took the
+same steps (16.405 and 16.403 mrad after three), while their reaches differed (7 and under 3
+noise variances); refused on the reach alone, the torque bias lost its group. Not exact: a start
+that trails by that much after three iterations and then ends within a tie would be lost
+(docs/identification.md, *Speed*, for the family rows run on it).
 
 Nothing else is skipped here: every candidate still gets a verdict; the order decides which one
 sets the floor the others are measured against, and the first stage's fits are the ones the
