@@ -9,6 +9,10 @@ Each rule decides what is computed, so each is a gate: these tests fail when it 
 - search._judge carries a candidate's short refits to convergence unless another candidate
   already leaves nothing but sensor noise and this one's short refits fit the training data
   worse by more than search.FAR_BEHIND noise variances.
+- candidate_screen.explore_round carries a candidate's first short refits (SCREEN_ITERATIONS LM
+  iterations) on at once only when their linearised reach is within FAR_BEHIND noise variances
+  of the floor; search._judge carries the others on when their turn comes, unless a candidate of
+  the round already leaves nothing but sensor noise and their reach is that far behind it.
 """
 
 from __future__ import annotations
@@ -16,9 +20,12 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
-from admittance.ident import regime, search
-from admittance.ident.effects import Evidence
+from admittance.ident import candidate_screen, regime, search
+from admittance.ident.candidate_screen import Screened
+from admittance.ident.effects import Evidence, linearised_reach
+from admittance.ident.fit import FitResult
 
 FLOOR = 2e-3  # rad: the sensor's noise level the fake verdict reports
 
@@ -86,7 +93,8 @@ def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str
     evidence = Evidence("quadratic_drag")
     ctx = SimpleNamespace(sim=None, sensor=None)
     floor_model = at_floor if behind_over_floor is not None else None
-    search._judge(ctx, SimpleNamespace(full=None), evidence, False, floor_model, explored)
+    screened = Screened(explored, reach=reached**2, complete=True)
+    search._judge(ctx, SimpleNamespace(full=None), evidence, False, floor_model, screened)
     return bool(refits), evidence.reason
 
 
@@ -103,3 +111,118 @@ def test_a_candidate_within_reach_of_the_floor_or_without_one_is_refitted(monkey
     # However far behind, when no candidate has reached the floor yet: refitted.
     refitted, _ = _carried_on(monkeypatch, None)
     assert refitted
+
+
+def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool,
+                    trailing_over_floor: float = 100.0) -> tuple[bool, bool, str]:
+    """search._judge on a candidate that ran only its first short refits, whose linearised reach
+    is ``reach_over_floor`` noise variances above a model at the floor (``at_floor``: whether
+    the round has one), and whose first short refits trailed that model's first ones by
+    ``trailing_over_floor`` noise variances. Returns (carried on, refitted, the reason it was refused)."""
+    floor_model = SimpleNamespace(rmse=FLOOR)
+    reach = FLOOR**2 * (1.0 + reach_over_floor)
+    leader_first = 3.0 * FLOOR
+    leader = Screened([[SimpleNamespace(rmse=leader_first), "linearised", True]], reach=FLOOR**2, complete=True)
+    first = np.sqrt(leader_first**2 + trailing_over_floor * FLOOR**2)
+    entries = [[SimpleNamespace(rmse=first), "linearised", False]]
+    carried, refits = [], []
+    monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
+    monkeypatch.setattr(search, "carry_on", lambda ctx, evidence, screened: carried.append(screened))
+    monkeypatch.setattr(search, "_far_behind", lambda *a, **k: "")
+    monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
+    evidence = Evidence("cogging")
+    search._judge(SimpleNamespace(sim=None, sensor=None), SimpleNamespace(full=None), evidence, False,
+                  floor_model if at_floor else None, Screened(entries, reach), leader if at_floor else None)
+    return bool(carried), bool(refits), evidence.reason
+
+
+def test_a_screened_candidate_out_of_reach_of_a_model_at_the_floor_is_refused_there(monkeypatch):
+    carried, refitted, reason = _screened_judge(monkeypatch, 10.0, at_floor=True)
+    assert not carried and not refitted
+    assert "linearised step" in reason and "not refitted further" in reason
+
+
+def test_a_screened_candidate_level_with_the_leader_after_the_same_iterations_is_carried_on(monkeypatch):
+    """Like with like: one that stood within FAR_BEHIND of the model at the floor after the same
+    first iterations is carried on whatever its linearisation says (on driven trials a torque
+    bias and an asymmetric Coulomb level take the same steps; their reaches differed)."""
+    carried, refitted, _ = _screened_judge(monkeypatch, 10.0, at_floor=True, trailing_over_floor=0.001)
+    assert carried and refitted
+
+
+def test_a_screened_candidate_within_reach_or_without_a_floor_is_carried_on_and_refitted(monkeypatch):
+    carried, refitted, _ = _screened_judge(monkeypatch, 2.0, at_floor=True)  # within FAR_BEHIND = 3
+    assert carried and refitted
+    carried, refitted, _ = _screened_judge(monkeypatch, 1000.0, at_floor=False)
+    assert carried and refitted
+
+
+def test_the_round_carries_on_at_once_only_the_candidates_within_reach_of_the_floor(monkeypatch):
+    """explore_round: the first short refits of every candidate, carried on at once only when
+    their linearised reach is within FAR_BEHIND noise variances of the sensor's floor."""
+    reaches = {"stribeck": 1.5, "cogging": 40.0, "quadratic_drag": 2.9}  # noise variances above the floor
+    monkeypatch.setattr(candidate_screen, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
+    monkeypatch.setattr(candidate_screen, "explore_linearised",
+                        lambda sim, current, evidence, *a, **k: [[SimpleNamespace(rmse=FLOOR, name=evidence.effect),
+                                                                  "linearised", False]])
+    monkeypatch.setattr(candidate_screen, "linearised_reach",
+                        lambda entries: FLOOR**2 * (1.0 + reaches[entries[0][0].name]))
+    carried = []
+    monkeypatch.setattr(candidate_screen, "explore_further",
+                        lambda sim, entries, *a: carried.append(entries[0][0].name))
+    ctx = SimpleNamespace(sim=None, sensor=None, torque_scale=1.0, x0_starts=[], say=lambda m: None)
+    out = candidate_screen.explore_round(ctx, None, [Evidence(name) for name in reaches])
+    assert carried == ["stribeck", "quadratic_drag"]
+    assert [s.complete for s in out] == [True, False, True]
+
+
+def test_the_linearised_reach_is_the_gauss_newton_minimum_of_the_best_start():
+    """On a linear problem the Gauss–Newton step lands on the least-squares minimum: the reach is
+    that minimum's mean square, whatever the start; the best of two starts counts."""
+    rng = np.random.default_rng(3)
+    n_g, n_k = 2, 200
+    jac = [rng.normal(size=(n_g + 2, n_k)) for _ in range(3)]
+    target = [rng.normal(size=n_k) for _ in range(3)]
+
+    def at(z: np.ndarray) -> FitResult:
+        g, x0 = z[:n_g], z[n_g:].reshape(3, 2)
+        residuals = [j[:n_g].T @ g + j[n_g:].T @ x - y for j, x, y in zip(jac, x0, target)]
+        return FitResult(np.zeros(1), 1.0, ("a", "b"), {}, x0, residuals, 3, 0, 0.0, jacobian=jac)
+
+    stacked = np.zeros((3 * n_k, n_g + 6))
+    for k, j in enumerate(jac):
+        stacked[k * n_k:(k + 1) * n_k, :n_g] = j[:n_g].T
+        stacked[k * n_k:(k + 1) * n_k, n_g + 2 * k:n_g + 2 * k + 2] = j[n_g:].T
+    optimum = np.linalg.lstsq(stacked, np.concatenate(target), rcond=None)[0]
+    minimum = at(optimum).rmse ** 2
+    far = at(optimum + rng.normal(size=optimum.size))
+    assert far.rmse**2 > 1.5 * minimum
+    assert abs(linearised_reach([[far, "linearised", False]]) - minimum) < 1e-9 * minimum
+    worse = FitResult(np.zeros(1), 1.0, ("a", "b"), {}, far.x0, [3.0 * r for r in far.residuals], 3, 0, 0.0)
+    assert linearised_reach([[worse, "grown", False], [far, "linearised", False]]) == pytest.approx(minimum)
+
+
+def test_short_refits_carried_on_take_the_steps_of_one_longer_fit(tmp_path):
+    """effects.explore_further continues an LM fit from its values and its damping: three
+    iterations and then nine more end where twelve in one go do (the screen changes which
+    candidates are carried on, not what a carried-on refit finds)."""
+    from admittance.formats.dataset import load_dataset
+    from admittance.ident.effects import explore_further
+    from admittance.ident.equation_error import fit_equation_error, initial_states
+    from admittance.ident.fit import fit_output_error
+    from admittance.ident.model import Simulator, free_params
+    from admittance.ident.synthetic import SynthSpec, generate
+
+    folder = generate(tmp_path / "set", SynthSpec(n_trials=3, duration=3.0, seed=4, effects={"stribeck": 0.04}))
+    dataset = load_dataset(folder)
+    start, tau_scale = fit_equation_error(dataset.trials, dataset.mode)
+    sim = Simulator(dataset.trials, dataset.mode, tau_scale=tau_scale)
+    free = free_params(dataset.mode, [], dataset.has_torque)
+    x0 = initial_states(dataset.trials)
+    whole = fit_output_error(sim, start, free, x0, max_iter=12)
+    first = fit_output_error(sim, start, free, x0, max_iter=3)
+    assert first.iterations == 3 and whole.iterations > 3
+    entries = [[first, "linearised", False]]
+    explore_further(sim, entries, 1.0, 9, "fit")
+    assert np.array_equal(entries[0][0].vector, whole.vector)
+    assert np.array_equal(entries[0][0].x0, whole.x0)

@@ -282,10 +282,11 @@ def _evidence(variant: Variant, coef: np.ndarray, explained: float) -> Evidence:
 
 
 def explore_linearised(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float,
-                       x0_starts: Sequence[np.ndarray] = ()) -> list[list]:
+                       x0_starts: Sequence[np.ndarray] = (), iterations: int = EXPLORE_ITERATIONS) -> list[list]:
     """The first stage of :func:`refit_candidate`: its starts from the linear test (the
     linearised size and twice it, or the next grid variants of a shape effect), each after
-    :data:`EXPLORE_ITERATIONS` LM iterations; [] when the linear test gave the wrong sign."""
+    ``iterations`` LM iterations (:func:`explore_further` carries them on to
+    :data:`EXPLORE_ITERATIONS`); [] when the linear test gave the wrong sign."""
     sim = sim.with_tau_scale(current.tau_scale)
     starts: list[tuple[str, dict[str, float]]] = []
     if evidence.plausible:
@@ -294,7 +295,33 @@ def explore_linearised(sim: Simulator, current: FitResult, evidence: Evidence, t
             starts += [("linearised (next grid variant)", alt) for alt in evidence.alternatives]
         else:
             starts.append(("grown", grown(evidence.start, [evidence.effect])))
-    return _explore(sim, current, evidence, starts, torque_scale, x0_starts)
+    return _explore(sim, current, evidence, starts, torque_scale, x0_starts, iterations)
+
+
+def explore_further(sim: Simulator, explored: list[list], torque_scale: float, iterations: int, label: str) -> None:
+    """Carry every unfinished ``[fit, label, finished]`` entry on by ``iterations`` more LM
+    iterations, in place: from the entry's values and its LM damping, the same steps one longer
+    fit would have taken (one more simulation: the residual at the start)."""
+    for entry in explored:
+        if entry[2]:
+            continue
+        fit = entry[0]
+        entry[0] = fit_output_error(sim.with_tau_scale(fit.tau_scale), fit.vector, fit.free, fit.x0,
+                                    torque_scale=torque_scale, max_iter=iterations, label=label, damping=fit.damping)
+        entry[2] = entry[0].iterations < iterations
+
+
+def linearised_reach(explored: Sequence[list]) -> float:
+    """The lowest training mean square (rad²) that the undamped Gauss–Newton step of any explored
+    start predicts from where it stands (inf without a start): the local linear model's own
+    minimum, free of bounds, so no higher than what a bounded step of that model can reach."""
+    best = math.inf
+    for entry in explored:
+        fit = entry[0]
+        cost = sum(float(r @ r) for r in fit.residuals)
+        gain = _explained(fit.jacobian, [], fit.residuals, len(fit.free))[0] if fit.jacobian else 0.0
+        best = min(best, max(cost - max(gain, 0.0), 0.0) / max(sum(r.size for r in fit.residuals), 1))
+    return best
 
 
 def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torque_scale: float,
@@ -350,8 +377,8 @@ def _equation_error_starts(trials, mode: str, evidence: Evidence) -> list[dict[s
     return [scored[i][0] for _, i in ranked[:SHAPE_STARTS]]
 
 
-def _explore(sim, current, evidence, starts, torque_scale, x0_starts=()) -> list[list]:
-    """[fit, label, finished] per start, each after :data:`EXPLORE_ITERATIONS` LM iterations.
+def _explore(sim, current, evidence, starts, torque_scale, x0_starts=(), iterations=EXPLORE_ITERATIONS) -> list[list]:
+    """[fit, label, finished] per start, each after ``iterations`` LM iterations.
 
     Each start also gets its own initial states: the current model's, or the data's candidates
     (``x0_starts``), whichever its simulation follows best (one batch). The current model's
@@ -368,8 +395,8 @@ def _explore(sim, current, evidence, starts, torque_scale, x0_starts=()) -> list
         vector = _clip_start(vector, free)
         x0 = screen_starts(sim, vector, [current.x0, *x0_starts]) if len(x0_starts) else current.x0
         fit = fit_output_error(sim, vector, free, x0, torque_scale=torque_scale,
-                               max_iter=EXPLORE_ITERATIONS, label=f"fit +{evidence.effect}")
-        out.append([fit, name, fit.iterations < EXPLORE_ITERATIONS])
+                               max_iter=iterations, label=f"fit +{evidence.effect}")
+        out.append([fit, name, fit.iterations < iterations])
     return out
 
 

@@ -87,6 +87,7 @@ class FitResult:
     seconds: float
     jacobian: list[np.ndarray] = field(repr=False, default_factory=list)  # per trial (n_g+2, n_k)
     covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))  # of the free globals
+    damping: float = 1e-3  # the LM's damping at the end: a fit carried on from here starts with it
 
     @property
     def rmse(self) -> float:
@@ -237,6 +238,7 @@ def fit_output_error(
     tol: float = 1e-5,
     progress: Progress | None = None,
     label: str = "fit",
+    damping: float = 1e-3,
 ) -> FitResult:
     """Levenberg–Marquardt on simulated − measured θ over all trials of ``sim``.
 
@@ -251,7 +253,7 @@ def fit_output_error(
     known = ENDPOINTS.lookup(problem, z)  # a fit that ended exactly here: its residuals and Jacobian
     r = known[0] if known else problem.residuals(z)
     cost = _cost(r)
-    lam = 1e-3
+    lam = damping
     jac: list[np.ndarray] = []
     jac_at = None
     iteration = 0
@@ -271,7 +273,9 @@ def fit_output_error(
             break
     if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
         ENDPOINTS.remember(problem, z, r, jac)
-    return _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result = _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result.damping = lam
+    return result
 
 
 class EndPoints:

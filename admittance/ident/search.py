@@ -65,7 +65,7 @@ from typing import Sequence
 
 import numpy as np
 
-from admittance.ident.candidate_screen import explore_round, judging_order
+from admittance.ident.candidate_screen import FAR_BEHIND, Screened, behind, carry_on, explore_round, judging_order
 from admittance.ident.crossval import Folds, PairedGain, paired_gain
 from admittance.ident.effects import (
     FREED_SHAPES,
@@ -96,9 +96,9 @@ MATERIAL_FIT = 0.1
 # materially better than the last: on 30 synth drops with Stribeck at 1.5× Coulomb the first
 # restart went 10.7 → 2.6 mrad (still stuck at one turning point), the second to 1.99 (the noise).
 MAX_RESTARTS = 3
-# A candidate whose short refits (candidate_screen.py) still fit this many noise variances worse
-# than one that leaves nothing but sensor noise is not carried to convergence (search._far_behind).
-FAR_BEHIND = 3.0
+# FAR_BEHIND (candidate_screen.py): a candidate whose short refits still fit this many noise
+# variances worse than one that leaves nothing but sensor noise is not carried on (_far_behind,
+# _out_of_reach).
 BESIDE_REASON = "it was judged in a model that carries a stand-in, itself not one model across regimes"
 FLEXIBLE_REASON = "a periodic term chosen among 31 periods is claimed only when it leaves nothing but sensor noise"
 
@@ -264,16 +264,17 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
         rounds.append(ranking)
         admissible = []
         at_floor: FitResult | None = None  # the first admissible refit that leaves only sensor noise
+        leader: Screened | None = None  # its short refits
         explored = explore_round(ctx, current.full, ranking)  # judged best first (candidate_screen.py)
-        for number, index in enumerate(judging_order(explored), 1):
+        for number, index in enumerate(judging_order([s.entries for s in explored]), 1):
             evidence = ranking[index]
             ctx.say(f"effect search round {len(rounds)}: candidate {number}/{len(ranking)} "
                     f"{evidence.effect} ({evidence.variant})")
-            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor, explored[index])
+            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor, explored[index], leader)
             if scored is not None:
                 admissible.append((evidence, scored))
                 if at_floor is None and nothing_left(ctx.sim, scored.full, ctx.sensor):
-                    at_floor = scored.full
+                    at_floor, leader = scored.full, explored[index]
         if not admissible:
             stopped = "no candidate passed every test"
             break
@@ -308,22 +309,52 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
 
 
 def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: bool,
-           at_floor: FitResult | None = None, explored: list[list] | None = None) -> Scored | None:
+           at_floor: FitResult | None = None, screened: Screened | None = None,
+           leader: Screened | None = None) -> Scored | None:
     """Refit one candidate and put it through every test; its cross-validated model if it passes.
 
     ``at_floor``: an earlier candidate of the round whose model leaves nothing but sensor noise.
     This one can then at best tie with it: it gets only the starts its linear test suggests,
     and it is not cross-validated when it fits the training data materially worse (by more
-    than a tenth of the noise variance), which would lose it any tie. ``explored``: its
-    linearised starts already run (candidate_screen.py)."""
-    behind = _far_behind(ctx, at_floor, explored)
-    if behind:
-        return _refuse(evidence, behind)
+    than a tenth of the noise variance), which would lose it any tie. ``screened``: its
+    linearised starts already run (candidate_screen.py); carried on to the full short refit
+    here unless out of reach of ``at_floor`` (``leader``: that one's short refits)."""
+    if screened is not None and not screened.complete:
+        out_of_reach = _out_of_reach(ctx, at_floor, screened, leader)
+        if out_of_reach:
+            return _refuse(evidence, out_of_reach)
+        carry_on(ctx, evidence, screened)
+    explored = None if screened is None else screened.entries
+    behind_floor = _far_behind(ctx, at_floor, explored)
+    if behind_floor:
+        return _refuse(evidence, behind_floor)
     refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None, explored=explored)
     if refit is None:
         return _refuse(evidence, "not refitted: its linear test gave the wrong sign, and another candidate "
                                  "already leaves nothing but sensor noise")
     return assess(ctx, current, evidence, refit, stand_ins, at_floor)
+
+
+def _out_of_reach(ctx: SearchContext, at_floor: FitResult | None, screened: Screened,
+                  leader: Screened | None) -> str:
+    """Why a candidate is refused after its first :data:`candidate_screen.SCREEN_ITERATIONS` LM
+    iterations ("" when it is carried on): another one (``at_floor``, whose short refits are
+    ``leader``) already leaves nothing but sensor noise, even the undamped Gauss–Newton step of
+    this one's best start would leave it more than :data:`FAR_BEHIND` noise variances worse than
+    that model, *and* after the same first iterations it stood that much behind where the other
+    stood then (like with like: on driven trials a torque bias and an asymmetric Coulomb level
+    are one equation and take the same steps, 16.405 against 16.403 mrad after three, while their
+    linearisations' reach differed, 7 against under 3 noise variances; candidate_screen.py)."""
+    if at_floor is None or leader is None or not screened.entries:
+        return ""
+    floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
+    far = behind(screened.reach, at_floor.rmse**2, floor)
+    trailing = behind(screened.first, leader.first, floor)
+    if far <= FAR_BEHIND or trailing <= FAR_BEHIND:
+        return ""
+    return (f"after its first short refits it trailed a candidate that now leaves nothing but sensor noise by "
+            f"{trailing:.0f}× the noise variance, and even its linearised step would fit the training data "
+            f"{far:.0f}× worse than that one (a tie needs {MATERIAL_FIT:g}×): not refitted further")
 
 
 def _far_behind(ctx: SearchContext, at_floor: FitResult | None, explored: list[list] | None) -> str:
@@ -337,10 +368,10 @@ def _far_behind(ctx: SearchContext, at_floor: FitResult | None, explored: list[l
         return ""
     floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
     reached = min(entry[0].rmse for entry in explored)
-    behind = (reached**2 - at_floor.rmse**2) / max(floor**2, 1e-300)
-    if behind <= FAR_BEHIND:
+    far = behind(reached**2, at_floor.rmse**2, floor)
+    if far <= FAR_BEHIND:
         return ""
-    return (f"after its short refits it fits the training data {behind:.0f}× the noise variance worse than a "
+    return (f"after its short refits it fits the training data {far:.0f}× the noise variance worse than a "
             f"candidate that leaves nothing but sensor noise (a tie needs {MATERIAL_FIT:g}×): not refitted further")
 
 
