@@ -49,3 +49,18 @@ def test_a_terminal_gets_one_counter_line_rewritten(monkeypatch):
     text = stream.getvalue()
     assert "\n" not in text and text.count("\r") >= 3
     assert "candidate 2/8 cogging" in text
+
+
+def test_the_command_shows_its_phases_under_a_pipe(monkeypatch, capsys, tmp_path):
+    """`admittance identify` hands its progress to the phases: with the first second's silence
+    taken out (a run can end within it), a pipe gets one plain line per phase."""
+    from admittance.cli import main
+
+    data = tmp_path / "ds"
+    assert main(["synth", str(data), "--trials", "4", "--duration", "4", "--seed", "3"]) == 0
+    capsys.readouterr()
+    monkeypatch.setattr(identify._Progress, "QUIET_SECONDS", 0.0)
+    assert main(["identify", str(data), "--json", str(tmp_path / "fit.json")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("identify: ")]
+    phases = [line.split(":")[1] for line in lines]
+    assert len(lines) >= 2 and len(set(phases)) == len(phases), lines
