@@ -124,12 +124,17 @@ def lockstep_session(work: Path, name: str, *, params: Path, profile: str, secon
     return folder, {"passivity": [guard], "overruns": stalled, "bus_errors": int(np.sum(rows["fault"] != 0))}
 
 
-def energy_figures(folder: Path, stats: dict) -> dict:
+def recorded_rows(folder: Path) -> dict[str, np.ndarray]:
+    """Every column of joint 1's recorded rows, its CSV segments joined (the passivity columns
+    included, which `fidelity`'s reader leaves out)."""
+    parts = [np.genfromtxt(path, delimiter=",", names=True) for path in sorted(folder.glob("joint1_*.csv"))]
+    return {name: np.concatenate([np.atleast_1d(p[name]) for p in parts]) for name in parts[0].dtype.names}
+
+
+def energy_figures(rows: dict[str, np.ndarray], stats: dict) -> dict:
     """The guard's balance at its lowest and its largest damping (the recorded rows), the port's net
     energy and the guard's episodes (the session's stats)."""
-    parts = [np.genfromtxt(path, delimiter=",", names=True) for path in sorted(folder.glob("joint1_*.csv"))]
-    balance = np.concatenate([np.atleast_1d(p["passivity_energy"]) for p in parts])
-    damping = np.concatenate([np.atleast_1d(p["passivity_damping"]) for p in parts])
+    balance, damping = rows["passivity_energy"], rows["passivity_damping"]
     guard = stats["passivity"][0]
     return {"generated_j": float(max(-balance.min(), 0.0)), "port_energy_j": guard["port_energy"],
             "episodes": guard["episodes"], "damping_max": float(damping.max())}
@@ -144,7 +149,7 @@ def gripped(run, work: Path, servo: str, lag: float, params: Path, inertia: floa
                                bench={"servo_lag_s": lag, **hand})
     early, late = fb.wobble(folder)
     return {"early_mrad": 1e3 * early, "late_mrad": 1e3 * late, "sustained": fb.sustained(early, late),
-            **energy_figures(folder, stats), "overruns": stats["overruns"], "bus_errors": stats["bus_errors"]}
+            **energy_figures(recorded_rows(folder), stats), "overruns": stats["overruns"], "bus_errors": stats["bus_errors"]}
 
 
 # Guard off, on, off, on: interleaved, so that a drift of the machine's load over the four
@@ -152,12 +157,10 @@ def gripped(run, work: Path, servo: str, lag: float, params: Path, inertia: floa
 PASSIVE_ORDER = (("off", 0), ("on", 1), ("off_again", 0), ("on_again", 1))
 
 
-def rows_rendering_rmse(folder: Path) -> float:
+def rows_rendering_rmse(rows: dict[str, np.ndarray]) -> float:
     """RMS(horn − model) over every recorded row: the rendering error of a stalled session, which
     `fidelity` refuses to analyse (no 1 s stretch without a 30 ms gap between reads)."""
-    parts = [np.genfromtxt(path, delimiter=",", names=True) for path in sorted(folder.glob("joint1_*.csv"))]
-    error = np.concatenate([np.atleast_1d(p["theta"] - p["theta_model"]) for p in parts])
-    return float(np.sqrt(np.mean(error ** 2)))
+    return float(np.sqrt(np.mean((rows["theta"] - rows["theta_model"]) ** 2)))
 
 
 def fidelity_rmse(folder: Path) -> float | None:
@@ -183,8 +186,9 @@ def passive(run, work: Path, servo: str, lag: float, params: Path, seconds: floa
             folder, stats = run(work, name, params=params, profile=profile, seconds=seconds,
                                 joint={**fb.LINEAR, "servo_compensation": 1.0, "passivity_guard": guard},
                                 bench={"servo_lag_s": lag})
+            recorded = recorded_rows(folder)
             row[key] = {"rendering_rmse": None if stalled else fidelity_rmse(folder),
-                        "rows_rmse": rows_rendering_rmse(folder), **energy_figures(folder, stats)}
+                        "rows_rmse": rows_rendering_rmse(recorded), **energy_figures(recorded, stats)}
         measure = "rendering_rmse" if all(row[k]["rendering_rmse"] is not None for k, _ in PASSIVE_ORDER) else "rows_rmse"
         row["measure"] = measure
         off, on, again, on_again = (row[k][measure] for k, _ in PASSIVE_ORDER)
