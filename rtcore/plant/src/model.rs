@@ -41,7 +41,11 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
     } else {
         0.0
     };
-    StaticTorques { gravity, cogging, spring: p.spring_stiffness * (theta - p.spring_neutral) }
+    StaticTorques {
+        gravity,
+        cogging,
+        spring: p.spring_stiffness * (theta - p.spring_neutral),
+    }
 }
 
 /// Advances `state` by one semi-implicit Euler substep of length `h` (velocity first, then
@@ -52,14 +56,60 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
 /// Expects validated parameters (`Params::validate`) and `h > 0`; it does not check them
 /// because it runs millions of times per identification.
 #[inline]
-pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
+pub fn step(
+    state: &mut State,
+    p: &Params,
+    load: &Load,
+    law: FrictionLaw,
+    tau: f64,
+    t: f64,
+    h: f64,
+) {
     let inertia = p.motor_inertia + load.inertia;
-    let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
-    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, state.theta);
     let omega = state.omega;
     let dissipation = p.damping + p.quadratic_drag * omega.abs();
-    let drive = tau_corrected - gravity - cogging - spring;
-    let level = friction::level(p, state.theta, omega, drive, gravity - tau_corrected);
-    state.omega = friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
+    let (drive, level) = drive_and_level(state, p, load, tau, t);
+    state.omega =
+        friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
     state.theta += h * state.omega;
+}
+
+/// The torque that does not depend on the velocity (`drive`) and the friction's level, at the
+/// start of a substep: `step`'s, and `rests_for_good`'s test of the same numbers.
+#[inline]
+fn drive_and_level(state: &State, p: &Params, load: &Load, tau: f64, t: f64) -> (f64, f64) {
+    let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
+    let StaticTorques {
+        gravity,
+        cogging,
+        spring,
+    } = static_torques(p, load, state.theta);
+    let drive = tau_corrected - gravity - cogging - spring;
+    (
+        drive,
+        friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected),
+    )
+}
+
+/// Whether a joint in `state` stays exactly where it is through every later substep, whatever
+/// their lengths, while the applied torque stays `tau` and nothing depends on time
+/// (`torque_drift` 0): the end of a drop, the joint held by stick friction. Why: a drop test
+/// spends most of its record at rest, and the simulator can then fill the remaining samples
+/// instead of stepping through them (`trial::simulate_into`), with the same numbers to the bit.
+///
+/// Exact, not approximate: at ω = 0 `step` computes the same drive and level every substep
+/// (they depend on θ, ω and the torque alone), and `friction::advance_velocity` sets ω to 0
+/// when |(h/I)·drive| ≤ (h/I)·level; |drive| ≤ level implies that for every h > 0, because a
+/// rounded product is monotonic in its factor. Then θ + h·0 = θ. Only the stick law has such
+/// a rest (tanh friction creeps), and only with a normal inertia (h/I finite).
+pub fn rests_for_good(state: &State, p: &Params, load: &Load, law: FrictionLaw, tau: f64) -> bool {
+    if law != FrictionLaw::Stick || state.omega != 0.0 || p.torque_drift != 0.0 {
+        return false;
+    }
+    let inertia = p.motor_inertia + load.inertia;
+    if !(inertia.is_normal() && inertia > 0.0) {
+        return false;
+    }
+    let (drive, level) = drive_and_level(state, p, load, tau, 0.0);
+    drive.abs() <= level
 }

@@ -11,7 +11,7 @@
 //! is O(1) and a simulation allocates nothing.
 use crate::error::{require_finite, PlantError};
 use crate::friction::FrictionLaw;
-use crate::model::{step, Load, State};
+use crate::model::{rests_for_good, step, Load, State};
 use crate::params::Params;
 
 /// The inputs of one experiment, copied once and simulated many times.
@@ -27,7 +27,9 @@ impl Trial {
     /// the same length and finite, the load's inertia finite and ≥ 0.
     pub fn new(t: Vec<f64>, tau: Option<Vec<f64>>, load: Load) -> Result<Self, PlantError> {
         if t.is_empty() {
-            return Err(PlantError::Shape("a trial needs at least one sample time".into()));
+            return Err(PlantError::Shape(
+                "a trial needs at least one sample time".into(),
+            ));
         }
         for (i, &ti) in t.iter().enumerate() {
             require_finite(&format!("t[{i}]"), ti)?;
@@ -87,7 +89,10 @@ impl Trial {
 
     /// Substeps the simulation takes at `max_step` (for throughput figures).
     pub fn substeps(&self, max_step: f64) -> u64 {
-        self.t.windows(2).map(|w| substep_count(w[1] - w[0], max_step) as u64).sum()
+        self.t
+            .windows(2)
+            .map(|w| substep_count(w[1] - w[0], max_step) as u64)
+            .sum()
     }
 }
 
@@ -117,9 +122,14 @@ impl<'a> TorqueSeries<'a> {
             require_finite(&format!("tau[{i}]"), v)?;
         }
         if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
-            return Err(PlantError::InvalidValue(format!("t must be strictly increasing at t[{}]", i + 1)));
+            return Err(PlantError::InvalidValue(format!(
+                "t must be strictly increasing at t[{}]",
+                i + 1
+            )));
         }
-        Ok(TorqueSeries { cursor: TorqueCursor::new(t, tau) })
+        Ok(TorqueSeries {
+            cursor: TorqueCursor::new(t, tau),
+        })
     }
 
     /// The torque at time `q`, linearly interpolated, held at the end values outside the series.
@@ -141,7 +151,12 @@ pub(crate) struct TorqueCursor<'a> {
 
 impl<'a> TorqueCursor<'a> {
     pub(crate) fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
-        let mut cursor = TorqueCursor { t, tau, j: 0, slope: 0.0 };
+        let mut cursor = TorqueCursor {
+            t,
+            tau,
+            j: 0,
+            slope: 0.0,
+        };
         cursor.update_slope();
         cursor
     }
@@ -191,15 +206,19 @@ pub fn validate_max_step(max_step: f64) -> Result<(), PlantError> {
     if max_step.is_finite() && max_step > 0.0 {
         Ok(())
     } else {
-        Err(PlantError::InvalidValue(format!("max_step must be finite and > 0, got {max_step}")))
+        Err(PlantError::InvalidValue(format!(
+            "max_step must be finite and > 0, got {max_step}"
+        )))
     }
 }
 
 /// Simulates `trial` from `x0` and hands the state at every sample time to `record(i, &state)`
 /// (i = 0 is `x0` itself). Expects validated `p` and `max_step`.
 ///
-/// Gain, bias and drift correct a *measured* torque, so on a trial without `tau` they are left
-/// out (the applied torque is then truly zero; the gain multiplies that zero). Drift is counted from the trial's first sample.
+/// A trial with no applied torque (a drop) that comes to rest for good under stick friction
+/// (`model::rests_for_good`) is not stepped further: its remaining samples are filled with the
+/// rest state, the numbers `step` would have given to the bit. A drop spends most of its record
+/// at rest, so this is most of the identification's simulation time.
 pub fn simulate_into<F: FnMut(usize, &State)>(
     trial: &Trial,
     p: &Params,
@@ -211,16 +230,31 @@ pub fn simulate_into<F: FnMut(usize, &State)>(
     match trial.tau.as_deref() {
         Some(tau) => {
             let mut cursor = TorqueCursor::new(&trial.t, tau);
-            integrate(trial, p, law, x0, max_step, |tk| cursor.at(tk - p.time_delay), record);
+            integrate(
+                trial,
+                p,
+                law,
+                x0,
+                max_step,
+                |tk| cursor.at(tk - p.time_delay),
+                false,
+                record,
+            );
         }
         None => {
-            let p = Params { torque_bias: 0.0, torque_drift: 0.0, ..*p };
-            integrate(trial, &p, law, x0, max_step, |_| 0.0, record);
+            let p = Params {
+                torque_bias: 0.0,
+                torque_drift: 0.0,
+                ..*p
+            };
+            integrate(trial, &p, law, x0, max_step, |_| 0.0, true, record);
         }
     }
 }
 
 /// The substep loop, generic over the torque source so each case compiles to its own loop.
+/// `undriven`: the torque is 0 throughout, so a rest for good ends the stepping.
+#[allow(clippy::too_many_arguments)]
 fn integrate<T: FnMut(f64) -> f64, F: FnMut(usize, &State)>(
     trial: &Trial,
     p: &Params,
@@ -228,14 +262,36 @@ fn integrate<T: FnMut(f64) -> f64, F: FnMut(usize, &State)>(
     x0: State,
     max_step: f64,
     mut applied_at: T,
+    undriven: bool,
     mut record: F,
 ) {
     let t0 = trial.t[0];
     let mut state = x0;
-    walk(&trial.t, max_step, |event| match event {
-        Walk::Substep { t, h } => step(&mut state, p, &trial.load, law, applied_at(t), t - t0, h),
-        Walk::Sample(i) => record(i, &state),
+    let stopped = walk_while(&trial.t, max_step, |event| match event {
+        Walk::Substep { t, h } => {
+            step(&mut state, p, &trial.load, law, applied_at(t), t - t0, h);
+            WalkOn::Go
+        }
+        Walk::Sample(i) => {
+            record(i, &state);
+            // ω == 0 first: the test itself costs a sine or two, and a moving joint skips it.
+            let at_rest =
+                undriven && state.omega == 0.0 && rests_for_good(&state, p, &trial.load, law, 0.0);
+            if at_rest {
+                WalkOn::Stop
+            } else {
+                WalkOn::Go
+            }
+        }
     });
+    // Every later substep would set ω to 0 and add h·0 to θ.
+    let rest = State {
+        theta: state.theta + 0.0,
+        omega: 0.0,
+    };
+    for i in stopped + 1..trial.t.len() {
+        record(i, &rest);
+    }
 }
 
 /// One event of a walk through sample times (`walk`).
@@ -251,17 +307,41 @@ pub(crate) enum Walk {
 /// stepping scheme of the plant's and the servo's simulators.
 #[inline(always)]
 pub(crate) fn walk(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk)) {
-    visit(Walk::Sample(0));
+    walk_while(t, max_step, |event| {
+        visit(event);
+        WalkOn::Go
+    });
+}
+
+/// Whether a walk goes on after a sample (`walk_while`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum WalkOn {
+    Go,
+    Stop,
+}
+
+/// `walk`, ended early when `visit` answers a sample with `WalkOn::Stop` (what it answers to a
+/// substep is ignored). Returns the index of the sample it stopped at, or the last one.
+#[inline(always)]
+pub(crate) fn walk_while(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk) -> WalkOn) -> usize {
+    if visit(Walk::Sample(0)) == WalkOn::Stop {
+        return 0;
+    }
     for i in 1..t.len() {
         let n = substep_count(t[i] - t[i - 1], max_step);
         let h = (t[i] - t[i - 1]) / n as f64;
         for k in 0..n {
-            visit(Walk::Substep { t: t[i - 1] + k as f64 * h, h });
+            visit(Walk::Substep {
+                t: t[i - 1] + k as f64 * h,
+                h,
+            });
         }
-        visit(Walk::Sample(i));
+        if visit(Walk::Sample(i)) == WalkOn::Stop {
+            return i;
+        }
     }
+    t.len() - 1
 }
-
 /// Simulates one trial and returns the state at every sample time (checks its inputs).
 pub fn simulate(
     trial: &Trial,
