@@ -921,7 +921,7 @@ mod tests {
             }
             // Deterministic "noise": torque within ±the sensor's noise, velocity within ±its own.
             let noise = |k: usize| (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
-            let mut rest = |play: &mut PlaySide, k: usize| {
+            let rest = |play: &mut PlaySide, k: usize| {
                 play.update(
                     &model,
                     0.99 * PLAY_VELOCITY_MIN * noise(k),
