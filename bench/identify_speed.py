@@ -2,11 +2,13 @@
 
 Each set is 30 MX-64-like drops (``admittance synth``: the Rust plant at a 10× finer step, 2 mrad
 noise, one undeclared effect). For every set, in one run on the same machine, identify runs
-twice in a fresh Python process each: once with the Python sources of ``--baseline-ref``
-(``git archive`` of that commit's ``admittance/`` package, default: the main this work started
-from) and once with this tree's, both on the same compiled extension (this tree's ``_rtcore``:
-the simulator and plant are the same code; only the identification's Python differs). The order
-alternates from set to set so that a change in the machine's load does not favour one side.
+twice in a fresh Python process each: once as ``--baseline-ref`` was (default: the main this work
+started from), its ``admittance/`` package with its own compiled extension, built from that
+commit's ``rtcore/`` by maturin (cached in ``rtcore/target/baseline``; the first run builds it, a
+minute or more), and once as this tree is. ``--shared-extension`` gives the baseline this tree's
+extension instead (then only the identification's Python differs; the plant's own speed-ups,
+such as the rest of a drop not being stepped, count on both sides). The order alternates from
+set to set so that a change in the machine's load does not favour one side.
 
 Printed per set: both wall times (identify_dataset only, the data loaded) and both CPU times (all
 threads of the process: on a machine shared with other jobs the work done, which the load
@@ -16,7 +18,7 @@ parameter within the larger of the two σ. Then the median ratio over the sets, 
 average before and after. A figure is what one run measured: nothing is extrapolated.
 
 Usage: ``.venv/bin/python bench/identify_speed.py [--sets stribeck=0.04,quadratic_drag=0.002,cogging=0.01]
-[--trials 30] [--duration 10] [--seed 0] [--baseline-ref 74e9896] [--jacobian sensitivities]``
+[--trials 30] [--duration 10] [--seed 0] [--baseline-ref 74e9896] [--shared-extension] [--jacobian sensitivities]``
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,15 +60,33 @@ def _load() -> str:
     return Path("/proc/loadavg").read_text().strip() if Path("/proc/loadavg").exists() else "unknown"
 
 
-def baseline_tree(ref: str, into: Path) -> Path:
-    """The ``admittance`` package of ``ref`` with this tree's compiled extension beside it."""
+def baseline_tree(ref: str, into: Path, shared_extension: bool) -> Path:
+    """The ``admittance`` package of ``ref`` with its own compiled extension beside it (or, with
+    ``shared_extension``, this tree's)."""
     into.mkdir(parents=True, exist_ok=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref, "admittance"], check=True,
-                             capture_output=True).stdout
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref],
+                             check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
-    for ext in (ROOT / "admittance").glob("_rtcore*.so"):
+    extension = ROOT / "admittance" if shared_extension else build_extension(into)
+    for ext in extension.glob("_rtcore*.so"):
         shutil.copy2(ext, into / "admittance" / ext.name)
     return into
+
+
+def build_extension(source: Path) -> Path:
+    """Builds the commit's ``_rtcore`` wheel with this venv's maturin and unpacks its extension."""
+    wheels = source / "wheels"
+    env = dict(os.environ, CARGO_TARGET_DIR=str(ROOT / "rtcore" / "target" / "baseline"))
+    maturin = Path(sys.executable).with_name("maturin")
+    print(f"building the baseline's extension in {source} (cached in {env['CARGO_TARGET_DIR']})", flush=True)
+    done = subprocess.run([str(maturin), "build", "--release", "--quiet", "-o", str(wheels)], cwd=source, env=env,
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"cannot build the baseline's extension: {done.stderr[-2000:]}")
+    unpacked = source / "unpacked"
+    with zipfile.ZipFile(next(wheels.glob("*.whl"))) as wheel:
+        wheel.extractall(unpacked)
+    return unpacked / "admittance"
 
 
 def run_identify(tree: Path, dataset: Path, jacobian: str | None = None) -> dict:
@@ -111,17 +132,20 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="s per trial")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--baseline-ref", default=BASELINE_REF, help="git commit whose identification is the baseline")
+    parser.add_argument("--shared-extension", action="store_true",
+                        help="the baseline runs on this tree's compiled extension, not its own")
     parser.add_argument("--jacobian", choices=("differences", "sensitivities"), default=None,
                         help="this tree's Jacobian (admittance.ident.fit.JACOBIAN; default: the tree's own)")
     args = parser.parse_args()
     sets = [(name, float(size)) for name, size in (item.split("=") for item in args.sets.split(","))]
 
     print(f"machine: {os.cpu_count()} cpus; /proc/loadavg at start: {_load()}")
-    print(f"baseline: admittance/ of {args.baseline_ref}; this: {ROOT}; {args.trials} drops × {args.duration:g} s, "
+    extension = "this tree's extension" if args.shared_extension else "its own extension"
+    print(f"baseline: admittance/ of {args.baseline_ref} on {extension}; this: {ROOT}; {args.trials} drops × {args.duration:g} s, "
           f"2 mrad noise, synthetic (admittance synth)")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        base = baseline_tree(args.baseline_ref, Path(tmp) / "baseline")
+        base = baseline_tree(args.baseline_ref, Path(tmp) / "baseline", args.shared_extension)
         for number, (effect, size) in enumerate(sets):
             folder = make_set(Path(tmp) / f"set{number}", effect, size, args.trials, args.duration, args.seed + number)
             order = [("baseline", base), ("this", ROOT)]

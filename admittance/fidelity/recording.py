@@ -32,6 +32,11 @@ OPTIONAL = ("t_wake", "cycle", "force", "held", "tau_mean")
 TARGET_KEYS = ("virtual_inertia", "virtual_damping", "virtual_coulomb")
 PRESENT = "present position"
 MIN_MOTION_RAD = 0.01  # a model that moved less than this has nothing to render
+
+
+def moved(theta_model: np.ndarray) -> bool:
+    """Whether the model's angle spans at least MIN_MOTION_RAD: anything to render or to fit."""
+    return bool(np.ptp(theta_model) >= MIN_MOTION_RAD)
 MAX_FILE_BYTES = 512 * 1024 * 1024
 MIN_RUN_S = 1.0  # a stretch between two holds or gaps shorter than this is dropped
 # Rows further apart than this (failed reads: a stalled bus or loop) cut a segment: across a
@@ -270,6 +275,6 @@ def _check_motion(folder: Path, joint_id: int, segments: list[Segment]) -> None:
     if not np.any(tau != 0.0):
         raise DataError(f"{folder}: joint {joint_id}: no hand torque recorded (tau is 0 throughout): "
                         "nothing drove the model")
-    if np.ptp(model) < MIN_MOTION_RAD:
+    if not moved(model):
         raise DataError(f"{folder}: joint {joint_id}: no motion (the model moved {1e3 * np.ptp(model):.1f} mrad, "
                         f"less than {1e3 * MIN_MOTION_RAD:.0f}); push the joint while recording")

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from admittance.errors import DataError
-from admittance.fidelity.recording import MIN_MOTION_RAD, TARGET_KEYS, Recording, Segment
+from admittance.fidelity.recording import MIN_MOTION_RAD, TARGET_KEYS, Recording, Segment, moved
 from admittance.fidelity.judge import judge, misfit_note, verdict_line
 from admittance.fidelity.servo import fit_servo
 from admittance.formats import paramfile
@@ -110,7 +110,7 @@ def _moving(recording: Recording, joint_id: int) -> tuple[list[Segment], list[st
     cut in two by a hold or a read gap before a late hand: the wheel smoke's 1-in-3 failure)."""
     moving, still = [], []
     for s in recording.of_joint(joint_id):
-        (moving if np.ptp(s["theta_model"]) >= MIN_MOTION_RAD else still).append(s)
+        (moving if moved(s["theta_model"]) else still).append(s)
     if not moving:
         raise DataError(f"{recording.folder}: joint {joint_id}: the model moved less than "
                         f"{1e3 * MIN_MOTION_RAD:.0f} mrad in every stretch between holds and read gaps "
