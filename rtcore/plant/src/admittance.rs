@@ -29,16 +29,8 @@ pub struct AdmittanceParams {
 pub fn step(state: &mut State, p: &AdmittanceParams, tau_user: f64, h: f64) {
     let omega = state.omega;
     let level = p.coulomb.max(0.0);
-    state.omega = friction::advance_velocity(
-        omega,
-        p.inertia,
-        tau_user,
-        p.damping,
-        level,
-        FrictionLaw::Stick,
-        0.0,
-        h,
-    );
+    state.omega =
+        friction::advance_velocity(omega, p.inertia, tau_user, p.damping, level, FrictionLaw::Stick, 0.0, h);
     state.theta += h * state.omega;
 }
 
@@ -48,22 +40,13 @@ pub fn check_stable(p: &AdmittanceParams, h: f64) -> Result<(), String> {
         return Err(format!("step h must be finite and > 0, got {h}"));
     }
     if !(p.inertia.is_finite() && p.inertia > 0.0) {
-        return Err(format!(
-            "virtual inertia must be finite and > 0, got {}",
-            p.inertia
-        ));
+        return Err(format!("virtual inertia must be finite and > 0, got {}", p.inertia));
     }
     if !(p.damping.is_finite() && p.damping >= 0.0) {
-        return Err(format!(
-            "virtual damping must be finite and >= 0, got {}",
-            p.damping
-        ));
+        return Err(format!("virtual damping must be finite and >= 0, got {}", p.damping));
     }
     if !(p.coulomb.is_finite() && p.coulomb >= 0.0) {
-        return Err(format!(
-            "virtual coulomb must be finite and >= 0, got {}",
-            p.coulomb
-        ));
+        return Err(format!("virtual coulomb must be finite and >= 0, got {}", p.coulomb));
     }
     let ratio = h * p.damping / p.inertia;
     if ratio >= 1.0 {

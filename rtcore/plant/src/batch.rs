@@ -45,8 +45,7 @@ impl Batch<'_> {
     fn validate(&self) -> Result<(), PlantError> {
         validate_max_step(self.max_step)?;
         for (s, p) in self.params.iter().enumerate() {
-            p.validate()
-                .map_err(|e| PlantError::InvalidValue(format!("parameter set {s}: {e}")))?;
+            p.validate().map_err(|e| PlantError::InvalidValue(format!("parameter set {s}: {e}")))?;
         }
         let expected = self.params.len() * self.trials.len();
         if self.x0.len() != expected {
@@ -72,13 +71,9 @@ impl Batch<'_> {
         self.validate()?;
         let width = self.output.width();
         let n_sets = self.params.len();
-        let mut outs: Vec<Vec<f64>> = self
-            .trials
-            .iter()
-            .map(|tr| vec![0.0; n_sets * tr.n_samples() * width])
-            .collect();
-        let mut jobs: Vec<(usize, usize, &mut [f64])> =
-            Vec::with_capacity(n_sets * self.trials.len());
+        let mut outs: Vec<Vec<f64>> =
+            self.trials.iter().map(|tr| vec![0.0; n_sets * tr.n_samples() * width]).collect();
+        let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(n_sets * self.trials.len());
         for (k, out) in outs.iter_mut().enumerate() {
             let row = self.trials[k].n_samples() * width;
             for (s, chunk) in out.chunks_mut(row.max(1)).enumerate() {
@@ -86,8 +81,7 @@ impl Batch<'_> {
             }
         }
         in_pool(self.threads, move || {
-            jobs.into_par_iter()
-                .for_each(|(s, k, chunk)| self.run_one(s, k, chunk));
+            jobs.into_par_iter().for_each(|(s, k, chunk)| self.run_one(s, k, chunk));
         })?;
         Ok(outs)
     }
@@ -97,25 +91,18 @@ impl Batch<'_> {
         let p = &self.params[s];
         match self.output {
             Output::Theta => {
-                simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| {
-                    out[i] = st.theta
-                })
+                simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| out[i] = st.theta)
             }
-            Output::ThetaOmega => {
-                simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| {
-                    out[2 * i] = st.theta;
-                    out[2 * i + 1] = st.omega;
-                })
-            }
+            Output::ThetaOmega => simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| {
+                out[2 * i] = st.theta;
+                out[2 * i + 1] = st.omega;
+            }),
         }
     }
 }
 
 /// Runs `work` on rayon's global pool (`threads` None) or on a pool of `threads` workers.
-pub(crate) fn in_pool<F: FnOnce() + Send>(
-    threads: Option<usize>,
-    work: F,
-) -> Result<(), PlantError> {
+pub(crate) fn in_pool<F: FnOnce() + Send>(threads: Option<usize>, work: F) -> Result<(), PlantError> {
     match threads {
         None => work(),
         Some(n) => rayon::ThreadPoolBuilder::new()

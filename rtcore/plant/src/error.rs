@@ -19,10 +19,7 @@ impl fmt::Display for PlantError {
         match self {
             PlantError::InvalidValue(msg) | PlantError::Shape(msg) => f.write_str(msg),
             PlantError::UnknownFrictionLaw(name) => {
-                write!(
-                    f,
-                    "unknown friction law {name:?}: expected \"stick\" or \"tanh\""
-                )
+                write!(f, "unknown friction law {name:?}: expected \"stick\" or \"tanh\"")
             }
         }
     }
@@ -35,8 +32,6 @@ pub(crate) fn require_finite(name: &str, value: f64) -> Result<(), PlantError> {
     if value.is_finite() {
         Ok(())
     } else {
-        Err(PlantError::InvalidValue(format!(
-            "{name} must be finite, got {value}"
-        )))
+        Err(PlantError::InvalidValue(format!("{name} must be finite, got {value}")))
     }
 }

@@ -75,8 +75,7 @@ pub(crate) fn direction(omega: f64, drive: f64) -> f64 {
 pub fn level(p: &Params, theta: f64, omega: f64, drive: f64, load_torque: f64) -> f64 {
     let mut level = p.coulomb + direction(omega, drive) * p.coulomb_asym;
     if p.friction_ripple_amplitude != 0.0 {
-        level += p.friction_ripple_amplitude
-            * (p.friction_ripple_period * theta + p.friction_ripple_phase).sin();
+        level += p.friction_ripple_amplitude * (p.friction_ripple_period * theta + p.friction_ripple_phase).sin();
     }
     if p.stribeck_torque != 0.0 {
         let r = omega / p.stribeck_velocity;

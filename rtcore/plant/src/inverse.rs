@@ -32,17 +32,9 @@ pub fn required_torque(
     velocity_eps: f64,
 ) -> f64 {
     let inertia = p.motor_inertia + load.inertia;
-    let StaticTorques {
-        gravity,
-        cogging,
-        spring,
-    } = static_torques(p, load, theta);
-    let applied = inertia * alpha
-        + gravity
-        + cogging
-        + spring
-        + p.damping * omega
-        + p.quadratic_drag * omega * omega.abs();
+    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, theta);
+    let applied =
+        inertia * alpha + gravity + cogging + spring + p.damping * omega + p.quadratic_drag * omega * omega.abs();
     // At ω = 0 the level's direction comes from the drive; the shape is 0 there anyway.
     let level = friction::level(p, theta, omega, applied, gravity - applied);
     let shape = match law {
@@ -76,10 +68,7 @@ pub fn required_torques(
     }
     for (name, values) in [("theta", theta), ("omega", omega), ("alpha", alpha)] {
         if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-            return Err(PlantError::InvalidValue(format!(
-                "{name}[{i}] must be finite, got {}",
-                values[i]
-            )));
+            return Err(PlantError::InvalidValue(format!("{name}[{i}] must be finite, got {}", values[i])));
         }
     }
     Ok(theta
@@ -96,10 +85,6 @@ pub fn corrected_torque(p: &Params, t: &[f64], tau: &[f64]) -> Result<Vec<f64>, 
     let mut series = TorqueSeries::new(t, tau)?;
     let t0 = t[0];
     Ok(t.iter()
-        .map(|&tk| {
-            p.torque_gain * series.at(tk - p.time_delay)
-                - p.torque_bias
-                - p.torque_drift * (tk - t0)
-        })
+        .map(|&tk| p.torque_gain * series.at(tk - p.time_delay) - p.torque_bias - p.torque_drift * (tk - t0))
         .collect())
 }

@@ -41,11 +41,7 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
     } else {
         0.0
     };
-    StaticTorques {
-        gravity,
-        cogging,
-        spring: p.spring_stiffness * (theta - p.spring_neutral),
-    }
+    StaticTorques { gravity, cogging, spring: p.spring_stiffness * (theta - p.spring_neutral) }
 }
 
 /// Advances `state` by one semi-implicit Euler substep of length `h` (velocity first, then
@@ -56,21 +52,12 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
 /// Expects validated parameters (`Params::validate`) and `h > 0`; it does not check them
 /// because it runs millions of times per identification.
 #[inline]
-pub fn step(
-    state: &mut State,
-    p: &Params,
-    load: &Load,
-    law: FrictionLaw,
-    tau: f64,
-    t: f64,
-    h: f64,
-) {
+pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
     let inertia = p.motor_inertia + load.inertia;
     let omega = state.omega;
     let dissipation = p.damping + p.quadratic_drag * omega.abs();
     let (drive, level) = drive_and_level(state, p, load, tau, t);
-    state.omega =
-        friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
+    state.omega = friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
     state.theta += h * state.omega;
 }
 
@@ -79,16 +66,9 @@ pub fn step(
 #[inline]
 fn drive_and_level(state: &State, p: &Params, load: &Load, tau: f64, t: f64) -> (f64, f64) {
     let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
-    let StaticTorques {
-        gravity,
-        cogging,
-        spring,
-    } = static_torques(p, load, state.theta);
+    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, state.theta);
     let drive = tau_corrected - gravity - cogging - spring;
-    (
-        drive,
-        friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected),
-    )
+    (drive, friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected))
 }
 
 /// Whether a joint in `state` stays exactly where it is through every later substep, whatever

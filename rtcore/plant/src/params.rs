@@ -119,10 +119,7 @@ impl Params {
     /// Reads a vector in `PARAM_NAMES` order; the length must be exactly `N_PARAMS`.
     pub fn from_slice(v: &[f64]) -> Result<Self, PlantError> {
         let a: [f64; N_PARAMS] = v.try_into().map_err(|_| {
-            PlantError::Shape(format!(
-                "a parameter vector has {N_PARAMS} entries, got {}",
-                v.len()
-            ))
+            PlantError::Shape(format!("a parameter vector has {N_PARAMS} entries, got {}", v.len()))
         })?;
         Ok(Params {
             motor_inertia: a[0],

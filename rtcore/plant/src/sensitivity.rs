@@ -91,14 +91,10 @@ impl Sensitivities<'_> {
         }
         for (i, &j) in self.wrt.iter().enumerate() {
             if j >= N_PARAMS {
-                return Err(PlantError::InvalidValue(format!(
-                    "wrt[{i}] = {j} is not a parameter index"
-                )));
+                return Err(PlantError::InvalidValue(format!("wrt[{i}] = {j} is not a parameter index")));
             }
             if self.wrt[..i].contains(&j) {
-                return Err(PlantError::InvalidValue(format!(
-                    "wrt names parameter {j} twice"
-                )));
+                return Err(PlantError::InvalidValue(format!("wrt names parameter {j} twice")));
             }
         }
         if self.threads == Some(0) {
@@ -112,22 +108,10 @@ impl Sensitivities<'_> {
     pub fn run(&self) -> Result<Vec<Vec<f64>>, PlantError> {
         self.validate()?;
         let rows = self.rows();
-        let mut outs: Vec<Vec<f64>> = self
-            .trials
-            .iter()
-            .map(|tr| vec![0.0; rows * tr.n_samples()])
-            .collect();
+        let mut outs: Vec<Vec<f64>> = self.trials.iter().map(|tr| vec![0.0; rows * tr.n_samples()]).collect();
         in_pool(self.threads, || {
             outs.par_iter_mut().enumerate().for_each(|(k, out)| {
-                sensitivities_into(
-                    self.trials[k],
-                    self.params,
-                    self.law,
-                    self.x0[k],
-                    self.max_step,
-                    self.wrt,
-                    out,
-                )
+                sensitivities_into(self.trials[k], self.params, self.law, self.x0[k], self.max_step, self.wrt, out)
             })
         })?;
         Ok(outs)
@@ -159,14 +143,7 @@ pub fn sensitivities_into(
     // As `trial::simulate_into`: without a measured torque, gain, bias and drift act on nothing.
     let (p, tau) = match trial.tau() {
         Some(tau) => (*p, Some(tau)),
-        None => (
-            Params {
-                torque_bias: 0.0,
-                torque_drift: 0.0,
-                ..*p
-            },
-            None,
-        ),
+        None => (Params { torque_bias: 0.0, torque_drift: 0.0, ..*p }, None),
     };
     let mut cursor = tau.map(|tau| TorqueCursor::new(trial.t(), tau));
     let needs = Needs::new(&p, wrt);
@@ -178,13 +155,7 @@ pub fn sensitivities_into(
             };
             let before = state;
             step(&mut state, &p, &load, law, applied, t - t0, h);
-            let input = Input {
-                applied,
-                rate,
-                measured: tau.is_some(),
-                t_rel: t - t0,
-                h,
-            };
+            let input = Input { applied, rate, measured: tau.is_some(), t_rel: t - t0, h };
             let lin = Substep::new(&p, &load, law, before, state.omega, &input, &needs);
             for (b, &j) in forcing.iter_mut().zip(wrt) {
                 *b = lin.forcing(&p, j, &input, before);
@@ -265,31 +236,16 @@ struct Substep {
 }
 
 impl Substep {
-    fn new(
-        p: &Params,
-        load: &Load,
-        law: FrictionLaw,
-        before: State,
-        omega_new: f64,
-        input: &Input,
-        needs: &Needs,
-    ) -> Self {
+    fn new(p: &Params, load: &Load, law: FrictionLaw, before: State, omega_new: f64, input: &Input, needs: &Needs) -> Self {
         let State { theta, omega } = before;
         let inertia = p.motor_inertia + load.inertia;
         let gh = input.h / inertia;
         let tc = p.torque_gain * input.applied - p.torque_bias - p.torque_drift * input.t_rel;
         let (sg, cg) = (theta - p.angle_offset).sin_cos();
         let gravity = load.gravity_torque * sg;
-        let cog = if needs.cogging {
-            (p.cogging_period * theta + p.cogging_phase).sin_cos()
-        } else {
-            (0.0, 0.0)
-        };
-        let ripple = if needs.ripple {
-            (p.friction_ripple_period * theta + p.friction_ripple_phase).sin_cos()
-        } else {
-            (0.0, 0.0)
-        };
+        let cog = if needs.cogging { (p.cogging_period * theta + p.cogging_phase).sin_cos() } else { (0.0, 0.0) };
+        let ripple =
+            if needs.ripple { (p.friction_ripple_period * theta + p.friction_ripple_phase).sin_cos() } else { (0.0, 0.0) };
         let spring = p.spring_stiffness * (theta - p.spring_neutral);
         let drive = tc - gravity - p.cogging_amplitude * cog.0 - spring;
         let dir = direction(omega, drive);
@@ -347,20 +303,16 @@ impl Substep {
             theta,
         };
         if !stuck {
-            let drive_theta =
-                -sub.gt_cos - p.cogging_amplitude * p.cogging_period * cog.1 - p.spring_stiffness;
+            let drive_theta = -sub.gt_cos - p.cogging_amplitude * p.cogging_period * cog.1 - p.spring_stiffness;
             let level_theta = level_on
                 * (p.friction_ripple_amplitude * p.friction_ripple_period * ripple.1
                     + p.load_coulomb * sub.load.0 * sub.gt_cos);
-            let level_omega = level_on
-                * p.stribeck_torque
-                * stribeck
-                * (-2.0 * omega / (p.stribeck_velocity * p.stribeck_velocity));
+            let level_omega =
+                level_on * p.stribeck_torque * stribeck * (-2.0 * omega / (p.stribeck_velocity * p.stribeck_velocity));
             let diss_omega = p.quadratic_drag * sign(omega);
             let tanh_omega = level * sech2 * p.tanh_k;
             sub.c_theta = gh * (drive_theta - s * level_theta) * inv_den;
-            sub.c_omega =
-                (1.0 + gh * (-s * level_omega - omega_new * diss_omega - tanh_omega)) * inv_den;
+            sub.c_omega = (1.0 + gh * (-s * level_omega - omega_new * diss_omega - tanh_omega)) * inv_den;
         }
         sub
     }
@@ -384,8 +336,7 @@ impl Substep {
             STRIBECK_TORQUE => d_level = self.stribeck,
             STRIBECK_VELOCITY => {
                 let v = p.stribeck_velocity;
-                d_level =
-                    p.stribeck_torque * self.stribeck * 2.0 * self.omega * self.omega / (v * v * v);
+                d_level = p.stribeck_torque * self.stribeck * 2.0 * self.omega * self.omega / (v * v * v);
             }
             LOAD_COULOMB => d_level = self.load.1,
             ANGLE_OFFSET => d_gravity = -self.gt_cos,

@@ -47,20 +47,12 @@ use crate::trial::{validate_max_step, walk, TorqueCursor, Walk};
 pub const N_SERVO_PARAMS: usize = 7;
 
 /// Servo-model parameter names in vector order (the `[servo]` table of a parameter file).
-pub const SERVO_PARAM_NAMES: [&str; N_SERVO_PARAMS] = [
-    "time_constant",
-    "inertial_time",
-    "dead_time",
-    "compliance",
-    "deadband",
-    "backlash",
-    "backlash_torque",
-];
+pub const SERVO_PARAM_NAMES: [&str; N_SERVO_PARAMS] =
+    ["time_constant", "inertial_time", "dead_time", "compliance", "deadband", "backlash", "backlash_torque"];
 
 /// What a `[servo]` table without a key means: `None` = required; the backlash's two keys came
 /// later and default to 0 (no play), so a table written before them loads unchanged.
-pub const SERVO_PARAM_DEFAULTS: [Option<f64>; N_SERVO_PARAMS] =
-    [None, None, None, None, None, Some(0.0), Some(0.0)];
+pub const SERVO_PARAM_DEFAULTS: [Option<f64>; N_SERVO_PARAMS] = [None, None, None, None, None, Some(0.0), Some(0.0)];
 
 /// N·m: a force sensor's torque noise. The compensation takes a hand torque for a push across the
 /// play only beyond max(`backlash_torque`, this), and extrapolates the torque only beyond this,
@@ -86,15 +78,7 @@ pub const FRICTION_FADE_VELOCITY: f64 = 0.02;
 /// outside, so an absurd `[servo]` table (a compliance of 1e300) never reaches the loop. A
 /// slightly negative dead time is allowed because a recording labels the goal and the present
 /// position with the same cycle time, while the read happens after the write.
-pub const SERVO_DOMAIN: [(f64, f64); N_SERVO_PARAMS] = [
-    (0.0, 1.0),
-    (0.0, 0.5),
-    (-0.02, 0.2),
-    (-0.5, 0.5),
-    (0.0, 0.05),
-    (0.0, 0.035),
-    (0.0, 2.0),
-];
+pub const SERVO_DOMAIN: [(f64, f64); N_SERVO_PARAMS] = [(0.0, 1.0), (0.0, 0.5), (-0.02, 0.2), (-0.5, 0.5), (0.0, 0.05), (0.0, 0.035), (0.0, 2.0)];
 
 /// A servo's tracking dynamics (see the module documentation for the equation).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -132,10 +116,7 @@ impl ServoModel {
     /// The model from a vector in `SERVO_PARAM_NAMES` order (validated).
     pub fn from_slice(values: &[f64]) -> Result<ServoModel, PlantError> {
         let v: [f64; N_SERVO_PARAMS] = values.try_into().map_err(|_| {
-            PlantError::Shape(format!(
-                "a servo model has {N_SERVO_PARAMS} values, got {}",
-                values.len()
-            ))
+            PlantError::Shape(format!("a servo model has {N_SERVO_PARAMS} values, got {}", values.len()))
         })?;
         let model = ServoModel {
             time_constant: v[0],
@@ -167,21 +148,11 @@ impl ServoModel {
         for (name, value) in SERVO_PARAM_NAMES.iter().zip(self.to_array()) {
             require_finite(name, value)?;
         }
-        for ((name, value), (lo, hi)) in SERVO_PARAM_NAMES
-            .iter()
-            .zip(self.to_array())
-            .zip(SERVO_DOMAIN)
-        {
+        for ((name, value), (lo, hi)) in SERVO_PARAM_NAMES.iter().zip(self.to_array()).zip(SERVO_DOMAIN) {
             // time_constant's domain is open at 0 (it divides).
-            let inside = if *name == "time_constant" {
-                value > lo && value <= hi
-            } else {
-                (lo..=hi).contains(&value)
-            };
+            let inside = if *name == "time_constant" { value > lo && value <= hi } else { (lo..=hi).contains(&value) };
             if !inside {
-                return Err(PlantError::InvalidValue(format!(
-                    "{name} must be within [{lo}, {hi}], got {value}"
-                )));
+                return Err(PlantError::InvalidValue(format!("{name} must be within [{lo}, {hi}], got {value}")));
             }
         }
         Ok(())
@@ -228,13 +199,7 @@ pub fn lead(model: &ServoModel, omega: f64, alpha: f64, tau: f64) -> f64 {
 /// `lead` with its friction term fading in over `fade_velocity` rad/s instead of
 /// `FRICTION_FADE_VELOCITY` (the RT loop's compensation widens it at light virtual inertias).
 #[inline]
-pub fn lead_fading(
-    model: &ServoModel,
-    omega: f64,
-    alpha: f64,
-    tau: f64,
-    fade_velocity: f64,
-) -> f64 {
+pub fn lead_fading(model: &ServoModel, omega: f64, alpha: f64, tau: f64, fade_velocity: f64) -> f64 {
     let d = model.dead_time;
     let omega_ahead = omega + alpha * d;
     let travel = omega * d + 0.5 * alpha * d * d;
@@ -261,9 +226,7 @@ pub fn horn_in_play(model: &ServoModel, horn: f64, motor: f64, tau: f64) -> f64 
 /// `PlaySide`): the servo's own time scale, its natural period 1/ω_n = √(m·T), but not below its
 /// lag T (so that the drive term T·v stays within a few β: T/crossing ≤ 1, m·T/crossing² ≤ 1).
 pub fn play_crossing(model: &ServoModel) -> f64 {
-    (model.inertial_time * model.time_constant)
-        .sqrt()
-        .max(model.time_constant)
+    (model.inertial_time * model.time_constant).sqrt().max(model.time_constant)
 }
 
 /// s: the base of how far ahead the side of the play is decided: the goal acts a dead time late,
@@ -332,10 +295,7 @@ pub fn play_horizons(model: &ServoModel, omega: f64) -> (f64, f64) {
     let stage = crossing / 3.0;
     let runaway = omega.abs().max(PLAY_VELOCITY_MIN) * stage / model.backlash; // a NaN ω: the floor
     let through = dead + 0.5 * crossing * (2.0 - share);
-    (
-        dead + 0.5 * crossing * share,
-        (dead + stage * held_lead(runaway)).max(through),
-    )
+    (dead + 0.5 * crossing * share, (dead + stage * held_lead(runaway)).max(through))
 }
 
 /// The held torque's noise (`PlaySide`), as a multiple of a white torque noise's variance: the
@@ -346,11 +306,7 @@ pub fn play_horizons(model: &ServoModel, omega: f64) -> (f64, f64) {
 /// Σ τ̄₁² = share⁴·(1 + x)/(1 − x)³, Σ τ̄₀·τ̄₁ = share³/(1 − x)².
 pub fn held_torque_noise(share: f64, c: f64) -> f64 {
     let x = (1.0 - share) * (1.0 - share);
-    let (zero, one, both) = (
-        share * share / (1.0 - x),
-        share.powi(4) * (1.0 + x) / (1.0 - x).powi(3),
-        share.powi(3) / (1.0 - x).powi(2),
-    );
+    let (zero, one, both) = (share * share / (1.0 - x), share.powi(4) * (1.0 + x) / (1.0 - x).powi(3), share.powi(3) / (1.0 - x).powi(2));
     (1.0 + c) * (1.0 + c) * zero - 2.0 * c * (1.0 + c) * both + c * c * one
 }
 
@@ -427,13 +383,9 @@ impl PlaySide {
         let rate = (self.torque[0] - self.torque[1]) / smoothing;
         let (free, held) = play_horizons(model, omega + alpha * model.dead_time.max(0.0));
         let within_crossing = model.dead_time.max(0.0) + play_crossing(model);
-        let extrapolate =
-            tau.abs() > PLAY_TORQUE_MIN || (rate * within_crossing).abs() > PLAY_TORQUE_MIN;
+        let extrapolate = tau.abs() > PLAY_TORQUE_MIN || (rate * within_crossing).abs() > PLAY_TORQUE_MIN;
         let (tau_free, tau_held) = if extrapolate {
-            (
-                tau + rate * free,
-                self.torque[0] + rate * (held + smoothing),
-            )
+            (tau + rate * free, self.torque[0] + rate * (held + smoothing))
         } else {
             (tau, tau)
         };
@@ -499,38 +451,24 @@ pub struct ServoTrial {
 
 fn strictly_increasing(name: &str, t: &[f64]) -> Result<(), PlantError> {
     if t.is_empty() {
-        return Err(PlantError::Shape(format!(
-            "{name} needs at least one sample"
-        )));
+        return Err(PlantError::Shape(format!("{name} needs at least one sample")));
     }
     for (i, &v) in t.iter().enumerate() {
         require_finite(&format!("{name}[{i}]"), v)?;
     }
     match t.windows(2).position(|w| w[1] <= w[0]) {
-        Some(i) => Err(PlantError::InvalidValue(format!(
-            "{name} must be strictly increasing at index {}",
-            i + 1
-        ))),
+        Some(i) => Err(PlantError::InvalidValue(format!("{name} must be strictly increasing at index {}", i + 1))),
         None => Ok(()),
     }
 }
 
 impl ServoTrial {
-    pub fn new(
-        t: Vec<f64>,
-        t_in: Vec<f64>,
-        goal: Vec<f64>,
-        tau: Vec<f64>,
-    ) -> Result<Self, PlantError> {
+    pub fn new(t: Vec<f64>, t_in: Vec<f64>, goal: Vec<f64>, tau: Vec<f64>) -> Result<Self, PlantError> {
         strictly_increasing("t", &t)?;
         strictly_increasing("t_in", &t_in)?;
         for (name, series) in [("goal", &goal), ("tau", &tau)] {
             if series.len() != t_in.len() {
-                return Err(PlantError::Shape(format!(
-                    "{name} has {} samples but t_in has {}",
-                    series.len(),
-                    t_in.len()
-                )));
+                return Err(PlantError::Shape(format!("{name} has {} samples but t_in has {}", series.len(), t_in.len())));
             }
             for (i, &v) in series.iter().enumerate() {
                 require_finite(&format!("{name}[{i}]"), v)?;
@@ -547,44 +485,24 @@ impl ServoTrial {
 /// Simulates `trial` from `x0` (the state at t[0]) and hands the state at every sample time to
 /// `record(i, &state)`. Between samples it takes equal substeps of at most `max_step`, with the
 /// goal interpolated at (substep time − dead time) and the torque at the substep time.
-pub fn simulate_into<F: FnMut(usize, &State)>(
-    trial: &ServoTrial,
-    model: &ServoModel,
-    x0: State,
-    max_step: f64,
-    mut record: F,
-) {
+pub fn simulate_into<F: FnMut(usize, &State)>(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64, mut record: F) {
     let mut goal = TorqueCursor::new(&trial.t_in, &trial.goal);
     let mut tau = TorqueCursor::new(&trial.t_in, &trial.tau);
     // x0 is the horn; the motor starts on the side of the play the first torque holds it to.
     let mut horn = x0.theta;
-    let mut state = State {
-        theta: x0.theta - (horn_in_play(model, 0.0, 0.0, tau.at(trial.t[0]))),
-        ..x0
-    };
+    let mut state = State { theta: x0.theta - (horn_in_play(model, 0.0, 0.0, tau.at(trial.t[0]))), ..x0 };
     walk(&trial.t, max_step, |event| match event {
         Walk::Substep { t, h } => {
             let q = tau.at(t);
             step(&mut state, model, goal.at(t - model.dead_time), q, h);
             horn = horn_in_play(model, horn, state.theta, q);
         }
-        Walk::Sample(i) => record(
-            i,
-            &State {
-                theta: horn,
-                omega: state.omega,
-            },
-        ),
+        Walk::Sample(i) => record(i, &State { theta: horn, omega: state.omega }),
     });
 }
 
 /// The horn angle at every sample time of `trial`, after checking the inputs.
-pub fn simulate(
-    trial: &ServoTrial,
-    model: &ServoModel,
-    x0: State,
-    max_step: f64,
-) -> Result<Vec<f64>, PlantError> {
+pub fn simulate(trial: &ServoTrial, model: &ServoModel, x0: State, max_step: f64) -> Result<Vec<f64>, PlantError> {
     model.validate()?;
     validate_max_step(max_step)?;
     require_finite("theta0", x0.theta)?;
@@ -605,8 +523,7 @@ pub fn simulate_batch(
 ) -> Result<Vec<Vec<f64>>, PlantError> {
     validate_max_step(max_step)?;
     for (s, m) in models.iter().enumerate() {
-        m.validate()
-            .map_err(|e| PlantError::InvalidValue(format!("servo model {s}: {e}")))?;
+        m.validate().map_err(|e| PlantError::InvalidValue(format!("servo model {s}: {e}")))?;
     }
     if x0.len() != models.len() * trials.len() {
         return Err(PlantError::Shape(format!(
@@ -621,10 +538,7 @@ pub fn simulate_batch(
         require_finite(&format!("x0 omega #{i}"), x.omega)?;
     }
     let n_sets = models.len();
-    let mut outs: Vec<Vec<f64>> = trials
-        .iter()
-        .map(|tr| vec![0.0; n_sets * tr.n_samples()])
-        .collect();
+    let mut outs: Vec<Vec<f64>> = trials.iter().map(|tr| vec![0.0; n_sets * tr.n_samples()]).collect();
     let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(n_sets * trials.len());
     for (k, out) in outs.iter_mut().enumerate() {
         for (s, chunk) in out.chunks_mut(trials[k].n_samples().max(1)).enumerate() {
@@ -632,13 +546,7 @@ pub fn simulate_batch(
         }
     }
     jobs.into_par_iter().for_each(|(s, k, chunk)| {
-        simulate_into(
-            trials[k],
-            &models[s],
-            x0[s * trials.len() + k],
-            max_step,
-            |i, st| chunk[i] = st.theta,
-        )
+        simulate_into(trials[k], &models[s], x0[s * trials.len() + k], max_step, |i, st| chunk[i] = st.theta)
     });
     Ok(outs)
 }
@@ -647,21 +555,18 @@ pub fn simulate_batch(
 mod tests {
     use super::*;
 
-    const MX: ServoModel = ServoModel {
-        time_constant: 0.017,
-        inertial_time: 0.021,
-        dead_time: 0.002,
-        compliance: 0.024,
-        deadband: 0.002,
-        backlash: 0.0,
-        backlash_torque: 0.0,
-    };
+    const MX: ServoModel =
+        ServoModel {
+            time_constant: 0.017,
+            inertial_time: 0.021,
+            dead_time: 0.002,
+            compliance: 0.024,
+            deadband: 0.002,
+            backlash: 0.0,
+            backlash_torque: 0.0,
+        };
     /// MX with the play of bench/servo_forms.py's geared oracle (0.5°, a horn friction of 0.02 N·m).
-    const GEARED: ServoModel = ServoModel {
-        backlash: 0.0087,
-        backlash_torque: 0.02,
-        ..MX
-    };
+    const GEARED: ServoModel = ServoModel { backlash: 0.0087, backlash_torque: 0.02, ..MX };
 
     fn uniform(n: usize, dt: f64) -> Vec<f64> {
         (0..n).map(|i| i as f64 * dt).collect()
@@ -677,32 +582,17 @@ mod tests {
     #[test]
     fn a_first_order_lag_steps_like_implicit_euler_even_far_below_the_substep() {
         let tr = trial(|_| 1.0, |_| 0.0, 0.05);
-        let out = simulate(
-            &tr,
-            &ServoModel::first_order_lag(1e-6),
-            State::default(),
-            5e-4,
-        )
-        .unwrap();
-        assert!(
-            out.iter().skip(1).all(|&x| (x - 1.0).abs() < 1e-2),
-            "no divergence"
-        );
+        let out = simulate(&tr, &ServoModel::first_order_lag(1e-6), State::default(), 5e-4).unwrap();
+        assert!(out.iter().skip(1).all(|&x| (x - 1.0).abs() < 1e-2), "no divergence");
         let (tc, h) = (0.025, 1e-4);
         let tr = trial(|_| 1.0, |_| 0.0, 0.2);
         let out = simulate(&tr, &ServoModel::first_order_lag(tc), State::default(), h).unwrap();
         for (i, &theta) in out.iter().enumerate() {
             let n = (i as f64 * 1e-3 / h).round();
             let exact = 1.0 - (1.0 / (1.0 + h / tc)).powf(n);
-            assert!(
-                (theta - exact).abs() < 1e-9,
-                "sample {i}: {theta} vs {exact}"
-            );
+            assert!((theta - exact).abs() < 1e-9, "sample {i}: {theta} vs {exact}");
         }
-        assert!(
-            (out[25] - (1.0 - (-1.0f64).exp())).abs() < 3e-3,
-            "one time constant: 63 %"
-        );
+        assert!((out[25] - (1.0 - (-1.0f64).exp())).abs() < 3e-3, "one time constant: 63 %");
     }
 
     #[test]
@@ -717,40 +607,17 @@ mod tests {
 
     #[test]
     fn absurd_servo_tables_are_refused_and_the_fit_s_own_domain_is_not() {
-        let bad_values = [
-            (3, 1e300),
-            (3, -1e6),
-            (4, 1e300),
-            (2, 1.0),
-            (0, 0.0),
-            (1, -0.1),
-            (0, f64::NAN),
-        ];
-        let bad_play = [
-            (5, -1e-3),
-            (5, 0.04),
-            (5, 1e300),
-            (6, -0.1),
-            (6, 2.5),
-            (6, f64::INFINITY),
-        ];
+        let bad_values = [(3, 1e300), (3, -1e6), (4, 1e300), (2, 1.0), (0, 0.0), (1, -0.1), (0, f64::NAN)];
+        let bad_play = [(5, -1e-3), (5, 0.04), (5, 1e300), (6, -0.1), (6, 2.5), (6, f64::INFINITY)];
         for (k, bad) in bad_values.into_iter().chain(bad_play) {
             let mut v = MX.to_array();
             v[k] = bad;
-            assert!(
-                ServoModel::from_slice(&v).is_err(),
-                "{} = {bad}",
-                SERVO_PARAM_NAMES[k]
-            );
+            assert!(ServoModel::from_slice(&v).is_err(), "{} = {bad}", SERVO_PARAM_NAMES[k]);
         }
         for (k, (lo, hi)) in SERVO_DOMAIN.iter().enumerate() {
             let mut v = MX.to_array();
             v[k] = if k == 0 { *hi } else { *lo };
-            assert!(
-                ServoModel::from_slice(&v).is_ok(),
-                "{} at its bound",
-                SERVO_PARAM_NAMES[k]
-            );
+            assert!(ServoModel::from_slice(&v).is_ok(), "{} at its bound", SERVO_PARAM_NAMES[k]);
         }
     }
 
@@ -759,27 +626,13 @@ mod tests {
         let tr = trial(|_| 0.0, |_| 0.5, 2.0);
         let deflection = MX.compliance * 0.5;
         let out = simulate(&tr, &MX, State::default(), 2.5e-4).unwrap();
-        assert!(
-            (out[1999] - deflection).abs() <= MX.deadband,
-            "the horn rests within the band: {}",
-            out[1999]
-        );
-        let no_inertia = ServoModel {
-            inertial_time: 0.0,
-            ..MX
-        };
+        assert!((out[1999] - deflection).abs() <= MX.deadband, "the horn rests within the band: {}", out[1999]);
+        let no_inertia = ServoModel { inertial_time: 0.0, ..MX };
         let out = simulate(&tr, &no_inertia, State::default(), 2.5e-4).unwrap();
-        assert!(
-            (out[1999] - (deflection - MX.deadband)).abs() < 1e-9,
-            "without inertia, at its edge: {}",
-            out[1999]
-        );
+        assert!((out[1999] - (deflection - MX.deadband)).abs() < 1e-9, "without inertia, at its edge: {}", out[1999]);
         let small = trial(|_| 0.0, |_| 0.5 * MX.deadband / MX.compliance, 1.0);
         let out = simulate(&small, &MX, State::default(), 2.5e-4).unwrap();
-        assert!(
-            out.iter().all(|&x| x == 0.0),
-            "within the band the horn never moves"
-        );
+        assert!(out.iter().all(|&x| x == 0.0), "within the band the horn never moves");
     }
 
     #[test]
@@ -787,55 +640,23 @@ mod tests {
         let half = 0.5 * GEARED.backlash;
         // At rest, a hand that pushes +, then −: the horn sits half the play to that side of the
         // motor, which itself gives by the compliance (without inertia and band: exactly).
-        let soft = ServoModel {
-            inertial_time: 0.0,
-            deadband: 0.0,
-            ..GEARED
-        };
+        let soft = ServoModel { inertial_time: 0.0, deadband: 0.0, ..GEARED };
         let tr = trial(|_| 0.0, |t| if t < 1.0 { 0.3 } else { -0.3 }, 2.0);
         let out = simulate(&tr, &soft, State::default(), 2.5e-4).unwrap();
-        assert!(
-            (out[999] - (0.3 * soft.compliance + half)).abs() < 1e-6,
-            "pushed +: {}",
-            out[999]
-        );
-        assert!(
-            (out[1999] - (-0.3 * soft.compliance - half)).abs() < 1e-6,
-            "pushed −: {}",
-            out[1999]
-        );
+        assert!((out[999] - (0.3 * soft.compliance + half)).abs() < 1e-6, "pushed +: {}", out[999]);
+        assert!((out[1999] - (-0.3 * soft.compliance - half)).abs() < 1e-6, "pushed −: {}", out[1999]);
         // No hand: a goal ramp drags the horn, which trails the motor by half the play.
         let ramp = trial(|t| 0.5 * t, |_| 0.0, 2.0);
         let free = simulate(&ramp, &GEARED, State::default(), 2.5e-4).unwrap();
         let rigid = simulate(&ramp, &MX, State::default(), 2.5e-4).unwrap();
-        assert!(
-            (rigid[1999] - free[1999] - half).abs() < 1e-6,
-            "trails by {}",
-            rigid[1999] - free[1999]
-        );
+        assert!((rigid[1999] - free[1999] - half).abs() < 1e-6, "trails by {}", rigid[1999] - free[1999]);
         // A hand within the horn's friction does not move it: after the ramp stops, it stays.
         let back = trial(|t| if t < 0.5 { 0.5 * t } else { 0.25 }, |_| 0.015, 1.5);
         let out = simulate(&back, &GEARED, State::default(), 2.5e-4).unwrap();
         let settled = simulate(&back, &MX, State::default(), 2.5e-4).unwrap();
-        assert!(
-            (settled[1499] - out[1499] - half).abs() < 1e-4,
-            "still trailing: {}",
-            settled[1499] - out[1499]
-        );
+        assert!((settled[1499] - out[1499] - half).abs() < 1e-4, "still trailing: {}", settled[1499] - out[1499]);
         // Without play the horn is the motor, bit for bit.
-        assert_eq!(
-            simulate(
-                &ramp,
-                &ServoModel {
-                    backlash_torque: 0.3,
-                    ..MX
-                },
-                State::default(),
-                2.5e-4
-            )
-            .unwrap(),
-            rigid
-        );
+        assert_eq!(simulate(&ramp, &ServoModel { backlash_torque: 0.3, ..MX }, State::default(), 2.5e-4).unwrap(), rigid);
     }
 
     /// RMS of (horn − reference) after the first 0.5 s, with and without the play's inverse.
@@ -845,35 +666,15 @@ mod tests {
         let a = |t: f64| -0.8 * (2.0 * t).sin() - 4.05 * (9.0 * t).sin();
         let t: Vec<f64> = uniform(4000, 1e-3);
         let mut play = PlaySide::default();
-        let offsets: Vec<f64> = t
-            .iter()
-            .map(|&x| play.update(model, w(x), a(x), tau(x), 1e-3))
-            .collect();
+        let offsets: Vec<f64> = t.iter().map(|&x| play.update(model, w(x), a(x), tau(x), 1e-3)).collect();
         let goal = |with: bool| -> Vec<f64> {
-            t.iter()
-                .zip(&offsets)
-                .map(|(&x, o)| r(x) + lead(model, w(x), a(x), tau(x)) + if with { *o } else { 0.0 })
-                .collect()
+            t.iter().zip(&offsets).map(|(&x, o)| r(x) + lead(model, w(x), a(x), tau(x)) + if with { *o } else { 0.0 }).collect()
         };
         let q: Vec<f64> = t.iter().map(|&x| tau(x)).collect();
         let err = |g: Vec<f64>| {
             let tr = ServoTrial::new(t.clone(), t.clone(), g, q.clone()).unwrap();
-            let out = simulate(
-                &tr,
-                model,
-                State {
-                    theta: r(0.0),
-                    omega: w(0.0),
-                },
-                2.5e-4,
-            )
-            .unwrap();
-            let sq: f64 = out
-                .iter()
-                .enumerate()
-                .skip(500)
-                .map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2))
-                .sum();
+            let out = simulate(&tr, model, State { theta: r(0.0), omega: w(0.0) }, 2.5e-4).unwrap();
+            let sq: f64 = out.iter().enumerate().skip(500).map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2)).sum();
             (sq / (out.len() - 500) as f64).sqrt()
         };
         (err(goal(false)), err(goal(true)))
@@ -882,10 +683,7 @@ mod tests {
     #[test]
     fn the_play_s_inverse_makes_the_horn_follow_whether_the_hand_or_the_motor_pushes() {
         // A hand that leans on the horn (|τ| well beyond its friction), and one that never does.
-        for (name, tau) in [
-            ("motor", (|_: f64| 0.0) as fn(f64) -> f64),
-            ("hand", |t: f64| 0.3 * (2.0 * t).cos()),
-        ] {
+        for (name, tau) in [("motor", (|_: f64| 0.0) as fn(f64) -> f64), ("hand", |t: f64| 0.3 * (2.0 * t).cos())] {
             let (without, with) = play_errors(&GEARED, tau);
             // Measured 15.9× and 9.4× (the crossing shaped and driven by the servo's own inverse,
             // decided play_ahead early); without the drive, or decided on the present torque, < 8×.
@@ -894,27 +692,16 @@ mod tests {
     }
 
     /// The offsets of a fresh `PlaySide` under the model at rest (ω = 0) and the torques `taus`.
-    fn offsets(
-        model: &ServoModel,
-        taus: impl Iterator<Item = f64>,
-        h: f64,
-    ) -> (Vec<f64>, Vec<f64>) {
+    fn offsets(model: &ServoModel, taus: impl Iterator<Item = f64>, h: f64) -> (Vec<f64>, Vec<f64>) {
         let mut play = PlaySide::default();
-        taus.map(|q| (play.update(model, 0.0, 0.0, q, h), play.side()))
-            .unzip()
+        taus.map(|q| (play.update(model, 0.0, 0.0, q, h), play.side())).unzip()
     }
 
     #[test]
     fn the_play_s_inverse_does_not_chatter_on_noise_at_rest() {
         let h = 1e-3;
         // A fitted horn friction, and none (the sensor's noise is then all the push threshold has).
-        for model in [
-            GEARED,
-            ServoModel {
-                backlash_torque: 0.0,
-                ..GEARED
-            },
-        ] {
+        for model in [GEARED, ServoModel { backlash_torque: 0.0, ..GEARED }] {
             let mut play = PlaySide::default();
             for _ in 0..200 {
                 play.update(&model, 0.0, 0.0, 0.1, h);
@@ -922,13 +709,7 @@ mod tests {
             // Deterministic "noise": torque within ±the sensor's noise, velocity within ±its own.
             let noise = |k: usize| (k as f64 * 0.7).sin() * (k as f64 * 1.3).cos();
             let rest = |play: &mut PlaySide, k: usize| {
-                play.update(
-                    &model,
-                    0.99 * PLAY_VELOCITY_MIN * noise(k),
-                    0.0,
-                    0.99 * PLAY_TORQUE_MIN * noise(k),
-                    h,
-                )
+                play.update(&model, 0.99 * PLAY_VELOCITY_MIN * noise(k), 0.0, 0.99 * PLAY_TORQUE_MIN * noise(k), h)
             };
             // The hand let go at once: its fall, extrapolated, may read as a fall on through the band
             // (once: the motor then goes to the other side of a free horn, which it does not move);
@@ -947,63 +728,28 @@ mod tests {
                 side = play.side();
             }
             assert_eq!(flips, 0, "the side is kept at rest: {model:?}");
-            assert_eq!(
-                play.update(&model, f64::NAN, f64::NAN, f64::NAN, h),
-                last,
-                "non-finite input: kept"
-            );
+            assert_eq!(play.update(&model, f64::NAN, f64::NAN, f64::NAN, h), last, "non-finite input: kept");
         }
-        assert_eq!(
-            PlaySide::default().update(&MX, 1.0, 0.0, 1.0, h),
-            0.0,
-            "no play, no offset"
-        );
+        assert_eq!(PlaySide::default().update(&MX, 1.0, 0.0, 1.0, h), 0.0, "no play, no offset");
     }
 
     #[test]
-    fn a_reversal_of_the_hand_crosses_in_the_servo_s_own_time_without_stepping_the_goal_by_more_than_the_play(
-    ) {
+    fn a_reversal_of_the_hand_crosses_in_the_servo_s_own_time_without_stepping_the_goal_by_more_than_the_play() {
         let h = 1e-3;
-        let slow = ServoModel {
-            time_constant: 0.08,
-            inertial_time: 0.05,
-            ..GEARED
-        };
+        let slow = ServoModel { time_constant: 0.08, inertial_time: 0.05, ..GEARED };
         for model in [GEARED, slow] {
             let (half, crossing) = (0.5 * model.backlash, play_crossing(&model));
             let n = (12.0 * crossing / h) as usize;
-            let (goal, _) = offsets(
-                &model,
-                (0..2 * n).map(|k| if k < n { 0.1 } else { -0.1 }),
-                h,
-            );
-            assert!(
-                (goal[n - 1] + half).abs() < 1e-6 && (goal[2 * n - 1] - half).abs() < 1e-6,
-                "side to side"
-            );
-            let most = goal
-                .windows(2)
-                .map(|w| (w[1] - w[0]).abs())
-                .fold(0.0, f64::max);
-            assert!(
-                most <= model.backlash,
-                "a step of {most} for a play of {}",
-                model.backlash
-            );
+            let (goal, _) = offsets(&model, (0..2 * n).map(|k| if k < n { 0.1 } else { -0.1 }), h);
+            assert!((goal[n - 1] + half).abs() < 1e-6 && (goal[2 * n - 1] - half).abs() < 1e-6, "side to side");
+            let most = goal.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
+            assert!(most <= model.backlash, "a step of {most} for a play of {}", model.backlash);
             // The motor's offset (the goal less the servo's inverse of it) is half-way across after
             // about the crossing's mean delay: the servo's own time, not a constant.
             let mut play = PlaySide::default();
-            let motor: Vec<f64> = (0..2 * n)
-                .map(|k| {
-                    play.update(&model, 0.0, 0.0, if k < n { 0.1 } else { -0.1 }, h);
-                    play.stages[2]
-                })
-                .collect();
+            let motor: Vec<f64> = (0..2 * n).map(|k| { play.update(&model, 0.0, 0.0, if k < n { 0.1 } else { -0.1 }, h); play.stages[2] }).collect();
             let mid = (n..2 * n).find(|&k| motor[k] >= 0.0).unwrap() - n;
-            assert!(
-                (0.7..1.1).contains(&(mid as f64 * h / crossing)),
-                "half-way after {mid} cycles, crossing {crossing}"
-            );
+            assert!((0.7..1.1).contains(&(mid as f64 * h / crossing)), "half-way after {mid} cycles, crossing {crossing}");
         }
     }
 
@@ -1019,42 +765,26 @@ mod tests {
         let push = GEARED.backlash_torque.max(PLAY_TORQUE_MIN);
         let tau = |k: usize| 0.2 - 0.5 * k as f64 * h;
         let mut play = PlaySide::default();
-        let (motor, sides): (Vec<f64>, Vec<f64>) = (0..800)
-            .map(|k| {
-                play.update(&GEARED, 0.0, 0.0, tau(k), h);
-                (play.stages[2], play.side())
-            })
-            .unzip();
+        let (motor, sides): (Vec<f64>, Vec<f64>) =
+            (0..800).map(|k| { play.update(&GEARED, 0.0, 0.0, tau(k), h); (play.stages[2], play.side()) }).unzip();
         let flip = sides.iter().position(|&s| s < 0.0).expect("it flips");
         let now = (0..800).find(|&k| tau(k) < -push).unwrap();
         let early = (now - flip) as f64 * h;
         let (_, held) = play_horizons(&GEARED, 0.0);
-        assert!(
-            held > GEARED.dead_time + play_crossing(&GEARED),
-            "at rest: more than a crossing, {held}"
-        );
-        assert!(
-            (early - held).abs() <= 2.0 * h,
-            "{early} s early, held horizon {held}"
-        );
+        assert!(held > GEARED.dead_time + play_crossing(&GEARED), "at rest: more than a crossing, {held}");
+        assert!((early - held).abs() <= 2.0 * h, "{early} s early, held horizon {held}");
         let across = (motor[now] + 0.5 * GEARED.backlash) / GEARED.backlash;
-        assert!(
-            across > 0.85,
-            "{across} of the way across when the hand takes hold"
-        );
+        assert!(across > 0.85, "{across} of the way across when the hand takes hold");
     }
 
     /// Deterministic white noise: uniform in ±√3·σ (a linear congruential generator).
     fn white(seed: &mut u64, sigma: f64) -> f64 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((*seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * 3f64.sqrt() * sigma
     }
 
     #[test]
-    fn a_noisy_hand_letting_go_while_the_joint_moves_flips_the_side_less_than_on_every_noise_sample(
-    ) {
+    fn a_noisy_hand_letting_go_while_the_joint_moves_flips_the_side_less_than_on_every_noise_sample() {
         // The joint moves on at 0.1 rad/s; the hand holds the horn (0.1 N·m) and lets go (0),
         // 20 times, through ramps of 1 N·m/s, its sensor carrying white noise of 5 mN·m (a quarter
         // of the horn's friction). Each let-go and each take-hold moves the side once (40 flips);
@@ -1066,12 +796,7 @@ mod tests {
         let mut play = PlaySide::default();
         let tau = |k: usize| {
             let phase = k % 600;
-            (if phase < 300 {
-                0.1 - 1e-3 * phase as f64
-            } else {
-                1e-3 * (phase - 300) as f64 - 0.2
-            })
-            .clamp(0.0, 0.1)
+            (if phase < 300 { 0.1 - 1e-3 * phase as f64 } else { 1e-3 * (phase - 300) as f64 - 0.2 }).clamp(0.0, 0.1)
         };
         let (mut flips, mut side) = (0, 0.0);
         for k in 0..12000 {
@@ -1080,11 +805,7 @@ mod tests {
             flips += (k > 0 && play.side() != side) as u32;
             side = play.side();
         }
-        assert!(
-            (play.torque_noise() - sigma).abs() < 0.2 * sigma,
-            "measured noise {}",
-            play.torque_noise()
-        );
+        assert!((play.torque_noise() - sigma).abs() < 0.2 * sigma, "measured noise {}", play.torque_noise());
         assert!(flips < 170, "{flips} flips");
     }
 
@@ -1118,11 +839,7 @@ mod tests {
                 zero *= 1.0 - share;
                 one = one * (1.0 - share) + share * zero;
             }
-            assert!(
-                (held_torque_noise(share, c) - sum).abs() < 1e-9 * sum,
-                "{share}, {c}: {} vs {sum}",
-                held_torque_noise(share, c)
-            );
+            assert!((held_torque_noise(share, c) - sum).abs() < 1e-9 * sum, "{share}, {c}: {} vs {sum}", held_torque_noise(share, c));
         }
     }
 
@@ -1134,11 +851,7 @@ mod tests {
         let left = |s: f64| (-s).exp() * (1.0 + s + s * s / 2.0);
         let ds = 1e-3;
         let n = ((60.0 - u) / ds) as usize;
-        let after: f64 = (0..n)
-            .map(|i| {
-                0.5 * ds * (left(u + i as f64 * ds).powi(2) + left(u + (i + 1) as f64 * ds).powi(2))
-            })
-            .sum();
+        let after: f64 = (0..n).map(|i| 0.5 * ds * (left(u + i as f64 * ds).powi(2) + left(u + (i + 1) as f64 * ds).powi(2))).sum();
         r * r * u.powi(3) / 3.0 + after
     }
 
@@ -1148,11 +861,7 @@ mod tests {
             let u = held_lead(r);
             let best = held_cost(r, u);
             for other in [0.8 * u, 0.9 * u, 1.1 * u, 1.25 * u, 3.0] {
-                assert!(
-                    best <= held_cost(r, other) + 1e-12,
-                    "r {r}: {u} costs {best}, {other} {}",
-                    held_cost(r, other)
-                );
+                assert!(best <= held_cost(r, other) + 1e-12, "r {r}: {u} costs {best}, {other} {}", held_cost(r, other));
             }
         }
         // Slower references are crossed to earlier; a bad rate gives a bounded horizon.
@@ -1173,39 +882,20 @@ mod tests {
         let omega = 0.05;
         let tau = |k: usize| (0.2 - 0.5 * k as f64 * h).max(0.0);
         let mut play = PlaySide::default();
-        let sides: Vec<f64> = (0..800)
-            .map(|k| {
-                play.update(&GEARED, omega, 0.0, tau(k), h);
-                play.side()
-            })
-            .collect();
+        let sides: Vec<f64> = (0..800).map(|k| { play.update(&GEARED, omega, 0.0, tau(k), h); play.side() }).collect();
         let flip = sides.iter().position(|&s| s < 0.0).expect("it flips");
-        let now = (0..800)
-            .find(|&k| tau(k) <= GEARED.backlash_torque)
-            .unwrap();
+        let now = (0..800).find(|&k| tau(k) <= GEARED.backlash_torque).unwrap();
         let early = now as f64 * h - flip as f64 * h;
         let (free, held) = play_horizons(&GEARED, omega + 0.0);
-        assert!(
-            free < 0.5 * play_ahead(&GEARED) && held > play_ahead(&GEARED),
-            "free {free}, held {held}"
-        );
-        assert!(
-            (early - free).abs() <= 2.0 * h,
-            "{early} s early, free horizon {free}"
-        );
+        assert!(free < 0.5 * play_ahead(&GEARED) && held > play_ahead(&GEARED), "free {free}, held {held}");
+        assert!((early - free).abs() <= 2.0 * h, "{early} s early, free horizon {free}");
         // A reference that runs away by half the play within a crossing: the free horizon is
         // play_ahead; the held one is shorter than at the slow speed (a free horn left early falls
         // behind faster), and at rest it is the slowest speed's (PLAY_VELOCITY_MIN: noise).
         let fast = GEARED.backlash / play_crossing(&GEARED);
         let (free, fast_held) = play_horizons(&GEARED, fast);
-        assert!(
-            (free - play_ahead(&GEARED)).abs() < 1e-12 && fast_held < held,
-            "{free}, {fast_held} vs {held}"
-        );
-        assert_eq!(
-            play_horizons(&GEARED, 0.0).1,
-            play_horizons(&GEARED, -PLAY_VELOCITY_MIN).1
-        );
+        assert!((free - play_ahead(&GEARED)).abs() < 1e-12 && fast_held < held, "{free}, {fast_held} vs {held}");
+        assert_eq!(play_horizons(&GEARED, 0.0).1, play_horizons(&GEARED, -PLAY_VELOCITY_MIN).1);
         // Far faster, the balance would start after the switch's centre; a hand reversing through
         // the band holds the horn the other way until then: no later than play_ahead.
         assert!((play_horizons(&GEARED, 20.0 * fast).1 - play_ahead(&GEARED)).abs() < 1e-12);
@@ -1214,41 +904,17 @@ mod tests {
     #[test]
     fn the_play_s_offset_stays_within_a_few_plays_for_every_servo_in_the_domain() {
         let h = 1e-3;
-        for (t, m, d) in [
-            (1e-4, 0.0, 0.0),
-            (1e-4, 0.5, 0.2),
-            (1.0, 0.0, -0.02),
-            (1.0, 0.5, 0.2),
-            (0.02, 1e-4, 0.0),
-        ] {
-            let model = ServoModel {
-                time_constant: t,
-                inertial_time: m,
-                dead_time: d,
-                backlash: 0.035,
-                ..GEARED
-            };
-            let (goal, _) = offsets(
-                &model,
-                (0..20000).map(|k| if (k / 700) % 2 == 0 { 0.1 } else { -0.1 }),
-                h,
-            );
-            let (most, big) = goal.windows(2).fold((0.0, 0.0), |(s, b): (f64, f64), w| {
-                (s.max((w[1] - w[0]).abs()), b.max(w[1].abs()))
-            });
-            assert!(
-                big <= 2.0 * model.backlash && most <= 2.0 * model.backlash,
-                "{model:?}: |offset| {big}, step {most}"
-            );
+        for (t, m, d) in [(1e-4, 0.0, 0.0), (1e-4, 0.5, 0.2), (1.0, 0.0, -0.02), (1.0, 0.5, 0.2), (0.02, 1e-4, 0.0)] {
+            let model = ServoModel { time_constant: t, inertial_time: m, dead_time: d, backlash: 0.035, ..GEARED };
+            let (goal, _) = offsets(&model, (0..20000).map(|k| if (k / 700) % 2 == 0 { 0.1 } else { -0.1 }), h);
+            let (most, big) = goal.windows(2).fold((0.0, 0.0), |(s, b): (f64, f64), w| (s.max((w[1] - w[0]).abs()), b.max(w[1].abs())));
+            assert!(big <= 2.0 * model.backlash && most <= 2.0 * model.backlash, "{model:?}: |offset| {big}, step {most}");
         }
     }
 
     #[test]
     fn the_dead_time_shifts_the_response() {
-        let late = ServoModel {
-            dead_time: 0.05,
-            ..ServoModel::first_order_lag(0.01)
-        };
+        let late = ServoModel { dead_time: 0.05, ..ServoModel::first_order_lag(0.01) };
         let tr = trial(|t| if t >= 0.1 { 1.0 } else { 0.0 }, |_| 0.0, 0.5);
         let out = simulate(&tr, &late, State::default(), 1e-4).unwrap();
         assert_eq!(out[149], 0.0, "nothing before 0.1 + 0.05 s");
@@ -1262,26 +928,12 @@ mod tests {
         let w = |t: f64| 0.4 * (2.0 * t).cos() + 0.45 * (9.0 * t).cos();
         let a = |t: f64| -0.8 * (2.0 * t).sin() - 4.05 * (9.0 * t).sin();
         let tau = |t: f64| 0.3 * (3.0 * t).sin();
-        for model in [
-            MX,
-            ServoModel {
-                dead_time: 0.004,
-                ..ServoModel::first_order_lag(0.025)
-            },
-        ] {
+        for model in [MX, ServoModel { dead_time: 0.004, ..ServoModel::first_order_lag(0.025) }] {
             let plain = trial(r, tau, 4.0);
             let led = trial(|t| r(t) + lead(&model, w(t), a(t), tau(t)), tau, 4.0);
-            let x0 = State {
-                theta: r(0.0),
-                omega: w(0.0),
-            };
+            let x0 = State { theta: r(0.0), omega: w(0.0) };
             let err = |out: Vec<f64>| {
-                let sq: f64 = out
-                    .iter()
-                    .enumerate()
-                    .skip(500)
-                    .map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2))
-                    .sum();
+                let sq: f64 = out.iter().enumerate().skip(500).map(|(i, y)| (y - r(i as f64 * 1e-3)).powi(2)).sum();
                 (sq / (out.len() - 500) as f64).sqrt()
             };
             let before = err(simulate(&plain, &model, x0, 2.5e-4).unwrap());
@@ -1299,25 +951,13 @@ mod tests {
         let outs = simulate_batch(&[&a, &b], &models, &x0, 5e-4).unwrap();
         for (s, m) in models.iter().enumerate() {
             let single = simulate(&b, m, State::default(), 5e-4).unwrap();
-            assert_eq!(
-                &outs[1][s * b.n_samples()..(s + 1) * b.n_samples()],
-                &single[..]
-            );
+            assert_eq!(&outs[1][s * b.n_samples()..(s + 1) * b.n_samples()], &single[..]);
         }
-        let bad = ServoModel {
-            time_constant: 0.0,
-            ..MX
-        };
-        assert!(simulate_batch(&[&a], &[bad], &x0[..1], 5e-4)
-            .unwrap_err()
-            .to_string()
-            .contains("time_constant"));
+        let bad = ServoModel { time_constant: 0.0, ..MX };
+        assert!(simulate_batch(&[&a], &[bad], &x0[..1], 5e-4).unwrap_err().to_string().contains("time_constant"));
         assert!(ServoModel::from_slice(&[0.01, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]).is_err());
         assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, f64::NAN, 0.0, 0.0]).is_err());
-        assert!(
-            ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, 0.0]).is_err(),
-            "all seven values"
-        );
+        assert!(ServoModel::from_slice(&[0.01, 0.0, 0.0, 0.0, 0.0]).is_err(), "all seven values");
         assert_eq!(ServoModel::from_slice(&MX.to_array()).unwrap(), MX);
     }
 }

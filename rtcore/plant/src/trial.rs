@@ -27,9 +27,7 @@ impl Trial {
     /// the same length and finite, the load's inertia finite and ≥ 0.
     pub fn new(t: Vec<f64>, tau: Option<Vec<f64>>, load: Load) -> Result<Self, PlantError> {
         if t.is_empty() {
-            return Err(PlantError::Shape(
-                "a trial needs at least one sample time".into(),
-            ));
+            return Err(PlantError::Shape("a trial needs at least one sample time".into()));
         }
         for (i, &ti) in t.iter().enumerate() {
             require_finite(&format!("t[{i}]"), ti)?;
@@ -89,10 +87,7 @@ impl Trial {
 
     /// Substeps the simulation takes at `max_step` (for throughput figures).
     pub fn substeps(&self, max_step: f64) -> u64 {
-        self.t
-            .windows(2)
-            .map(|w| substep_count(w[1] - w[0], max_step) as u64)
-            .sum()
+        self.t.windows(2).map(|w| substep_count(w[1] - w[0], max_step) as u64).sum()
     }
 }
 
@@ -122,14 +117,9 @@ impl<'a> TorqueSeries<'a> {
             require_finite(&format!("tau[{i}]"), v)?;
         }
         if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
-            return Err(PlantError::InvalidValue(format!(
-                "t must be strictly increasing at t[{}]",
-                i + 1
-            )));
+            return Err(PlantError::InvalidValue(format!("t must be strictly increasing at t[{}]", i + 1)));
         }
-        Ok(TorqueSeries {
-            cursor: TorqueCursor::new(t, tau),
-        })
+        Ok(TorqueSeries { cursor: TorqueCursor::new(t, tau) })
     }
 
     /// The torque at time `q`, linearly interpolated, held at the end values outside the series.
@@ -151,12 +141,7 @@ pub(crate) struct TorqueCursor<'a> {
 
 impl<'a> TorqueCursor<'a> {
     pub(crate) fn new(t: &'a [f64], tau: &'a [f64]) -> Self {
-        let mut cursor = TorqueCursor {
-            t,
-            tau,
-            j: 0,
-            slope: 0.0,
-        };
+        let mut cursor = TorqueCursor { t, tau, j: 0, slope: 0.0 };
         cursor.update_slope();
         cursor
     }
@@ -206,14 +191,15 @@ pub fn validate_max_step(max_step: f64) -> Result<(), PlantError> {
     if max_step.is_finite() && max_step > 0.0 {
         Ok(())
     } else {
-        Err(PlantError::InvalidValue(format!(
-            "max_step must be finite and > 0, got {max_step}"
-        )))
+        Err(PlantError::InvalidValue(format!("max_step must be finite and > 0, got {max_step}")))
     }
 }
 
 /// Simulates `trial` from `x0` and hands the state at every sample time to `record(i, &state)`
 /// (i = 0 is `x0` itself). Expects validated `p` and `max_step`.
+///
+/// Gain, bias and drift correct a *measured* torque, so on a trial without `tau` they are left
+/// out (the applied torque is then truly zero; the gain multiplies that zero). Drift is counted from the trial's first sample.
 ///
 /// A trial with no applied torque (a drop) that comes to rest for good under stick friction
 /// (`model::rests_for_good`) is not stepped further: its remaining samples are filled with the
@@ -230,23 +216,10 @@ pub fn simulate_into<F: FnMut(usize, &State)>(
     match trial.tau.as_deref() {
         Some(tau) => {
             let mut cursor = TorqueCursor::new(&trial.t, tau);
-            integrate(
-                trial,
-                p,
-                law,
-                x0,
-                max_step,
-                |tk| cursor.at(tk - p.time_delay),
-                false,
-                record,
-            );
+            integrate(trial, p, law, x0, max_step, |tk| cursor.at(tk - p.time_delay), false, record);
         }
         None => {
-            let p = Params {
-                torque_bias: 0.0,
-                torque_drift: 0.0,
-                ..*p
-            };
+            let p = Params { torque_bias: 0.0, torque_drift: 0.0, ..*p };
             integrate(trial, &p, law, x0, max_step, |_| 0.0, true, record);
         }
     }
@@ -274,21 +247,13 @@ fn integrate<T: FnMut(f64) -> f64, F: FnMut(usize, &State)>(
         }
         Walk::Sample(i) => {
             record(i, &state);
-            // ω == 0 first: the test itself costs a sine or two, and a moving joint skips it.
-            let at_rest =
-                undriven && state.omega == 0.0 && rests_for_good(&state, p, &trial.load, law, 0.0);
-            if at_rest {
-                WalkOn::Stop
-            } else {
-                WalkOn::Go
-            }
+            // ω == 0 first: the test costs a sine or two, and a moving joint skips it.
+            let at_rest = undriven && state.omega == 0.0 && rests_for_good(&state, p, &trial.load, law, 0.0);
+            if at_rest { WalkOn::Stop } else { WalkOn::Go }
         }
     });
     // Every later substep would set ω to 0 and add h·0 to θ.
-    let rest = State {
-        theta: state.theta + 0.0,
-        omega: 0.0,
-    };
+    let rest = State { theta: state.theta + 0.0, omega: 0.0 };
     for i in stopped + 1..trial.t.len() {
         record(i, &rest);
     }
@@ -331,10 +296,7 @@ pub(crate) fn walk_while(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk) -
         let n = substep_count(t[i] - t[i - 1], max_step);
         let h = (t[i] - t[i - 1]) / n as f64;
         for k in 0..n {
-            visit(Walk::Substep {
-                t: t[i - 1] + k as f64 * h,
-                h,
-            });
+            visit(Walk::Substep { t: t[i - 1] + k as f64 * h, h });
         }
         if visit(Walk::Sample(i)) == WalkOn::Stop {
             return i;
@@ -342,6 +304,7 @@ pub(crate) fn walk_while(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk) -
     }
     t.len() - 1
 }
+
 /// Simulates one trial and returns the state at every sample time (checks its inputs).
 pub fn simulate(
     trial: &Trial,

@@ -7,35 +7,14 @@ fn trials() -> Vec<Trial> {
     let t = times(1.0, 1.0 / 120.0);
     let tau: Vec<f64> = t.iter().map(|x| 0.04 * (5.0 * x).sin()).collect();
     vec![
-        Trial::new(
-            t.clone(),
-            Some(tau),
-            Load {
-                inertia: 1e-3,
-                gravity_torque: 0.1,
-            },
-        )
-        .unwrap(),
-        Trial::new(
-            t[..60].to_vec(),
-            None,
-            Load {
-                inertia: 0.0,
-                gravity_torque: 0.2,
-            },
-        )
-        .unwrap(),
+        Trial::new(t.clone(), Some(tau), Load { inertia: 1e-3, gravity_torque: 0.1 }).unwrap(),
+        Trial::new(t[..60].to_vec(), None, Load { inertia: 0.0, gravity_torque: 0.2 }).unwrap(),
     ]
 }
 
 fn param_sets() -> Vec<Params> {
     (0..3)
-        .map(|s| Params {
-            damping: 0.01 * s as f64,
-            coulomb: 0.005,
-            time_delay: 0.01,
-            ..bare(2e-3)
-        })
+        .map(|s| Params { damping: 0.01 * s as f64, coulomb: 0.005, time_delay: 0.01, ..bare(2e-3) })
         .collect()
 }
 
@@ -51,15 +30,7 @@ fn request() -> (Vec<Trial>, Vec<Params>, Vec<State>) {
 }
 
 fn batch<'a>(trials: &'a [&'a Trial], params: &'a [Params], x0: &'a [State]) -> Batch<'a> {
-    Batch {
-        trials,
-        params,
-        x0,
-        law: FrictionLaw::Stick,
-        max_step: 5e-4,
-        output: Output::ThetaOmega,
-        threads: None,
-    }
+    Batch { trials, params, x0, law: FrictionLaw::Stick, max_step: 5e-4, output: Output::ThetaOmega, threads: None }
 }
 
 #[test]
@@ -67,23 +38,12 @@ fn batch_matches_single_runs_on_any_thread_count() {
     let (owned, params, starts) = request();
     let refs: Vec<&Trial> = owned.iter().collect();
     let parallel = batch(&refs, &params, &starts).run().unwrap();
-    let serial = Batch {
-        threads: Some(1),
-        ..batch(&refs, &params, &starts)
-    }
-    .run()
-    .unwrap();
+    let serial = Batch { threads: Some(1), ..batch(&refs, &params, &starts) }.run().unwrap();
     assert_eq!(parallel, serial);
     for (k, trial) in refs.iter().enumerate() {
         let n = trial.n_samples();
         for (s, p) in params.iter().enumerate() {
-            let single = run(
-                trial,
-                p,
-                FrictionLaw::Stick,
-                starts[s * refs.len() + k],
-                5e-4,
-            );
+            let single = run(trial, p, FrictionLaw::Stick, starts[s * refs.len() + k], 5e-4);
             let row = &parallel[k][s * n * 2..(s + 1) * n * 2];
             for (i, st) in single.iter().enumerate() {
                 assert_eq!((row[2 * i], row[2 * i + 1]), (st.theta, st.omega));
@@ -97,14 +57,8 @@ fn batch_refuses_bad_requests_before_running() {
     let (owned, params, starts) = request();
     let refs: Vec<&Trial> = owned.iter().collect();
     let short = x0(2);
-    assert!(matches!(
-        batch(&refs, &params, &short).run(),
-        Err(PlantError::Shape(_))
-    ));
-    let bad_step = Batch {
-        max_step: 0.0,
-        ..batch(&refs, &params, &starts)
-    };
+    assert!(matches!(batch(&refs, &params, &short).run(), Err(PlantError::Shape(_))));
+    let bad_step = Batch { max_step: 0.0, ..batch(&refs, &params, &starts) };
     assert!(matches!(bad_step.run(), Err(PlantError::InvalidValue(_))));
     let mut no_inertia = params.clone();
     no_inertia[1].motor_inertia = -1.0;
@@ -113,12 +67,7 @@ fn batch_refuses_bad_requests_before_running() {
     let mut nan_start = starts.clone();
     nan_start[0].omega = f64::NAN;
     assert!(batch(&refs, &params, &nan_start).run().is_err());
-    assert!(Batch {
-        threads: Some(0),
-        ..batch(&refs, &params, &starts)
-    }
-    .run()
-    .is_err());
+    assert!(Batch { threads: Some(0), ..batch(&refs, &params, &starts) }.run().is_err());
 }
 
 #[test]
@@ -129,15 +78,7 @@ fn trial_refuses_bad_arrays() {
     assert!(Trial::new(vec![0.0, f64::NAN], None, load).is_err());
     assert!(Trial::new(vec![0.0, 0.1], Some(vec![0.0]), load).is_err());
     assert!(Trial::new(vec![0.0, 0.1], Some(vec![0.0, f64::INFINITY]), load).is_err());
-    assert!(Trial::new(
-        vec![0.0, 0.1],
-        None,
-        Load {
-            inertia: -1.0,
-            gravity_torque: 0.0
-        }
-    )
-    .is_err());
+    assert!(Trial::new(vec![0.0, 0.1], None, Load { inertia: -1.0, gravity_torque: 0.0 }).is_err());
     assert!("viscous".parse::<FrictionLaw>().is_err());
     assert_eq!("tanh".parse::<FrictionLaw>(), Ok(FrictionLaw::Tanh));
 }

@@ -5,10 +5,7 @@ use proptest::prelude::*;
 
 /// Parameters with only an inertia set: no friction, no effects.
 pub fn bare(inertia: f64) -> Params {
-    Params {
-        motor_inertia: inertia,
-        ..Params::default()
-    }
+    Params { motor_inertia: inertia, ..Params::default() }
 }
 
 /// Uniform sample times 0, dt, ..., covering `duration`.
@@ -39,66 +36,33 @@ pub fn at(theta: f64, omega: f64) -> State {
 /// Any parameter set within the bounds the fit may probe (every effect, every sign).
 pub fn params() -> impl Strategy<Value = Params> {
     (
-        (
-            1e-7..1e-1f64,
-            0.0..10.0f64,
-            0.0..1.0f64,
-            -0.5..0.5f64,
-            0.0..1.0f64,
-            1e-3..10.0f64,
-        ),
-        (
-            0.0..2.0f64,
-            -0.5..0.5f64,
-            0.0..1.0f64,
-            0.0..0.5f64,
-            0.0..50.0f64,
-            -3.0..3.0f64,
-        ),
-        (
-            0.0..0.1f64,
-            -1.0..1.0f64,
-            -1.0..1.0f64,
-            0.0..1e4f64,
-            0.05..5.0f64,
-        ),
-        (
-            0.0..10.0f64,
-            -3.0..3.0f64,
-            -0.5..0.5f64,
-            0.0..50.0f64,
-            -3.0..3.0f64,
-        ),
+        (1e-7..1e-1f64, 0.0..10.0f64, 0.0..1.0f64, -0.5..0.5f64, 0.0..1.0f64, 1e-3..10.0f64),
+        (0.0..2.0f64, -0.5..0.5f64, 0.0..1.0f64, 0.0..0.5f64, 0.0..50.0f64, -3.0..3.0f64),
+        (0.0..0.1f64, -1.0..1.0f64, -1.0..1.0f64, 0.0..1e4f64, 0.05..5.0f64),
+        (0.0..10.0f64, -3.0..3.0f64, -0.5..0.5f64, 0.0..50.0f64, -3.0..3.0f64),
     )
-        .prop_map(
-            |(
-                (mi, b, c, ca, st, sv),
-                (lc, off, qd, ca_, cp, cph),
-                (d, tb, td, k, tg),
-                (ks, kn, ra, rp, rph),
-            )| Params {
-                motor_inertia: mi,
-                damping: b,
-                coulomb: c,
-                coulomb_asym: ca,
-                stribeck_torque: st,
-                stribeck_velocity: sv,
-                load_coulomb: lc,
-                angle_offset: off,
-                quadratic_drag: qd,
-                cogging_amplitude: ca_,
-                cogging_period: cp,
-                cogging_phase: cph,
-                time_delay: d,
-                torque_bias: tb,
-                torque_drift: td,
-                tanh_k: k,
-                torque_gain: tg,
-                spring_stiffness: ks,
-                spring_neutral: kn,
-                friction_ripple_amplitude: ra,
-                friction_ripple_period: rp,
-                friction_ripple_phase: rph,
-            },
-        )
+        .prop_map(|((mi, b, c, ca, st, sv), (lc, off, qd, ca_, cp, cph), (d, tb, td, k, tg), (ks, kn, ra, rp, rph))| Params {
+            motor_inertia: mi,
+            damping: b,
+            coulomb: c,
+            coulomb_asym: ca,
+            stribeck_torque: st,
+            stribeck_velocity: sv,
+            load_coulomb: lc,
+            angle_offset: off,
+            quadratic_drag: qd,
+            cogging_amplitude: ca_,
+            cogging_period: cp,
+            cogging_phase: cph,
+            time_delay: d,
+            torque_bias: tb,
+            torque_drift: td,
+            tanh_k: k,
+            torque_gain: tg,
+            spring_stiffness: ks,
+            spring_neutral: kn,
+            friction_ripple_amplitude: ra,
+            friction_ripple_period: rp,
+            friction_ripple_phase: rph,
+        })
 }
