@@ -447,7 +447,7 @@ class Supervisor:
     def _tick(self) -> None:
         if self.watchdog is not None:  # made by _start, before the first tick
             self.watchdog.poll()
-        latest = self._drain(between_chunks=self._answer_queries)
+        latest = self._drain(between_chunks=self._serve_between_chunks)
         if self.interface is not None:
             if latest is not None:
                 self.interface.publish_state(latest)
@@ -465,9 +465,9 @@ class Supervisor:
             self.fault_stop = stop
             self._event(f"stopping on a fault: {stop} (exit {stop.exit_code})")
 
-    def _drain(self, between_chunks: Callable[[], object] | None = None) -> State | None:
+    def _drain(self, between_chunks: Callable[[np.ndarray], object] | None = None) -> State | None:
         """Drain the loop's telemetry into the recorder, DRAIN_CHUNK_CYCLES at a time with
-        ``between_chunks`` called in between; return the latest State message."""
+        ``between_chunks(the chunk recorded)`` called in between; return the latest State message."""
         records = self._made_loop().drain_telemetry()
         if len(records) == 0:
             return None
@@ -476,7 +476,7 @@ class Supervisor:
         try:
             for start in range(0, len(records), step):
                 if start and between_chunks is not None:
-                    between_chunks()
+                    between_chunks(records[start - step:start])
                 self._record_cycles(records[start:start + step])
         finally:
             actions, self._after_batch = self._after_batch, None
@@ -491,8 +491,10 @@ class Supervisor:
             self._record(lambda recorder: recorder.append_all(by_joint))
             self.ecosystem.record_cycles(by_joint)  # on, whatever became of the CSVs
 
-    def _answer_queries(self) -> None:
+    def _serve_between_chunks(self, recorded: np.ndarray) -> None:
+        """In a backlog: the state of the cycles just recorded, and the pending queries answered."""
         if self.interface is not None:
+            self.interface.publish_state(telemetry.latest_state(recorded, self.cfg, self.rendering))
             self.interface.poll()
 
     def _after_recorded(self, action: Callable[[], object]) -> None:
