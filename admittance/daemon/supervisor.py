@@ -516,8 +516,12 @@ class Supervisor:
         self._step(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                    f"{stats['sensor_stale_events']} {NAMES['sensor_stale_events']}")
         if self.interface is not None:
-            self.interface.publish_stats(stats_message(stats))
+            self.interface.publish_stats(stats_message({**stats, "daemon": self._query_counts()}))
         self.ecosystem.record("stats", stats)
+
+    def _query_counts(self) -> dict[str, Any]:
+        """The queries answered, those a handler failed, and the longest the queryables went unpolled."""
+        return {name: getattr(self.interface, name, 0) for name in ("queries", "query_errors", "longest_poll_gap_s")}
 
     def _bench_warnings(self) -> list[str]:
         """What the simulated bench could not get (its bus thread's SCHED_FIFO), like the loop's."""
@@ -594,8 +598,7 @@ class Supervisor:
             stats.setdefault("rendering_rms", self.rendering.by_joint())
             stats.setdefault("bench", self.bench_report())
         stats["daemon"] = {
-            "queries": getattr(self.interface, "queries", 0),
-            "query_errors": getattr(self.interface, "query_errors", 0),
+            **self._query_counts(),
             "recorded_rows": dict(self.recorder.rows) if self.recorder else {},
             "sensor": self.sensor.stats() if self.sensor is not None else {},
             "faults_told": dict(self.faults.events.counts),
