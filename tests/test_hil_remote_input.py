@@ -26,7 +26,7 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, read_recording, wait_alive, wait_for_cycles,
+from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, kill, read_recording, wait_alive, wait_for_cycles,
                             wait_for_state)
 from helpers import examples, free_endpoint
 
@@ -65,8 +65,7 @@ def daemon(tmp_path_factory):
         yield endpoint, tmp, proc
     finally:
         if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+            kill(proc)
 
 
 def ask(client, key: str, payload: bytes | None) -> list[dict]:
