@@ -4,6 +4,7 @@ is removed by the next bench made, never a folder that might not be a dead bench
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import subprocess
@@ -130,3 +131,17 @@ def test_only_folders_of_dead_benches_holding_only_their_links_are_removed(tmp):
 
 def test_a_bench_folder_is_named_after_its_process():
     assert bench_module._LINK_DIR_NAME.fullmatch(f"admittance-bench-{os.getpid()}-x_y1")
+
+
+def test_a_bench_never_stopped_leaves_no_folder_once_collected_or_at_exit(tmp):
+    """A lockstep bench (bench/passivity.py) only lends its bus and is never started or stopped."""
+    bench = still()
+    folder = bench._link_dir
+    del bench
+    gc.collect()
+    assert not os.path.exists(folder)
+    at_exit = "from admittance.mockbench.bench import MockBench; keep = MockBench(profile='still'); print(keep._link_dir)"
+    proc = subprocess.run([sys.executable, "-c", at_exit], env={**os.environ, "TMPDIR": str(tmp)},
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip(), proc.stderr
+    assert link_dirs(tmp) == []

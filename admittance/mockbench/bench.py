@@ -31,6 +31,7 @@ import re
 import shutil
 import stat
 import tempfile
+import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -183,6 +184,9 @@ class MockBench:
             noise_std_n=cfg.noise_std_n,
         )
         self._link_dir = new_link_dir()
+        # Also when the bench is never stopped (a lockstep bench only lends its bus) and is
+        # collected, or at the interpreter's exit: stop() runs it early, once.
+        self._remove_link_dir = weakref.finalize(self, shutil.rmtree, self._link_dir, ignore_errors=True)
         try:
             self.bus = _mock_bus(specs, cfg.baudrate, cfg.wire_delay, f"{self._link_dir}/dxl", cfg.rt_priority)
             if cfg.hand is not None:
@@ -192,7 +196,7 @@ class MockBench:
                     raise ConfigError(f"MockBench: hand: {exc}") from None
             self.sensor = self._make_sensor()
         except BaseException:
-            shutil.rmtree(self._link_dir, ignore_errors=True)
+            self._remove_link_dir()
             raise
         self._running = False
 
@@ -275,7 +279,7 @@ class MockBench:
             self.sensor.stop()
             self.bus.stop()
         finally:
-            shutil.rmtree(self._link_dir, ignore_errors=True)
+            self._remove_link_dir()
 
     @property
     def links(self) -> dict[str, str | None]:
