@@ -65,15 +65,22 @@ def running_daemon(config: Path, *args: str, stop: signal.Signals = signal.SIGIN
         except subprocess.TimeoutExpired:
             kill(proc)
             raise
+        if proc.returncode < 0:  # ended by a signal it does not handle (SIGKILL): its bench left its folder
+            remove_bench_folders()
 
 
 def kill(proc: subprocess.Popen) -> None:
     """SIGKILL a daemon, and remove the simulated bench's folder it could not
     (``admittance-bench-<pid>-*``: only a dead process's)."""
-    from admittance.mockbench.bench import remove_orphan_link_dirs
-
     proc.kill()
     proc.communicate()
+    remove_bench_folders()
+
+
+def remove_bench_folders() -> None:
+    """The simulated benches' link folders of processes that are gone."""
+    from admittance.mockbench.bench import remove_orphan_link_dirs
+
     remove_orphan_link_dirs()
 
 
