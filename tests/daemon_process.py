@@ -60,7 +60,28 @@ def running_daemon(config: Path, *args: str, stop: signal.Signals = signal.SIGIN
         yield daemon
     finally:
         proc.send_signal(stop)
-        _, daemon.stderr = proc.communicate(timeout=EXIT_TIMEOUT_S)
+        try:
+            _, daemon.stderr = proc.communicate(timeout=EXIT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            kill(proc)
+            raise
+        if proc.returncode < 0:  # ended by a signal it does not handle (SIGKILL): its bench left its folder
+            remove_bench_folders()
+
+
+def kill(proc: subprocess.Popen) -> None:
+    """SIGKILL a daemon, and remove the simulated bench's folder it could not
+    (``admittance-bench-<pid>-*``: only a dead process's)."""
+    proc.kill()
+    proc.communicate()
+    remove_bench_folders()
+
+
+def remove_bench_folders() -> None:
+    """The simulated benches' link folders of processes that are gone."""
+    from admittance.mockbench.bench import remove_orphan_link_dirs
+
+    remove_orphan_link_dirs()
 
 
 def wait_alive(endpoint: str, prefix: str, timeout: float = START_TIMEOUT_S) -> None:

@@ -18,7 +18,7 @@ import tomli_w
 
 from admittance.daemon import config
 from admittance.daemon import supervisor as supervisor_module
-from admittance.daemon.messages import STATS_KEYS
+from admittance.daemon.messages import STATS_KEYS, State
 from admittance.daemon.supervisor import Backends, GatedSink, RunOptions, Supervisor
 from admittance.errors import DeviceError
 
@@ -678,3 +678,53 @@ def test_a_flood_of_sets_is_counted_in_the_log_not_written_line_by_line(tmp_path
             assert h.supervisor.set_params({"virtual_damping": 0.1 + k * 1e-4})[0]
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("params set")]
     assert len(lines) == supervisor_module.PARAMS_LOG_BURST, "the rest of the flood held back"
+
+
+def test_queries_are_answered_between_chunks_of_a_drained_backlog_and_a_set_recorded_after_it(tmp_path):
+    """A main thread starved by a loaded machine drains many seconds of cycles in one tick (the
+    telemetry ring holds 65 s): the queries pending meanwhile are answered, and the state published,
+    after each chunk of DRAIN_CHUNK_CYCLES, not after the whole backlog; a set answered in the
+    middle reaches the recording after every cycle of the batch (the loop applies it after all)."""
+    chunk = supervisor_module.DRAIN_CHUNK_CYCLES
+    h = Harness(tmp_path, record="rec", stop_after=0.3)
+    rows_at_poll: list[int] = []
+    rows_at_set_targets: list[int] = []
+    states_at_poll: list[int] = []
+    make_loop = h.backends.make_loop
+
+    def backlogged_loop(cfg, port):
+        loop = make_loop(cfg, port)
+        steady, first = loop.drain_telemetry, [True]
+
+        def drain():  # the first drain: 20 chunks' worth of cycles at once
+            if first.pop() if first else False:
+                return np.concatenate([steady() for _ in range(20 * chunk // 10)])
+            return steady()
+        loop.drain_telemetry = drain
+        return loop
+
+    def make_interface(zcfg, codec, handler):
+        def poll():
+            recorder = h.supervisor.recorder
+            rows_at_poll.append(sum(recorder.rows.values()))
+            states_at_poll.append(sum(isinstance(m, State) for m in h.published))
+            if len(rows_at_poll) == 3:  # a set arrives while the backlog is recorded
+                set_targets = recorder.set_targets
+                recorder.set_targets = lambda p: (rows_at_set_targets.append(sum(recorder.rows.values())),
+                                                  set_targets(p))
+                assert handler.set_params({"virtual_damping": 0.2}) == (True, "")
+            return 0
+        return SimpleNamespace(publish_state=h.published.append, publish_stats=h.published.append, poll=poll,
+                               close=lambda: None, queries=0, serve=lambda: None)
+
+    h.backends.make_loop, h.backends.make_interface = backlogged_loop, make_interface
+    assert h.supervisor.run() == 0
+    # Each joint's recorded rows are its cycles with a present read (every 5th fake cycle).
+    per_chunk = 2 * (chunk // 5 + 1)
+    backlog_rows = 2 * (20 * chunk // 5)
+    during = [rows for rows in rows_at_poll if rows < backlog_rows - per_chunk]
+    assert len(during) >= 15, f"the backlog's queries waited for all of it: polls saw {rows_at_poll[:5]} rows"
+    assert max(np.diff([0, *rows_at_poll[:len(during) + 1]])) <= per_chunk
+    assert states_at_poll[:len(during)] == list(range(1, len(during) + 1)), "no state published in the backlog"
+    assert rows_at_set_targets and rows_at_set_targets[0] >= backlog_rows - 2, \
+        f"the set reached the recording before the backlog's cycles: at {rows_at_set_targets} of {backlog_rows} rows"

@@ -26,7 +26,7 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, read_recording, wait_alive, wait_for_cycles,
+from daemon_process import (ADMITTANCE, EXIT_TIMEOUT_S, kill, read_recording, wait_alive, wait_for_cycles,
                             wait_for_state)
 from helpers import examples, free_endpoint
 
@@ -65,8 +65,7 @@ def daemon(tmp_path_factory):
         yield endpoint, tmp, proc
     finally:
         if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+            kill(proc)
 
 
 def ask(client, key: str, payload: bytes | None) -> list[dict]:
@@ -76,11 +75,24 @@ def ask(client, key: str, payload: bytes | None) -> list[dict]:
     kwargs = {} if payload is None else {"payload": payload}
     out = []
     for reply in client._session.get(key, timeout=10.0, **kwargs):
-        assert reply.ok is not None, reply.err.payload.to_string()
+        assert reply.ok is not None, unanswered(client, key, payload, reply.err.payload.to_string())
         message = decode(reply.ok.payload.to_bytes(), dict)
         assert "params" in message or ("accepted" in message and len(message.get("reason", "")) < 400), message
         out.append(message)
     return out
+
+
+def unanswered(client, key: str, payload: bytes | None, error: str) -> str:
+    """Which get failed, and what the daemon's next stats said (its cycles, telemetry dropped, and
+    queries answered, failed, the longest its queryables went unpolled): a starved main thread or
+    a stuck query path."""
+    try:
+        stats = wait_for_state(client, PREFIX, lambda m: True, "any stats", timeout=5.0, leaf="stats")
+        said = {name: stats.get(name) for name in ("cycles", "overruns", "telemetry_drops", "daemon")}
+    except AssertionError as exc:
+        said = str(exc)
+    shown = "no payload" if payload is None else f"payload {payload[:60]!r} ({len(payload)} bytes)"
+    return f"get {key} with {shown}: {error}; the daemon's stats then: {said}"
 
 
 def params_of(client) -> dict:

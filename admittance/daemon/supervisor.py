@@ -72,6 +72,8 @@ from admittance.errors import EXIT_TEMPFAIL, AdmittanceError, DeviceError, Fault
 from admittance.logs import RateLimitedLog
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from admittance._rtcore import AdmittanceLoop, ForceSink, MockBus
     from admittance.daemon.messages import State
     from admittance.daemon.zenoh_iface import DaemonInterface
@@ -82,6 +84,10 @@ FAULT_PERIOD_S = 0.1  # faults told, sensor marks set and stops judged this ofte
 TARE_MIN_RATE_HZ = 30.0
 WARNING_BURST = 5  # distinct warnings from one source (the loop, the bench) per 10 s, then held back
 PARAMS_LOG_BURST = 10  # "params set" lines per 10 s; a flood of sets is then counted, not logged each
+# A drained backlog is recorded this many cycles at a time, with the pending queries answered in
+# between: a main thread starved by a loaded machine drains up to the telemetry ring's 65 s of
+# cycles at once (~0.1 ms of CPU each), and a query must not wait behind all of them.
+DRAIN_CHUNK_CYCLES = 100
 STALL_MS = 0.25  # the simulated bus thread's stall threshold (rtcore/dxlsim/src/server.rs, STALL)
 
 log = logging.getLogger(__name__)
@@ -187,6 +193,7 @@ class Supervisor:
         self._healthy = True
         self._bench_stats: Callable[[], dict[str, Any]] | None = None  # the simulated bench's, if any
         self._simulated_bus: MockBus | None = None  # the embedded bench's servos, reached in-process
+        self._after_batch: list[Callable[[], object]] | None = None  # while a drained batch is recorded
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -440,7 +447,7 @@ class Supervisor:
     def _tick(self) -> None:
         if self.watchdog is not None:  # made by _start, before the first tick
             self.watchdog.poll()
-        latest = self._drain()
+        latest = self._drain(between_chunks=self._serve_between_chunks)
         if self.interface is not None:
             if latest is not None:
                 self.interface.publish_state(latest)
@@ -458,17 +465,45 @@ class Supervisor:
             self.fault_stop = stop
             self._event(f"stopping on a fault: {stop} (exit {stop.exit_code})")
 
-    def _drain(self) -> State | None:
-        """Drain the loop's telemetry into the recorder; return the latest State message."""
+    def _drain(self, between_chunks: Callable[[np.ndarray], object] | None = None) -> State | None:
+        """Drain the loop's telemetry into the recorder, DRAIN_CHUNK_CYCLES at a time with
+        ``between_chunks(the chunk recorded)`` called in between; return the latest State message."""
         records = self._made_loop().drain_telemetry()
         if len(records) == 0:
             return None
+        step = DRAIN_CHUNK_CYCLES * len(self.cfg.joints)
+        self._after_batch = []
+        try:
+            for start in range(0, len(records), step):
+                if start and between_chunks is not None:
+                    between_chunks(records[start - step:start])
+                self._record_cycles(records[start:start + step])
+        finally:
+            actions, self._after_batch = self._after_batch, None
+            for action in actions:
+                action()
+        return telemetry.latest_state(records, self.cfg, self.rendering)
+
+    def _record_cycles(self, records: np.ndarray) -> None:
         self.rendering.update(records)
         if self.recorder is not None:
             by_joint = telemetry.columns_by_joint(records, self.cfg)
             self._record(lambda recorder: recorder.append_all(by_joint))
             self.ecosystem.record_cycles(by_joint)  # on, whatever became of the CSVs
-        return telemetry.latest_state(records, self.cfg, self.rendering)
+
+    def _serve_between_chunks(self, recorded: np.ndarray) -> None:
+        """In a backlog: the state of the cycles just recorded, and the pending queries answered."""
+        if self.interface is not None:
+            self.interface.publish_state(telemetry.latest_state(recorded, self.cfg, self.rendering))
+            self.interface.poll()
+
+    def _after_recorded(self, action: Callable[[], object]) -> None:
+        """``action`` now, or, for a query answered in the middle of a drained batch, once the
+        batch is recorded: the recording then shows the set after every cycle that ran before it."""
+        if self._after_batch is None:
+            action()
+        else:
+            self._after_batch.append(action)
 
     def _publish_stats(self) -> None:
         for warning in self._made_loop().warnings():
@@ -481,8 +516,12 @@ class Supervisor:
         self._step(f"{self._status_line(stats)}: {stats['cycles']} cycles, {stats['overruns']} overruns, "
                    f"{stats['sensor_stale_events']} {NAMES['sensor_stale_events']}")
         if self.interface is not None:
-            self.interface.publish_stats(stats_message(stats))
+            self.interface.publish_stats(stats_message({**stats, "daemon": self._query_counts()}))
         self.ecosystem.record("stats", stats)
+
+    def _query_counts(self) -> dict[str, Any]:
+        """The queries answered, those a handler failed, and the longest the queryables went unpolled."""
+        return {name: getattr(self.interface, name, 0) for name in ("queries", "query_errors", "longest_poll_gap_s")}
 
     def _bench_warnings(self) -> list[str]:
         """What the simulated bench could not get (its bus thread's SCHED_FIFO), like the loop's."""
@@ -521,15 +560,16 @@ class Supervisor:
             who = getattr(self.interface, "requester", None)  # set while a Zenoh query is answered
             self._params_log("params", f"params set{' by ' + who if who else ''}: "
                                        f"{clip(json.dumps(request, sort_keys=True), 400)}", logging.INFO)
-            self._record(lambda recorder: recorder.set_targets(self._made_loop().params()))
-            self.ecosystem.record("params", self.get_params(), request)
+            adopted, values = self._made_loop().params(), self.get_params()
+            self._after_recorded(lambda: self._record(lambda recorder: recorder.set_targets(adopted)))
+            self._after_recorded(lambda: self.ecosystem.record("params", values, request))
         return accepted, reason
 
     def tare(self, samples: int) -> tuple[bool, str]:
         """Re-zero the force on the loop's side: the next ``samples`` samples become the bias."""
         self._made_loop().tare(samples)
         log.info("tare requested over the next %d samples", samples)
-        self.ecosystem.record("event", f"tare over the next {samples} samples")
+        self._after_recorded(lambda: self.ecosystem.record("event", f"tare over the next {samples} samples"))
         return True, ""
 
     # -- exit ----------------------------------------------------------------------------------
@@ -558,8 +598,7 @@ class Supervisor:
             stats.setdefault("rendering_rms", self.rendering.by_joint())
             stats.setdefault("bench", self.bench_report())
         stats["daemon"] = {
-            "queries": getattr(self.interface, "queries", 0),
-            "query_errors": getattr(self.interface, "query_errors", 0),
+            **self._query_counts(),
             "recorded_rows": dict(self.recorder.rows) if self.recorder else {},
             "sensor": self.sensor.stats() if self.sensor is not None else {},
             "faults_told": dict(self.faults.events.counts),

@@ -128,6 +128,8 @@ class DaemonInterface:
         self._token = None
         self.queries = 0
         self.query_errors = 0
+        self.longest_poll_gap_s = 0.0  # the longest a query could have waited for the main thread
+        self._last_poll: float | None = None
         self.requester: str | None = None  # who sent the query being answered (requester())
 
     def where(self) -> str:
@@ -162,6 +164,10 @@ class DaemonInterface:
         """Answer the pending queries, at most MAX_QUERIES_PER_POLL per key (a flood of sets
         waits for the next ticks instead of starving the state's publication); returns how many
         were answered. Never raises."""
+        now = time.monotonic()
+        if self._last_poll is not None:
+            self.longest_poll_gap_s = max(self.longest_poll_gap_s, now - self._last_poll)
+        self._last_poll = now
         answered = 0
         for key, (queryable, answer) in self._queryables.items():
             for _ in range(MAX_QUERIES_PER_POLL):
