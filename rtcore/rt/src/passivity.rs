@@ -71,6 +71,13 @@ pub const RELEASE_S: f64 = 0.5;
 /// The added damping starts from at least this fraction of `passivity_damping_max`, and is
 /// dropped once it has decayed below a tenth of it (a step far below a tick's worth of motion).
 pub const START_FRACTION: f64 = 1e-3;
+/// The guard starts acting once the balance has fallen below this fraction of −margin: the other
+/// part of the margin is the headroom for what still arrives after it starts (the horn follows a
+/// goal already sent, and the port's energy comes in steps of a tick's worth of motion).
+pub const ONSET_FRACTION: f64 = 0.5;
+/// s: by the time the balance reaches the margin, the damping is at least the one that brings the
+/// model's velocity to rest with this time constant (I/`STOP_S`), ramped in from the onset.
+pub const STOP_S: f64 = 0.005;
 /// s: the time constant of the generated power's low-pass (is the joint still generating?).
 const POWER_S: f64 = 0.2;
 /// s: the time constant of the model's mean square velocity (the target's v²): a few periods of
@@ -176,14 +183,15 @@ impl PassivityGuard {
             self.generating = 0.0;
             self.motion = 0.0;
         }
-        self.control(h);
+        self.control(gains.inertia, h);
     }
 
     /// The damping's law (see the module doc).
-    fn control(&mut self, h: f64) {
+    fn control(&mut self, inertia: f64, h: f64) {
         let p = self.params;
         let floor = p.damping_max * START_FRACTION;
-        let excess = -(self.balance + p.margin);
+        let onset = p.margin * ONSET_FRACTION;
+        let excess = -(self.balance + onset);
         let on = p.guard > 0.0;
         // Still generating: faster than the power that holds the windowed balance at the margin
         // (a slower fall is the noise of the reads, and the window brings it back by itself).
@@ -192,7 +200,10 @@ impl PassivityGuard {
                 self.episodes += 1;
             }
             // max/min, not clamp: the RT thread never panics on a NaN bound.
-            let target = (excess / (self.motion.max(f64::MIN_POSITIVE) * DISSIPATE_S)).min(p.damping_max);
+            let depth = excess / (p.margin - onset).max(f64::MIN_POSITIVE);
+            let stop = depth * inertia.max(0.0) / STOP_S;
+            let tdpa = excess / (self.motion.max(f64::MIN_POSITIVE) * DISSIPATE_S);
+            let target = tdpa.max(stop).min(p.damping_max);
             // Towards the target, never down while generating: no step, and what stopped the
             // generation stays.
             self.damping = (self.damping + (target - self.damping).max(0.0) * h / (RISE_S + h)).max(floor).min(p.damping_max);
