@@ -205,6 +205,18 @@ def port_mj(r: dict) -> str:
     return "–" if r["port_energy_j"] is None else f"{1e3 * r['port_energy_j']:+.1f}"
 
 
+def default_margin() -> float:
+    """J: the loop's default `passivity_margin` (the bench leaves it at its default)."""
+    from admittance._rtcore import LOOP_DEFAULTS
+
+    return float(LOOP_DEFAULTS["passivity_margin"])
+
+
+def beyond(sessions: list[dict], margin: float) -> int:
+    """How many sessions gave the hand more than ``margin`` J (the guard's balance at its lowest)."""
+    return sum(r["generated_j"] > margin for r in sessions)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--servos", nargs="+", default=list(fb.SERVOS), choices=list(fb.SERVOS))
@@ -266,8 +278,12 @@ def main() -> int:
                 results["passive"] += passive(run, work, servo, fb.SERVOS[servo], params, 12.0, stalls[0] > 0)
     print(f"load after: {os.getloadavg()}", flush=True)
     on = [r for r in results["gripped"] if r["guard"]]
+    off = [r for r in results["gripped"] if not r["guard"]]
     print(f"guard on: {sum(r['sustained'] for r in on)} of {len(on)} gripped sessions with a sustained oscillation; "
-          f"guard off: {sum(r['sustained'] for r in results['gripped'] if not r['guard'])} of {len(on)}")
+          f"guard off: {sum(r['sustained'] for r in off)} of {len(off)}")
+    margin = results["margin_j"] = default_margin()
+    print(f"energy given the hand beyond the margin ({1e3 * margin:g} mJ): guard on {beyond(on, margin)} of {len(on)} "
+          f"gripped sessions; guard off {beyond(off, margin)} of {len(off)}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n")
     return 0

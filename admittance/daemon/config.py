@@ -111,8 +111,8 @@ class JointConfig:
                                doc="passivity guard: 1 = on (a damping added while the joint generates energy "
                                    "beyond passivity_margin), 0 = off (observed only)")
     passivity_margin: float = key("float", LOOP_DEFAULTS["passivity_margin"], unit="J", lo=1e-5, hi=10.0, live=True,
-                                  doc="energy the joint may give the hand beyond what the hand put in before "
-                                      "the guard acts")
+                                  doc="the most energy the joint may give the hand beyond what the hand put in "
+                                      "(the guard starts at half of it)")
     passivity_damping_max: float = key("float", LOOP_DEFAULTS["passivity_damping_max"], unit="N·m·s/rad", lo=0.0, lo_open=True, hi=100.0, live=True,
                                        doc="the most damping the passivity guard adds")
     limits: dict = key("table", {}, doc="per-joint [joints.limits] table")

@@ -74,14 +74,16 @@ fn without_the_guard_a_light_joint_oscillates_under_the_hand() {
 }
 
 #[test]
-fn the_guard_damps_the_oscillation_out_and_keeps_the_energy_near_its_margin() {
+fn the_guard_damps_the_oscillation_out_and_keeps_the_energy_within_its_margin() {
     let (swing, records) = Bench::new(0.001, true).push_and_release(4.0);
     assert!(swing < 2.0 * TAU / 4096.0, "the horn settles within two ticks, swing {swing} rad");
     assert!(records.iter().any(|r| r.passivity_damping > 0.0), "the guard acted");
     let generated = records.iter().map(|r| r.passivity_energy).fold(0.0, f64::min);
-    // The push banks what the joint dissipated (forgotten over the 1 s window), which the
-    // oscillation spends before the balance reaches the margin: a few margins, not hundreds.
-    assert!(generated > -5.0 * MARGIN, "the joint gave the hand little beyond the margin: {generated} J");
+    // The guard starts at half the margin with a damping that grows with the depth: the energy
+    // that still arrives after it starts (the lagging horn, a tick's worth of work at a time)
+    // stays within the other half (acting at the margin with the damping of the excess alone
+    // let this joint give the hand 3 margins).
+    assert!(generated > -MARGIN, "the joint gave the hand no more than the margin: {generated} J");
     // Added and removed without a jump: the damping moves by at most its growth per cycle.
     for pair in records.windows(2) {
         let (a, b) = (pair[0].passivity_damping, pair[1].passivity_damping);

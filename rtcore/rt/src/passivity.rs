@@ -27,13 +27,23 @@
 //!   a servo that follows late shows the port's energy late, and port − stored then dips below
 //!   zero whenever the hand speeds the joint up (a false alarm on any uncompensated servo).
 //!
-//! The controller: while `balance < −margin` and the joint is still generating (the balance
-//! falling faster than margin / `WINDOW_S`, the power that would hold it at the margin), a
-//! damping `damping` is added to the model. Its target is Hannaford and Ryu's time-domain
-//! passivity law for the energy beyond the margin, E / (ω²·`DISSIPATE_S`) with ω² the model's
-//! mean square velocity: the damping that takes that energy out of the model's motion within
-//! `DISSIPATE_S` (their per-sample β = E/(h·v²) steps with every sample; spread over a few
-//! wobble periods it does not). The damping approaches the target with the time constant
+//! The controller: while `balance < −ONSET_FRACTION·margin` (half the margin) and the joint is
+//! still generating (the balance falling faster than margin / `WINDOW_S`, the power that would
+//! hold it at the margin), a damping `damping` is added to the model. `passivity_margin` is the
+//! most energy the joint may give the hand beyond what the hand put in (the windowed balance's
+//! floor), not the point where the guard starts: it starts at half of it, and the other half is
+//! the headroom for what still arrives once it acts (the horn follows goals already sent, and
+//! the port's energy comes a tick's worth of motion at a time, τ·1.5 mrad: 0.5-0.8 mJ at the
+//! torques of a gripping hand). Its target is the larger of two dampings, with E the energy
+//! beyond the onset: Hannaford and Ryu's time-domain passivity law, E / (ω²·`DISSIPATE_S`) with
+//! ω² the model's mean square velocity, the damping that takes E out of the model's motion
+//! within `DISSIPATE_S` (their per-sample β = E/(h·v²) steps with every sample; spread over a few
+//! wobble periods it does not); and I/`STOP_S` times E over the margin's other half, the damping
+//! that brings the model to rest within `STOP_S`, reached as the balance reaches the margin and
+//! growing beyond it. Why both: the first alone is tiny for a fast model (E of a few mJ against
+//! ω² of tens), and a guard that started at the margin with it let the wall clock's stalls take
+//! the joint 25-50 % past the margin (2 of 32 sessions, docs/fidelity.md); the second depends on
+//! the joint's inertia, not its speed. The damping approaches the target with the time constant
 //! `RISE_S` (5 ms; it never falls while the joint generates), is held `HOLD_S` after the joint
 //! stopped generating (the observer cannot tell whether a joint the damping keeps quiet would
 //! wobble again without it), then decays by e every `RELEASE_S` and is dropped below
@@ -71,6 +81,13 @@ pub const RELEASE_S: f64 = 0.5;
 /// The added damping starts from at least this fraction of `passivity_damping_max`, and is
 /// dropped once it has decayed below a tenth of it (a step far below a tick's worth of motion).
 pub const START_FRACTION: f64 = 1e-3;
+/// The guard starts acting once the balance has fallen below this fraction of −margin: the other
+/// part of the margin is the headroom for what still arrives after it starts (the horn follows
+/// goals already sent, and the port's energy comes in steps of a tick's worth of motion).
+pub const ONSET_FRACTION: f64 = 0.5;
+/// s: by the time the balance reaches the margin, the damping is at least the one that brings the
+/// model's velocity to rest with this time constant (I/`STOP_S`), ramped in from the onset.
+pub const STOP_S: f64 = 0.005;
 /// s: the time constant of the generated power's low-pass (is the joint still generating?).
 const POWER_S: f64 = 0.2;
 /// s: the time constant of the model's mean square velocity (the target's v²): a few periods of
@@ -82,7 +99,8 @@ const MOTION_S: f64 = 0.05;
 pub struct PassivityParams {
     /// 1 = on, 0 = off (turning it off lets an added damping decay, never drops it at once).
     pub guard: f64,
-    /// J: the energy the joint may give the hand beyond what the hand put in before the guard acts.
+    /// J: the most energy the joint may give the hand beyond what the hand put in (the windowed
+    /// balance's floor); the guard starts acting at `ONSET_FRACTION` of it.
     pub margin: f64,
     /// N·m·s/rad: the most damping the guard adds.
     pub damping_max: f64,
@@ -176,14 +194,15 @@ impl PassivityGuard {
             self.generating = 0.0;
             self.motion = 0.0;
         }
-        self.control(h);
+        self.control(gains.inertia, h);
     }
 
     /// The damping's law (see the module doc).
-    fn control(&mut self, h: f64) {
+    fn control(&mut self, inertia: f64, h: f64) {
         let p = self.params;
         let floor = p.damping_max * START_FRACTION;
-        let excess = -(self.balance + p.margin);
+        let onset = p.margin * ONSET_FRACTION;
+        let excess = -(self.balance + onset);
         let on = p.guard > 0.0;
         // Still generating: faster than the power that holds the windowed balance at the margin
         // (a slower fall is the noise of the reads, and the window brings it back by itself).
@@ -191,8 +210,7 @@ impl PassivityGuard {
             if self.damping == 0.0 {
                 self.episodes += 1;
             }
-            // max/min, not clamp: the RT thread never panics on a NaN bound.
-            let target = (excess / (self.motion.max(f64::MIN_POSITIVE) * DISSIPATE_S)).min(p.damping_max);
+            let target = self.target(excess, p.margin - onset, inertia);
             // Towards the target, never down while generating: no step, and what stopped the
             // generation stays.
             self.damping = (self.damping + (target - self.damping).max(0.0) * h / (RISE_S + h)).max(floor).min(p.damping_max);
@@ -206,6 +224,16 @@ impl PassivityGuard {
                 self.damping = 0.0;
             }
         }
+    }
+
+    /// The damping aimed at, `excess` J beyond the onset with `headroom` J left to the margin: the
+    /// larger of the TDPA law's and the one that stops the model within `STOP_S` by the margin
+    /// (see the module doc). max/min, not clamp: the RT thread never panics on a NaN bound
+    /// (f64::max and min take the other operand over a NaN).
+    fn target(&self, excess: f64, headroom: f64, inertia: f64) -> f64 {
+        let tdpa = excess / (self.motion.max(f64::MIN_POSITIVE) * DISSIPATE_S);
+        let stop = excess / headroom.max(f64::MIN_POSITIVE) * inertia.max(0.0) / STOP_S;
+        tdpa.max(stop).min(self.params.damping_max)
     }
 
     /// Applies the added damping to the model's state after its step (implicitly: the velocity
