@@ -29,8 +29,9 @@ noise), so the textbook σ, which assumes independent samples, would be too smal
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -86,8 +87,13 @@ class FitResult:
     simulations: int
     seconds: float
     jacobian: list[np.ndarray] = field(repr=False, default_factory=list)  # per trial (n_g+2, n_k)
-    covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))  # of the free globals
     damping: float = 1e-3  # the LM's damping at the end: a fit carried on from here starts with it
+    # The covariance of the free globals, computed when first asked for (see _Covariance).
+    uncertainty: "_Covariance | None" = field(repr=False, default=None)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.uncertainty.globals() if self.uncertainty is not None else np.zeros((0, 0))
 
     @property
     def rmse(self) -> float:
@@ -403,30 +409,74 @@ def _result(problem: _Problem, z, r, jac, iterations, seconds) -> FitResult:
     g, x0 = problem.split(z)
     vector = problem.rows(g[None, :])[0]
     tau_scale = float(g[problem.scale_slot]) if problem.scale_slot is not None else problem.sim.tau_scale
-    covariance = _covariance(jac, r, problem) if jac else np.zeros((0, 0))
-    sigma = {name: float(np.sqrt(max(covariance[j, j], 0.0))) for j, name in enumerate(problem.free)} if jac else {}
+    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0) if jac else None
     return FitResult(
         vector=vector,
         tau_scale=tau_scale,
         free=problem.free,
-        sigma=sigma,
+        sigma=_Sigma(uncertainty, problem.free) if uncertainty is not None else {},
         x0=x0.copy(),
         residuals=r,
         iterations=iterations,
         simulations=problem.simulations,
         seconds=seconds,
         jacobian=jac,
-        covariance=covariance[: problem.n_g, : problem.n_g],
+        uncertainty=uncertainty,
     )
 
 
-def _covariance(jac, residuals, problem: _Problem) -> np.ndarray:
-    """Covariance of all unknowns (globals first, then initial states)."""
-    a, _ = normal_equations(jac, residuals, problem.n_g, problem.fit_x0)
-    m = sum(res.size for res in residuals)
-    dof = max(m - a.shape[0], 1)
-    variance = _cost(residuals) / dof * autocorrelation_time(residuals)
-    return np.linalg.pinv(a) * variance
+class _Covariance:
+    """Covariance of all unknowns (globals first, then initial states), computed on first use.
+
+    Most fits are never asked for their σ (the initial-state fits, the short refits of the
+    screen, the cross-validation folds), and the residual's autocorrelation time and the
+    pseudo-inverse were a tenth of an effect search's CPU (cProfile, docs/identification.md,
+    *Speed*). Computed later from the same Jacobian and residuals, it is bit for bit the same."""
+
+    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
+        self._inputs = (jac, residuals, n_g, fit_x0)
+        self._full: np.ndarray | None = None
+        self.n_g = n_g
+
+    def full(self) -> np.ndarray:
+        if self._full is None:
+            jac, residuals, n_g, fit_x0 = self._inputs
+            a, _ = normal_equations(jac, residuals, n_g, fit_x0)
+            m = sum(res.size for res in residuals)
+            dof = max(m - a.shape[0], 1)
+            variance = _cost(residuals) / dof * autocorrelation_time(residuals)
+            self._full = np.linalg.pinv(a) * variance
+        return self._full
+
+    def globals(self) -> np.ndarray:
+        return self.full()[: self.n_g, : self.n_g]
+
+
+class _Sigma(Mapping):
+    """σ of each free global, read off :class:`_Covariance` when first looked at."""
+
+    def __init__(self, covariance: _Covariance, free: tuple[str, ...]):
+        self._covariance = covariance
+        self._free = free
+        self._values: dict[str, float] | None = None
+
+    def _dict(self) -> dict[str, float]:
+        if self._values is None:
+            full = self._covariance.full()
+            self._values = {name: float(np.sqrt(max(full[j, j], 0.0))) for j, name in enumerate(self._free)}
+        return self._values
+
+    def __getitem__(self, name: str) -> float:
+        return self._dict()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._free)
+
+    def __len__(self) -> int:
+        return len(self._free)
+
+    def __repr__(self) -> str:
+        return repr(self._dict())
 
 
 def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) -> float:
