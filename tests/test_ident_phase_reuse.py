@@ -8,6 +8,10 @@
 - fit.remember_end_point, called by uncertainty.jackknife and search.cross_validate: the full
   fit's Jacobian simulated once for every replicate and fold. Exact: the same spread and
   held-out residuals bit for bit, and exactly the simulations counted saved.
+- fit_output_error(..., residuals=): the residuals at a start the caller simulated already
+  (a fit carried on, a regime half's fit after its initial states, fit.closest_starts' pick)
+  are not simulated again: the same fit bit for bit, one simulation per trial fewer; ignored
+  when the bounds move the start.
 
 Each was removed by mutation and these tests failed.
 """
@@ -128,3 +132,38 @@ def test_cross_validation_simulates_the_full_fits_jacobian_once_for_every_fold(d
     folds = ctx.folds
     trained = sum(len(folds.train(k)) for k in range(folds.n_folds))
     assert plain_sims - reused_sims == trained * (1 + len(FREE) + 2) - len(sim.trials) * (len(FREE) + 2)
+
+
+def test_a_fit_handed_the_residuals_at_its_start_is_the_same_with_one_simulation_fewer(drops):
+    """fit_output_error(..., residuals=): a fit carried on from where another ended (the short
+    refits, a regime half's own fit after its initial-state fit) or from the start a batch of
+    candidate states picked (fit.closest_starts) takes the residuals there instead of
+    simulating them again: bit for bit the same fit, one simulation per trial fewer."""
+    sim, x0 = drops
+    vector = vector_from({**MX64, "damping": 1.1 * MX64["damping"]})
+    fitmod.ENDPOINTS.clear()
+    picked, residuals = fitmod.closest_starts(sim, vector, [x0, x0 + np.array([1e-3, 0.0])])
+    plain = _refit(sim, vector, picked)
+    fitmod.ENDPOINTS.clear()
+    handed = fit_output_error(sim, vector, FREE, picked, torque_scale=0.3, max_iter=2, residuals=residuals)
+    fitmod.ENDPOINTS.clear()
+    assert plain.simulations - handed.simulations == len(sim.trials)
+    np.testing.assert_array_equal(handed.vector, plain.vector)
+    np.testing.assert_array_equal(handed.x0, plain.x0)
+    for a, b in zip(handed.residuals, plain.residuals):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_residuals_handed_to_a_start_the_bounds_move_are_not_used(drops):
+    """A start outside the bounds is clipped before the fit: residuals simulated at the
+    unclipped start are not the clipped start's, and are ignored (simulated again)."""
+    sim, x0 = drops
+    outside = vector_from({**MX64, "damping": -0.01})  # damping's lower bound is 0
+    fitmod.ENDPOINTS.clear()
+    plain = _refit(sim, outside, x0)
+    wrong = [np.zeros_like(m) for m in sim.measured]
+    fitmod.ENDPOINTS.clear()
+    handed = fit_output_error(sim, outside, FREE, x0, torque_scale=0.3, max_iter=2, residuals=wrong)
+    fitmod.ENDPOINTS.clear()
+    assert handed.simulations == plain.simulations
+    np.testing.assert_array_equal(handed.vector, plain.vector)
