@@ -308,7 +308,7 @@ def explore_further(sim: Simulator, explored: list[list], torque_scale: float, i
         fit = entry[0]
         entry[0] = fit_output_error(sim.with_tau_scale(fit.tau_scale), fit.vector, fit.free, fit.x0,
                                     torque_scale=torque_scale, max_iter=iterations, label=label, damping=fit.damping,
-                                    residuals=fit.residuals)
+                                    residuals=fit.residuals, known=fit.end_point)
         entry[2] = entry[0].iterations < iterations
 
 
@@ -413,7 +413,8 @@ def _settle(sim, explored: list[list], torque_scale: float, evidence: Evidence):
             fit = entry[0]
             same_scale = fit.tau_scale == sim.tau_scale  # else the residuals were simulated at another scale
             entry[0] = fit_output_error(sim, fit.vector, fit.free, fit.x0, torque_scale=torque_scale,
-                                        label=f"fit +{evidence.effect}", residuals=fit.residuals if same_scale else None)
+                                        label=f"fit +{evidence.effect}", residuals=fit.residuals if same_scale else None,
+                                        known=fit.end_point)
             entry[2] = True
     best = min(explored[:FINISHED_STARTS], key=lambda entry: entry[0].rmse)
     return best[0], best[1]

@@ -83,7 +83,7 @@ from admittance.ident.effects import (
     variants,
     without_weak_optional,
 )
-from admittance.ident.fit import FitResult, Progress, fit_initial_states_multi, fit_output_error, remember_end_point
+from admittance.ident.fit import FitResult, Progress, end_point_of, fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
 from admittance.ident.regime import regime_inconsistency, restart_from_halves, transfer_loss
 from admittance.ident.residual import noise_of
@@ -232,13 +232,13 @@ def cross_validate(ctx: SearchContext, full: FitResult) -> Scored:
     """``full``'s model refitted without each fold (from ``full``'s values: a warm start; every
     parameter is refitted) and scored on the fold's units, their initial states fitted alone."""
     sim = ctx.sim.with_tau_scale(full.tau_scale)
-    remember_end_point(sim, full, ctx.torque_scale)  # every fold starts there: one Jacobian for all (exact)
+    known = end_point_of(sim, full, ctx.torque_scale)  # every fold starts there: one Jacobian for all (exact)
     residuals: list[np.ndarray] = [np.empty(0)] * len(ctx.folds.units)
     fold_fits = []
     for k in range(ctx.folds.n_folds):
         train, held = ctx.folds.train(k), ctx.folds.held(k)
         fit = fit_output_error(sim.subset(train), full.vector, full.free, full.x0[train],
-                               torque_scale=ctx.torque_scale, label=f"fold {k + 1}")
+                               torque_scale=ctx.torque_scale, label=f"fold {k + 1}", known=known)
         fold_fits.append(fit)
         # The fit on all units already holds a good initial state for each held-out unit (its
         # parameters barely differ); the data's own start is the second, independent one.
