@@ -83,12 +83,11 @@ def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str
     """search._judge on a candidate whose best short refit fits ``behind_over_floor`` noise
     variances worse than a model at the floor (None: no model at the floor yet). Returns
     (whether it was refitted further, the reason it was refused)."""
-    at_floor = SimpleNamespace(rmse=FLOOR)
+    at_floor = search.AtFloor(SimpleNamespace(rmse=FLOOR), None, FLOOR)
     reached = FLOOR * np.sqrt(1.0 + (behind_over_floor or 0.0))
     explored = [[SimpleNamespace(rmse=reached), "linearised", False],
                 [SimpleNamespace(rmse=2 * reached), "grown", False]]
     refits = []
-    monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
     monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
     evidence = Evidence("quadratic_drag")
     ctx = SimpleNamespace(sim=None, sensor=None)
@@ -119,20 +118,18 @@ def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool,
     is ``reach_over_floor`` noise variances above a model at the floor (``at_floor``: whether
     the round has one), and whose first short refits trailed that model's first ones by
     ``trailing_over_floor`` noise variances. Returns (carried on, refitted, the reason it was refused)."""
-    floor_model = SimpleNamespace(rmse=FLOOR)
     reach = FLOOR**2 * (1.0 + reach_over_floor)
     leader_first = 3.0 * FLOOR
     leader = Screened([[SimpleNamespace(rmse=leader_first), "linearised", True]], reach=FLOOR**2, complete=True)
+    floor_model = search.AtFloor(SimpleNamespace(rmse=FLOOR), leader, FLOOR)
     first = np.sqrt(leader_first**2 + trailing_over_floor * FLOOR**2)
     entries = [[SimpleNamespace(rmse=first), "linearised", False]]
     carried, refits = [], []
-    monkeypatch.setattr(search, "noise_of", lambda *a, **k: SimpleNamespace(floor=FLOOR))
     monkeypatch.setattr(search, "carry_on", lambda ctx, evidence, screened: carried.append(screened))
-    monkeypatch.setattr(search, "_far_behind", lambda *a, **k: "")
     monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
     evidence = Evidence("cogging")
     search._judge(SimpleNamespace(sim=None, sensor=None), SimpleNamespace(full=None), evidence, False,
-                  floor_model if at_floor else None, Screened(entries, reach), leader if at_floor else None)
+                  floor_model if at_floor else None, Screened(entries, reach))
     return bool(carried), bool(refits), evidence.reason
 
 

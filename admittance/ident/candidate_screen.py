@@ -23,7 +23,7 @@ set the floor or tie with the one that does: its starts are carried on to
 :data:`effects.EXPLORE_ITERATIONS` at once, before any candidate is judged, so the candidates
 that matter are judged in the order of their twelve-iteration error as before. The others are
 carried on when their turn comes (search._judge), unless a candidate of the round already
-leaves nothing but sensor noise and this one is out of its reach (search._out_of_reach): its
+leaves nothing but sensor noise and this one is out of its reach (search._behind_the_floor): its
 reach more than :data:`FAR_BEHIND` noise variances worse than that model, *and* after the same
 first iterations it stood that far behind where that one stood then. On 30 drops with a
 Stribeck term the six other candidates were refused so after three iterations instead of
@@ -39,7 +39,7 @@ Nothing else is skipped here: every candidate still gets a verdict; the order de
 sets the floor the others are measured against, and the first stage's fits are the ones the
 refit continues from (handed on, not repeated). A candidate whose twelve-iteration refits are
 still far behind a model at the floor (:data:`FAR_BEHIND` noise variances; a tie needs a
-thirtieth of that) is not carried on to convergence either (search._far_behind).
+thirtieth of that) is not carried on to convergence either (search._behind_the_floor).
 """
 
 from __future__ import annotations

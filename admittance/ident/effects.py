@@ -39,7 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from admittance.ident.equation_error import effect_start
-from admittance.ident.fit import FitResult, fit_output_error, normal_equations, screen_starts
+from admittance.ident.fit import FitResult, closest_starts, fit_output_error, normal_equations
 from admittance.ident.model import EFFECTS, INDEX, LOWER, UPPER, Simulator, default_vector
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
@@ -301,13 +301,14 @@ def explore_linearised(sim: Simulator, current: FitResult, evidence: Evidence, t
 def explore_further(sim: Simulator, explored: list[list], torque_scale: float, iterations: int, label: str) -> None:
     """Carry every unfinished ``[fit, label, finished]`` entry on by ``iterations`` more LM
     iterations, in place: from the entry's values and its LM damping, the same steps one longer
-    fit would have taken (one more simulation: the residual at the start)."""
+    fit would have taken (its residuals handed on: not simulated again)."""
     for entry in explored:
         if entry[2]:
             continue
         fit = entry[0]
         entry[0] = fit_output_error(sim.with_tau_scale(fit.tau_scale), fit.vector, fit.free, fit.x0,
-                                    torque_scale=torque_scale, max_iter=iterations, label=label, damping=fit.damping)
+                                    torque_scale=torque_scale, max_iter=iterations, label=label, damping=fit.damping,
+                                    residuals=fit.residuals, known=fit.end_point)
         entry[2] = entry[0].iterations < iterations
 
 
@@ -393,9 +394,9 @@ def _explore(sim, current, evidence, starts, torque_scale, x0_starts=(), iterati
         for key, value in start.items():
             vector[INDEX[key]] = value
         vector = _clip_start(vector, free)
-        x0 = screen_starts(sim, vector, [current.x0, *x0_starts]) if len(x0_starts) else current.x0
+        x0, residuals = closest_starts(sim, vector, [current.x0, *x0_starts]) if len(x0_starts) else (current.x0, None)
         fit = fit_output_error(sim, vector, free, x0, torque_scale=torque_scale,
-                               max_iter=iterations, label=f"fit +{evidence.effect}")
+                               max_iter=iterations, label=f"fit +{evidence.effect}", residuals=residuals)
         out.append([fit, name, fit.iterations < iterations])
     return out
 
@@ -410,8 +411,10 @@ def _settle(sim, explored: list[list], torque_scale: float, evidence: Evidence):
     for entry in explored[:FINISHED_STARTS]:
         if not entry[2]:
             fit = entry[0]
+            same_scale = fit.tau_scale == sim.tau_scale  # else the residuals were simulated at another scale
             entry[0] = fit_output_error(sim, fit.vector, fit.free, fit.x0, torque_scale=torque_scale,
-                                        label=f"fit +{evidence.effect}")
+                                        label=f"fit +{evidence.effect}", residuals=fit.residuals if same_scale else None,
+                                        known=fit.end_point)
             entry[2] = True
     best = min(explored[:FINISHED_STARTS], key=lambda entry: entry[0].rmse)
     return best[0], best[1]

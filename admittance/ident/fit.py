@@ -29,8 +29,9 @@ noise), so the textbook σ, which assumes independent samples, would be too smal
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -86,8 +87,16 @@ class FitResult:
     simulations: int
     seconds: float
     jacobian: list[np.ndarray] = field(repr=False, default_factory=list)  # per trial (n_g+2, n_k)
-    covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))  # of the free globals
     damping: float = 1e-3  # the LM's damping at the end: a fit carried on from here starts with it
+    # The covariance of the free globals, computed when first asked for (see _Covariance).
+    uncertainty: "_Covariance | None" = field(repr=False, default=None)
+    # Where it ended with the Jacobian taken there (it stopped on a failed step), else None: a
+    # fit started exactly there can take both (EndPoint).
+    end_point: "EndPoint | None" = field(repr=False, default=None)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.uncertainty.globals() if self.uncertainty is not None else np.zeros((0, 0))
 
     @property
     def rmse(self) -> float:
@@ -239,19 +248,33 @@ def fit_output_error(
     progress: Progress | None = None,
     label: str = "fit",
     damping: float = 1e-3,
+    residuals: list[np.ndarray] | None = None,
+    known: EndPoint | None = None,
 ) -> FitResult:
     """Levenberg–Marquardt on simulated − measured θ over all trials of ``sim``.
 
     ``vector`` holds the starting (and fixed) parameter values in sim units; ``free`` names the
     ones to fit (``tau_scale`` for lumped mode with torque); ``x0`` (T, 2) the starting states.
+    ``residuals``: θ − measured at exactly this start on ``sim``'s trials, when the caller has
+    simulated it already (a fit carried on from where another ended on the same trials, step
+    and torque scale; the start a batch of candidate states picked): used instead of simulating
+    it again, so bit for bit the same fit with one simulation fewer. Ignored when the bounds
+    move the start. ``known``: where another fit ended (:class:`EndPoint`); its residuals and
+    Jacobian blocks are taken when this fit starts exactly there, on those trials or a subset.
     """
     started = time.perf_counter()
     problem = _Problem(sim, vector, free, fit_x0, torque_scale)
     lower, upper = _z_bounds(problem)
     g0 = np.array([sim.tau_scale if n == TAU_SCALE else vector[INDEX[n]] for n in problem.free], dtype=float)
-    z = np.clip(np.concatenate([g0, np.asarray(x0, dtype=float).ravel()]), lower, upper)
-    known = ENDPOINTS.lookup(problem, z)  # a fit that ended exactly here: its residuals and Jacobian
-    r = known[0] if known else problem.residuals(z)
+    start = np.concatenate([g0, np.asarray(x0, dtype=float).ravel()])
+    z = np.clip(start, lower, upper)
+    known = known.lookup(problem, z) if known is not None else None  # a fit that ended exactly here
+    if known:
+        r = known[0]
+    elif residuals is not None and np.array_equal(z, start):
+        r = list(residuals)
+    else:
+        r = problem.residuals(z)
     cost = _cost(r)
     lam = damping
     jac: list[np.ndarray] = []
@@ -271,89 +294,77 @@ def fit_output_error(
             progress(f"{label}: iteration {iteration}, rmse {1e3 * rmse(r):.3f} mrad")
         if improvement <= tol * cost or step < 1e-10:
             break
-    if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
-        ENDPOINTS.remember(problem, z, r, jac)
     result = _result(problem, z, r, jac, iteration, time.perf_counter() - started)
     result.damping = lam
+    if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
+        result.end_point = EndPoint(problem, z, r, jac)
     return result
 
 
-class EndPoints:
-    """The last few fits' end points with their residuals and Jacobians, per trial.
+class EndPoint:
+    """Where a fit ended, with its residuals and Jacobian blocks per trial.
 
     The phases after a fit start new fits exactly where it ended: each cross-validation fold
     and each jackknife replicate refits the model without some trials from the full fit's
-    values and initial states, and a converged fit handed to the next phase is refitted from
-    itself. A trial's residual and Jacobian block depend only on the shared parameters, that
-    trial's own initial state, the step, the friction law and the torque scale, so a block
-    computed for the full fit is, bit for bit, the one a subset fit would simulate again
-    (1 + P + 2 simulations per trial). :meth:`lookup` hands them over only on an exact match
-    of all of these; anything else is simulated as before, so no result can change."""
+    values and initial states, and a short refit is carried on from where it stopped. A trial's
+    residual and Jacobian block depend only on the shared parameters, that trial's own initial
+    state, the step, the friction law and the torque scale, so a block computed for the full
+    fit is, bit for bit, the one a subset fit would simulate again (1 + P + 2 simulations per
+    trial). :meth:`lookup` hands them over only on an exact match of all of these; anything
+    else is simulated as before, so no result can change. It is handed to the fits that may
+    start there (``fit_output_error(..., known=)``), not kept in a module-level cache."""
 
-    SIZE = 6  # fits remembered (a few MB each on 30 trials)
-
-    def __init__(self):
-        self._entries: list[tuple] = []
+    def __init__(self, problem: _Problem, z: np.ndarray, residuals: list[np.ndarray], jac: list[np.ndarray]):
+        g, x0 = problem.split(z)
+        self._key = self._key_of(problem)
+        self._point = self._point_of(problem, g)
+        self._x0 = x0.copy()
+        # The trial objects themselves are kept: identity is what a later lookup matches on.
+        self._trials = list(problem.sim.trials)
+        self._slots = {id(tr): k for k, tr in enumerate(self._trials)}
+        self._residuals = residuals
+        self._jac = jac
 
     @staticmethod
-    def _key(problem: _Problem) -> tuple:
+    def _key_of(problem: _Problem) -> tuple:
         sim = problem.sim
         return (problem.free, problem.fit_x0, sim.max_step, sim.friction, sim.tau_scale, sim.mode,
                 problem.torque_scale)
 
     @staticmethod
-    def _point(problem: _Problem, g: np.ndarray) -> np.ndarray:
+    def _point_of(problem: _Problem, g: np.ndarray) -> np.ndarray:
         """Every parameter the simulation sees: the free ones and the fixed rest of the vector."""
         return np.concatenate([problem.rows(g[None, :])[0], g])
 
-    def remember(self, problem: _Problem, z: np.ndarray, residuals: list[np.ndarray], jac: list[np.ndarray]) -> None:
-        g, x0 = problem.split(z)
-        # The trial objects themselves are kept: identity is what a later lookup matches on.
-        slots = {id(tr): k for k, tr in enumerate(problem.sim.trials)}
-        entry = (self._key(problem), self._point(problem, g), x0.copy(), slots, list(problem.sim.trials),
-                 residuals, jac)
-        self._entries = [entry, *self._entries[: self.SIZE - 1]]
-
     def lookup(self, problem: _Problem, z: np.ndarray):
-        """(residuals, Jacobian blocks) for ``problem`` at ``z`` when a remembered fit ended exactly
-        there on a superset of its trials; else None."""
+        """(residuals, Jacobian blocks) for ``problem`` at ``z`` when this fit ended exactly there
+        on a superset of its trials; else None."""
         if JACOBIAN != "differences":
             return None
         g, x0 = problem.split(z)
-        key, point = self._key(problem), self._point(problem, g)
-        for n, (entry_key, point_end, x0_end, slots, _, residuals, jac) in enumerate(self._entries):
-            if entry_key != key or not np.array_equal(point_end, point):
-                continue
-            picked = [slots.get(id(tr)) for tr in problem.sim.trials]
-            if any(k is None for k in picked) or not np.array_equal(x0_end[picked], x0):
-                continue
-            # Most recently used first: the full fit every fold and replicate starts from stays.
-            self._entries.insert(0, self._entries.pop(n))
-            return [residuals[k] for k in picked], [jac[k] for k in picked]
-        return None
-
-    def clear(self) -> None:
-        self._entries = []
+        if self._key != self._key_of(problem) or not np.array_equal(self._point, self._point_of(problem, g)):
+            return None
+        picked = [self._slots.get(id(tr)) for tr in problem.sim.trials]
+        if any(k is None for k in picked) or not np.array_equal(self._x0[picked], x0):
+            return None
+        return [self._residuals[k] for k in picked], [self._jac[k] for k in picked]
 
 
-ENDPOINTS = EndPoints()
-
-
-def remember_end_point(sim: Simulator, fit: FitResult, torque_scale: float) -> None:
-    """Make ``fit``'s end point (on ``sim``'s trials, its own torque scale) known to
-    :data:`ENDPOINTS`, its Jacobian simulated now when the fit ended without one there (it
-    stopped after a successful step). For a phase that then starts several fits exactly there
-    (the jackknife's replicates, the base model's cross-validation folds): one Jacobian
-    instead of one per fit."""
+def end_point_of(sim: Simulator, fit: FitResult, torque_scale: float) -> EndPoint | None:
+    """``fit``'s end point (on ``sim``'s trials, its own torque scale), its Jacobian simulated
+    now when the fit ended without one there (it stopped after a successful step). For a phase
+    that then starts several fits exactly there (the jackknife's replicates, the cross-validation
+    folds): one Jacobian instead of one per fit."""
     if not fit.free:
-        return
+        return None
     sim = sim.with_tau_scale(fit.tau_scale)
     problem = _Problem(sim, fit.vector, fit.free, True, torque_scale)
     lower, upper = _z_bounds(problem)
     g = np.array([fit.value(n) for n in problem.free], dtype=float)
     z = np.clip(np.concatenate([g, fit.x0.ravel()]), lower, upper)
-    if ENDPOINTS.lookup(problem, z) is None:
-        ENDPOINTS.remember(problem, z, fit.residuals, problem.jacobian(z, fit.residuals, upper))
+    if fit.end_point is not None and fit.end_point.lookup(problem, z) is not None:
+        return fit.end_point
+    return EndPoint(problem, z, fit.residuals, problem.jacobian(z, fit.residuals, upper))
 
 
 def _z_bounds(problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -403,30 +414,74 @@ def _result(problem: _Problem, z, r, jac, iterations, seconds) -> FitResult:
     g, x0 = problem.split(z)
     vector = problem.rows(g[None, :])[0]
     tau_scale = float(g[problem.scale_slot]) if problem.scale_slot is not None else problem.sim.tau_scale
-    covariance = _covariance(jac, r, problem) if jac else np.zeros((0, 0))
-    sigma = {name: float(np.sqrt(max(covariance[j, j], 0.0))) for j, name in enumerate(problem.free)} if jac else {}
+    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0) if jac else None
     return FitResult(
         vector=vector,
         tau_scale=tau_scale,
         free=problem.free,
-        sigma=sigma,
+        sigma=_Sigma(uncertainty, problem.free) if uncertainty is not None else {},
         x0=x0.copy(),
         residuals=r,
         iterations=iterations,
         simulations=problem.simulations,
         seconds=seconds,
         jacobian=jac,
-        covariance=covariance[: problem.n_g, : problem.n_g],
+        uncertainty=uncertainty,
     )
 
 
-def _covariance(jac, residuals, problem: _Problem) -> np.ndarray:
-    """Covariance of all unknowns (globals first, then initial states)."""
-    a, _ = normal_equations(jac, residuals, problem.n_g, problem.fit_x0)
-    m = sum(res.size for res in residuals)
-    dof = max(m - a.shape[0], 1)
-    variance = _cost(residuals) / dof * autocorrelation_time(residuals)
-    return np.linalg.pinv(a) * variance
+class _Covariance:
+    """Covariance of all unknowns (globals first, then initial states), computed on first use.
+
+    Most fits are never asked for their σ (the initial-state fits, the short refits of the
+    screen, the cross-validation folds), and the residual's autocorrelation time and the
+    pseudo-inverse were a tenth of an effect search's CPU (cProfile, docs/identification.md,
+    *Speed*). Computed later from the same Jacobian and residuals, it is bit for bit the same."""
+
+    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
+        self._inputs = (jac, residuals, n_g, fit_x0)
+        self._full: np.ndarray | None = None
+        self.n_g = n_g
+
+    def full(self) -> np.ndarray:
+        if self._full is None:
+            jac, residuals, n_g, fit_x0 = self._inputs
+            a, _ = normal_equations(jac, residuals, n_g, fit_x0)
+            m = sum(res.size for res in residuals)
+            dof = max(m - a.shape[0], 1)
+            variance = _cost(residuals) / dof * autocorrelation_time(residuals)
+            self._full = np.linalg.pinv(a) * variance
+        return self._full
+
+    def globals(self) -> np.ndarray:
+        return self.full()[: self.n_g, : self.n_g]
+
+
+class _Sigma(Mapping):
+    """σ of each free global, read off :class:`_Covariance` when first looked at."""
+
+    def __init__(self, covariance: _Covariance, free: tuple[str, ...]):
+        self._covariance = covariance
+        self._free = free
+        self._values: dict[str, float] | None = None
+
+    def _dict(self) -> dict[str, float]:
+        if self._values is None:
+            full = self._covariance.full()
+            self._values = {name: float(np.sqrt(max(full[j, j], 0.0))) for j, name in enumerate(self._free)}
+        return self._values
+
+    def __getitem__(self, name: str) -> float:
+        return self._dict()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._free)
+
+    def __len__(self) -> int:
+        return len(self._free)
+
+    def __repr__(self) -> str:
+        return repr(self._dict())
 
 
 def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) -> float:
@@ -497,7 +552,15 @@ def fit_initial_states_multi(sim: Simulator, vector: np.ndarray, starts: Sequenc
 def screen_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarray]) -> np.ndarray:
     """Per trial, the start (of ``starts``, each (T, 2)) whose simulation under ``vector`` is
     closest to the data: one batch, no fitting."""
+    return closest_starts(sim, vector, starts)[0]
+
+
+def closest_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """:func:`screen_starts` and, per trial, the residual (θ − measured) its pick leaves: the
+    batch simulated it already (each trial and row is simulated on its own, so it is bit for
+    bit what a fit from there would simulate first: ``fit_output_error(..., residuals=)``)."""
     sims = sim.run(np.repeat(np.asarray(vector, float)[None, :], len(starts), axis=0), np.stack(starts))
     choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
               for s, m in zip(sims, sim.measured)]
-    return np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
+    x0 = np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
+    return x0, [s[c] - m for s, c, m in zip(sims, choice, sim.measured)]

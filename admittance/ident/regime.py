@@ -198,7 +198,9 @@ def _relative_move(values: dict, labels) -> float:
 def _stability(ctx: SearchContext, fit: FitResult, halves, labels,
                evidence: Evidence | None) -> tuple[dict, list[FitResult]]:
     joint = [fit_initial_states_multi(sim, fit.vector, [x0], tau_scale=fit.tau_scale) for sim, x0 in halves]
-    apart = [fit_output_error(sim, fit.vector, fit.free, j.x0, torque_scale=ctx.torque_scale, label="regime fit")
+    # Each half's own fit starts where its initial-state fit ended: those residuals are handed on.
+    apart = [fit_output_error(sim, fit.vector, fit.free, j.x0, torque_scale=ctx.torque_scale, label="regime fit",
+                              residuals=j.residuals)
              for (sim, _), j in zip(halves, joint)]
     residuals = [r for f in apart for r in f.residuals]
     n = sum(r.size for r in residuals)

@@ -83,7 +83,7 @@ from admittance.ident.effects import (
     variants,
     without_weak_optional,
 )
-from admittance.ident.fit import FitResult, Progress, fit_initial_states_multi, fit_output_error, remember_end_point
+from admittance.ident.fit import FitResult, Progress, end_point_of, fit_initial_states_multi, fit_output_error
 from admittance.ident.model import EFFECTS, INDEX, Simulator, default_vector
 from admittance.ident.regime import regime_inconsistency, restart_from_halves, transfer_loss
 from admittance.ident.residual import noise_of
@@ -97,10 +97,19 @@ MATERIAL_FIT = 0.1
 # restart went 10.7 → 2.6 mrad (still stuck at one turning point), the second to 1.99 (the noise).
 MAX_RESTARTS = 3
 # FAR_BEHIND (candidate_screen.py): a candidate whose short refits still fit this many noise
-# variances worse than one that leaves nothing but sensor noise is not carried on (_far_behind,
-# _out_of_reach).
+# variances worse than one that leaves nothing but sensor noise is not carried on (_behind_the_floor).
 BESIDE_REASON = "it was judged in a model that carries a stand-in, itself not one model across regimes"
 FLEXIBLE_REASON = "a periodic term chosen among 31 periods is claimed only when it leaves nothing but sensor noise"
+
+
+@dataclass
+class AtFloor:
+    """The first admissible model of a round that leaves nothing but sensor noise: the
+    candidates judged after it can at best tie with it (search._judge)."""
+
+    fit: FitResult
+    screened: Screened | None  # its short refits (candidate_screen.py)
+    floor: float  # the sensor's noise level (rad) in its noise verdict, computed once (residual.noise_of)
 
 
 @dataclass
@@ -223,13 +232,13 @@ def cross_validate(ctx: SearchContext, full: FitResult) -> Scored:
     """``full``'s model refitted without each fold (from ``full``'s values: a warm start; every
     parameter is refitted) and scored on the fold's units, their initial states fitted alone."""
     sim = ctx.sim.with_tau_scale(full.tau_scale)
-    remember_end_point(sim, full, ctx.torque_scale)  # every fold starts there: one Jacobian for all (exact)
+    known = end_point_of(sim, full, ctx.torque_scale)  # every fold starts there: one Jacobian for all (exact)
     residuals: list[np.ndarray] = [np.empty(0)] * len(ctx.folds.units)
     fold_fits = []
     for k in range(ctx.folds.n_folds):
         train, held = ctx.folds.train(k), ctx.folds.held(k)
         fit = fit_output_error(sim.subset(train), full.vector, full.free, full.x0[train],
-                               torque_scale=ctx.torque_scale, label=f"fold {k + 1}")
+                               torque_scale=ctx.torque_scale, label=f"fold {k + 1}", known=known)
         fold_fits.append(fit)
         # The fit on all units already holds a good initial state for each held-out unit (its
         # parameters barely differ); the data's own start is the second, independent one.
@@ -263,18 +272,19 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
         ranking = rank_candidates(ctx.sim, current.full, candidates, ctx.torque_scale)
         rounds.append(ranking)
         admissible = []
-        at_floor: FitResult | None = None  # the first admissible refit that leaves only sensor noise
-        leader: Screened | None = None  # its short refits
+        at_floor: AtFloor | None = None  # the first admissible refit that leaves only sensor noise
         explored = explore_round(ctx, current.full, ranking)  # judged best first (candidate_screen.py)
         for number, index in enumerate(judging_order([s.entries for s in explored]), 1):
             evidence = ranking[index]
             ctx.say(f"effect search round {len(rounds)}: candidate {number}/{len(ranking)} "
                     f"{evidence.effect} ({evidence.variant})")
-            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor, explored[index], leader)
+            scored = _judge(ctx, current, evidence, bool(stand_ins), at_floor, explored[index])
             if scored is not None:
                 admissible.append((evidence, scored))
-                if at_floor is None and nothing_left(ctx.sim, scored.full, ctx.sensor):
-                    at_floor, leader = scored.full, explored[index]
+                if at_floor is None:
+                    verdict = noise_of(ctx.sim, scored.full, ctx.sensor)
+                    if verdict.nothing_left:
+                        at_floor = AtFloor(scored.full, explored[index], verdict.floor)
         if not admissible:
             stopped = "no candidate passed every test"
             break
@@ -309,8 +319,7 @@ def search_effects(ctx: SearchContext, base: FitResult) -> SearchOutcome:
 
 
 def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: bool,
-           at_floor: FitResult | None = None, screened: Screened | None = None,
-           leader: Screened | None = None) -> Scored | None:
+           at_floor: AtFloor | None = None, screened: Screened | None = None) -> Scored | None:
     """Refit one candidate and put it through every test; its cross-validated model if it passes.
 
     ``at_floor``: an earlier candidate of the round whose model leaves nothing but sensor noise.
@@ -318,16 +327,16 @@ def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: b
     and it is not cross-validated when it fits the training data materially worse (by more
     than a tenth of the noise variance), which would lose it any tie. ``screened``: its
     linearised starts already run (candidate_screen.py); carried on to the full short refit
-    here unless out of reach of ``at_floor`` (``leader``: that one's short refits)."""
+    here unless out of reach of ``at_floor``."""
     if screened is not None and not screened.complete:
-        out_of_reach = _out_of_reach(ctx, at_floor, screened, leader)
+        out_of_reach = _behind_the_floor(at_floor, screened)
         if out_of_reach:
             return _refuse(evidence, out_of_reach)
         carry_on(ctx, evidence, screened)
-    explored = None if screened is None else screened.entries
-    behind_floor = _far_behind(ctx, at_floor, explored)
+    behind_floor = _behind_the_floor(at_floor, screened)
     if behind_floor:
         return _refuse(evidence, behind_floor)
+    explored = None if screened is None else screened.entries
     refit = refit_effect(ctx, current.full, evidence, fallbacks=at_floor is None, explored=explored)
     if refit is None:
         return _refuse(evidence, "not refitted: its linear test gave the wrong sign, and another candidate "
@@ -335,40 +344,37 @@ def _judge(ctx: SearchContext, current: Scored, evidence: Evidence, stand_ins: b
     return assess(ctx, current, evidence, refit, stand_ins, at_floor)
 
 
-def _out_of_reach(ctx: SearchContext, at_floor: FitResult | None, screened: Screened,
-                  leader: Screened | None) -> str:
-    """Why a candidate is refused after its first :data:`candidate_screen.SCREEN_ITERATIONS` LM
-    iterations ("" when it is carried on): another one (``at_floor``, whose short refits are
-    ``leader``) already leaves nothing but sensor noise, even the undamped Gauss–Newton step of
-    this one's best start would leave it more than :data:`FAR_BEHIND` noise variances worse than
-    that model, *and* after the same first iterations it stood that much behind where the other
-    stood then (like with like: on driven trials a torque bias and an asymmetric Coulomb level
-    are one equation and take the same steps, 16.405 against 16.403 mrad after three, while their
-    linearisations' reach differed, 7 against under 3 noise variances; candidate_screen.py)."""
-    if at_floor is None or leader is None or not screened.entries:
-        return ""
-    floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
-    far = behind(screened.reach, at_floor.rmse**2, floor)
-    trailing = behind(screened.first, leader.first, floor)
-    if far <= FAR_BEHIND or trailing <= FAR_BEHIND:
-        return ""
-    return (f"after its first short refits it trailed a candidate that now leaves nothing but sensor noise by "
-            f"{trailing:.0f}× the noise variance, and even its linearised step would fit the training data "
-            f"{far:.0f}× worse than that one (a tie needs {MATERIAL_FIT:g}×): not refitted further")
+def _behind_the_floor(at_floor: AtFloor | None, screened: Screened | None) -> str:
+    """Why a candidate's short refits are not carried further ("" when they are): another
+    candidate (``at_floor``) already leaves nothing but sensor noise, and this one trails it by
+    more than :data:`FAR_BEHIND` noise variances, so it could at best tie (a tie is within
+    ``MATERIAL_FIT``, a thirtieth of that).
 
-
-def _far_behind(ctx: SearchContext, at_floor: FitResult | None, explored: list[list] | None) -> str:
-    """Why a candidate is not carried on from its short refits ("" when it is): another one
-    already leaves nothing but sensor noise, and after :data:`effects.EXPLORE_ITERATIONS` LM
-    iterations from every start it fits the training data worse than that one by more than
-    :data:`FAR_BEHIND` noise variances. It could at best tie (a tie is within ``MATERIAL_FIT``,
-    a thirtieth of that); carrying such starts to convergence was a sixth of a search's
-    simulations on 30 drops with a Stribeck term, and none of them came near the floor."""
-    if at_floor is None or not explored:
+    After only the first :data:`candidate_screen.SCREEN_ITERATIONS` LM iterations
+    (``screened`` not complete) it must trail on two counts: even the undamped Gauss–Newton
+    step of its best start would leave it that far behind the model at the floor, *and* after
+    the same first iterations it stood that far behind where the other stood then (like with
+    like: on driven trials a torque bias and an asymmetric Coulomb level are one equation and
+    take the same steps, 16.405 against 16.403 mrad after three, while their linearisations'
+    reach differed, 7 against under 3 noise variances; candidate_screen.py). After
+    :data:`effects.EXPLORE_ITERATIONS` from every start, its best error is what counts:
+    carrying such starts to convergence was a sixth of a search's simulations on 30 drops with
+    a Stribeck term, and none of them came near the floor."""
+    if at_floor is None or screened is None or not screened.entries:
         return ""
-    floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
-    reached = min(entry[0].rmse for entry in explored)
-    far = behind(reached**2, at_floor.rmse**2, floor)
+    model = at_floor.fit.rmse**2
+    if not screened.complete:
+        if at_floor.screened is None:
+            return ""
+        far = behind(screened.reach, model, at_floor.floor)
+        trailing = behind(screened.first, at_floor.screened.first, at_floor.floor)
+        if far <= FAR_BEHIND or trailing <= FAR_BEHIND:
+            return ""
+        return (f"after its first short refits it trailed a candidate that now leaves nothing but sensor noise by "
+                f"{trailing:.0f}× the noise variance, and even its linearised step would fit the training data "
+                f"{far:.0f}× worse than that one (a tie needs {MATERIAL_FIT:g}×): not refitted further")
+    reached = min(entry[0].rmse for entry in screened.entries)
+    far = behind(reached**2, model, at_floor.floor)
     if far <= FAR_BEHIND:
         return ""
     return (f"after its short refits it fits the training data {far:.0f}× the noise variance worse than a "
@@ -388,7 +394,7 @@ def refit_effect(ctx: SearchContext, current: FitResult, evidence: Evidence, fal
 
 
 def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitResult,
-           stand_ins: bool = False, at_floor: FitResult | None = None, restarted: int = 0) -> Scored | None:
+           stand_ins: bool = False, at_floor: AtFloor | None = None, restarted: int = 0) -> Scored | None:
     """The admission tests of the module doc on a refitted candidate (``refit``: the current
     model plus the effect, fitted on all units; ``stand_ins``: the current model carries some).
     Records everything on ``evidence``; returns the candidate's cross-validated model when it is
@@ -410,8 +416,7 @@ def assess(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     if evidence.training_gain <= settings.min_gain:
         return _refuse(evidence, f"training gain {100 * evidence.training_gain:.1f} % ≤ {100 * settings.min_gain:.0f} %")
     if at_floor is not None:
-        floor = noise_of(ctx.sim, at_floor, ctx.sensor).floor
-        if refit.rmse**2 - at_floor.rmse**2 > MATERIAL_FIT * floor**2:
+        if refit.rmse**2 - at_floor.fit.rmse**2 > MATERIAL_FIT * at_floor.floor**2:
             return _refuse(evidence, "fits the training data materially worse than a candidate that leaves "
                                      "nothing but sensor noise")
     scored = cross_validate(ctx, refit)

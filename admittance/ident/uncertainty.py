@@ -31,7 +31,7 @@ from typing import Sequence
 
 import numpy as np
 
-from admittance.ident.fit import FitResult, fit_output_error, remember_end_point
+from admittance.ident.fit import FitResult, end_point_of, fit_output_error
 from admittance.ident.model import Simulator
 from admittance.formats.dataset import TrialData
 from admittance.ident.split import stratum_order
@@ -94,12 +94,12 @@ def jackknife(sim: Simulator, fit: FitResult, torque_scale: float, max_groups: i
     groups = trial_groups(sim.trials, max_groups)
     if len(groups) < MIN_GROUPS:
         return {}
-    remember_end_point(sim, fit, torque_scale)  # every replicate starts there: one Jacobian for all
+    known = end_point_of(sim, fit, torque_scale)  # every replicate starts there: one Jacobian for all
     replicates = []
     for left_out in groups:
         keep = [i for i in range(len(sim.trials)) if i not in left_out]
         refit = fit_output_error(sim.subset(keep), fit.vector, fit.free, fit.x0[keep], torque_scale=torque_scale,
-                                 max_iter=REFIT_ITERATIONS, label="jackknife")
+                                 max_iter=REFIT_ITERATIONS, label="jackknife", known=known)
         replicates.append([refit.value(name) for name in fit.free])
     values = np.array(replicates)
     g = len(groups)
