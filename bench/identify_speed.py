@@ -4,8 +4,8 @@ Each set is 30 MX-64-like drops (``admittance synth``: the Rust plant at a 10× 
 noise, one undeclared effect). For every set, in one run on the same machine, identify runs
 twice in a fresh Python process each: once as ``--baseline-ref`` was (default: the main this work
 started from), its ``admittance/`` package with its own compiled extension, built from that
-commit's ``rtcore/`` by maturin (cached in ``rtcore/target/baseline``; the first run builds it, a
-minute or more), and once as this tree is. ``--shared-extension`` gives the baseline this tree's
+commit's ``rtcore/`` by maturin (kept in ``rtcore/target/baseline/<commit>``: the first run builds it, a
+few minutes), and once as this tree is. ``--shared-extension`` gives the baseline this tree's
 extension instead (then only the identification's Python differs; the plant's own speed-ups,
 such as the rest of a drop not being stepped, count on both sides). The order alternates from
 set to set so that a change in the machine's load does not favour one side.
@@ -67,26 +67,37 @@ def baseline_tree(ref: str, into: Path, shared_extension: bool) -> Path:
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref],
                              check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
-    extension = ROOT / "admittance" if shared_extension else build_extension(into)
+    extension = ROOT / "admittance" if shared_extension else baseline_extension(ref, archive)
     for ext in extension.glob("_rtcore*.so"):
         shutil.copy2(ext, into / "admittance" / ext.name)
     return into
 
 
-def build_extension(source: Path) -> Path:
-    """Builds the commit's ``_rtcore`` wheel with this venv's maturin and unpacks its extension."""
-    wheels = source / "wheels"
-    env = dict(os.environ, CARGO_TARGET_DIR=str(ROOT / "rtcore" / "target" / "baseline"))
+def baseline_extension(ref: str, archive: bytes) -> Path:
+    """The folder holding ``ref``'s own ``_rtcore``: built once with this venv's maturin from the
+    commit's sources, then kept under ``rtcore/target/baseline/<commit>`` (a commit's sources
+    never change, so neither does its build)."""
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", f"{ref}^{{commit}}"], check=True,
+                            capture_output=True, text=True).stdout.strip()
+    home = ROOT / "rtcore" / "target" / "baseline" / commit
+    built = home / "unpacked" / "admittance"
+    if any(built.glob("_rtcore*.so")):
+        print(f"the baseline's extension: {built} (built before)", flush=True)
+        return built
+    source = home / "src"
+    shutil.rmtree(source, ignore_errors=True)
+    source.mkdir(parents=True)
+    subprocess.run(["tar", "-x", "-C", str(source)], input=archive, check=True)
+    env = dict(os.environ, CARGO_TARGET_DIR=str(home / "target"))
     maturin = Path(sys.executable).with_name("maturin")
-    print(f"building the baseline's extension in {source} (cached in {env['CARGO_TARGET_DIR']})", flush=True)
-    done = subprocess.run([str(maturin), "build", "--release", "--quiet", "-o", str(wheels)], cwd=source, env=env,
-                          capture_output=True, text=True, check=False)
+    print(f"building the baseline's extension in {source} (a few minutes, once)", flush=True)
+    done = subprocess.run([str(maturin), "build", "--release", "--quiet", "-o", str(home / "wheels")], cwd=source,
+                          env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise SystemExit(f"cannot build the baseline's extension: {done.stderr[-2000:]}")
-    unpacked = source / "unpacked"
-    with zipfile.ZipFile(next(wheels.glob("*.whl"))) as wheel:
-        wheel.extractall(unpacked)
-    return unpacked / "admittance"
+    with zipfile.ZipFile(next((home / "wheels").glob("*.whl"))) as wheel:
+        wheel.extractall(home / "unpacked")
+    return built
 
 
 def run_identify(tree: Path, dataset: Path, jacobian: str | None = None) -> dict:

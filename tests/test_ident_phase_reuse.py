@@ -95,7 +95,7 @@ def _with_and_without(monkeypatch, module, call):
 
 
 def test_the_jackknife_simulates_the_full_fits_jacobian_once_for_every_replicate(drops, monkeypatch):
-    """uncertainty.jackknife linearises the full fit once (fit.remember_end_point); each replicate
+    """uncertainty.jackknife linearises the full fit once (fit.end_point_of); each replicate
     then starts from it. The spread is the same to the last bit, with fewer simulations."""
     from admittance.ident import uncertainty
 
