@@ -33,6 +33,7 @@ CASES = [
     ("identify_jacobian.py", ["--trials", "2", "--duration", "2"], r"^scipy 2-point\s+\d+\.\d+\s+\d+"),
     ("identify_vs_thesis.py", ["--trials", "2", "--duration", "2"],
      r"^ratio baseline / identify:\s+\d+\.\d+×"),
+    ("query_starvation.py", ["--seconds", "3", "--busy", "0"], r'^\{"gets": \d+, "answered": \d+, "timed_out": \d+'),
     ("optoforce_parse.py", [], r"^\s+CAN reader, virtual bus \(CAN frames/s\)\s+[\d,]+"),
     ("sensor_recovery.py", ["--outages", "0.1", "--repeats", "1"], r"^\s+0\.10 \|\s+\d+\.\d+ \|\s+0\.050$"),
     ("servo_forms.py", ["--forms", "lag", "--seconds", "4"], r"^\| first-order lag 25 ms \| \d+\.\d+ \| "),
