@@ -236,6 +236,7 @@ def interface_over(queries: list, logger: str) -> DaemonInterface:
     iface._codec, iface._handler = Codec("json"), FakeHandler()
     iface._queryables = {"k/params": (Channel(), iface._answer_params)}
     iface.queries = iface.query_errors = 0
+    iface.longest_poll_gap_s, iface._last_poll = 0.0, None
     iface.prefix = "k"
     return iface
 
