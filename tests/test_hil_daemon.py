@@ -26,6 +26,7 @@ import pytest
 import tomli_w
 
 from admittance import data
+from admittance._rtcore import CATCH_UP_STEPS_PER_CYCLE, MAX_CATCH_UP_STEPS
 from admittance.daemon.messages import STATS_KEYS
 
 from daemon_process import (ADMITTANCE, QUERY_TIMEOUT_S, START_TIMEOUT_S, read_recording, run_daemon, running_daemon,
@@ -64,16 +65,25 @@ def replay_runs(rec: dict[str, np.ndarray], inertia: float, damping: float, coul
     (rows are missing where a present-position read failed), each run started from its first
     recorded state; returns the replayed angle at every row (NaN at run starts). As recordings
     define it (docs/daemon.md): a row's ``tau`` is the torque the model integrates from that row's
-    time ``t`` (a deadline) on, one step of h per deadline."""
+    time ``t`` (a deadline) on. How many steps a cycle takes is the loop's catch-up rule, replayed
+    here as a test oracle of `cycle.rs` `steps_due`: the steps due since the model's time, at most
+    CATCH_UP_STEPS_PER_CYCLE a cycle, and a stall that leaves more than MAX_CATCH_UP_STEPS due
+    loses its time (the model's time restarts at that deadline). A run starts with none due."""
     out = np.full(len(rec["t"]), np.nan)
-    theta = omega = 0.0
+    theta = omega = model_t = 0.0
+    period = 1.0 / RATE_HZ
     for i in range(1, len(out)):
         if rec["cycle"][i] - rec["cycle"][i - 1] != 1:
             continue
+        deadline = rec["t"][i - 1]
         if np.isnan(out[i - 1]):
             theta, omega = rec["theta_model"][i - 1], rec["omega_model"][i - 1]
-        for _ in range(round((rec["t"][i] - rec["t"][i - 1]) * RATE_HZ)):
-            theta, omega = virtual_joint.step(theta, omega, rec["tau"][i - 1], inertia, damping, coulomb, 1.0 / RATE_HZ)
+            model_t = deadline - period
+        due = math.floor((deadline - model_t) / period + 0.5)
+        steps = min(max(due, 0), CATCH_UP_STEPS_PER_CYCLE)
+        model_t = deadline if due > MAX_CATCH_UP_STEPS else model_t + steps * period
+        for _ in range(steps):
+            theta, omega = virtual_joint.step(theta, omega, rec["tau"][i - 1], inertia, damping, coulomb, period)
         out[i] = theta
     return out
 
