@@ -79,7 +79,7 @@ def kill(proc: subprocess.Popen) -> None:
 
 def remove_bench_folders() -> None:
     """The simulated benches' link folders of processes that are gone."""
-    from admittance.mockbench.bench import remove_orphan_link_dirs
+    from admittance.mockbench.link_dirs import remove_orphan_link_dirs
 
     remove_orphan_link_dirs()
 

@@ -13,8 +13,9 @@ import tempfile
 
 import pytest
 
-from admittance.mockbench import bench as bench_module
-from admittance.mockbench.bench import BenchConfig, MockBench, remove_orphan_link_dirs
+from admittance.mockbench import link_dirs as link_dirs_module
+from admittance.mockbench.bench import BenchConfig, MockBench
+from admittance.mockbench.link_dirs import remove_orphan_link_dirs
 
 
 @pytest.fixture
@@ -130,7 +131,7 @@ def test_only_folders_of_dead_benches_holding_only_their_links_are_removed(tmp):
 
 
 def test_a_bench_folder_is_named_after_its_process():
-    assert bench_module._LINK_DIR_NAME.fullmatch(f"admittance-bench-{os.getpid()}-x_y1")
+    assert link_dirs_module._LINK_DIR_NAME.fullmatch(f"admittance-bench-{os.getpid()}-x_y1")
 
 
 def test_a_bench_never_stopped_leaves_no_folder_once_collected_or_at_exit(tmp):
