@@ -180,3 +180,64 @@ def test_the_plants_sensitivities_agree_with_the_finite_difference_jacobian(clea
         down[slot] -= step
         direct = (problem.residuals(up)[1] - problem.residuals(down)[1]) / (2 * step)
         np.testing.assert_allclose(jac[1][row], direct, atol=1e-3 * np.abs(direct).max())
+
+
+
+def _oracle_lm_step(problem, z, a, b, cost, lam, lower, upper, tol=0.0):
+    """TEST ORACLE: fit._lm_step as it was before the batches, one damping per simulation."""
+    from admittance.ident.fit import CONVERGED_FRACTION, _cost, _predicted_gain
+
+    n_active = a.shape[0]
+    diag = np.maximum(np.diag(a), 1e-12 * max(np.diag(a).max(), 1e-300))
+    while lam < 1e10:
+        try:
+            delta = np.linalg.solve(a + lam * np.diag(diag), -b)
+        except np.linalg.LinAlgError:
+            lam *= 10.0
+            continue
+        z_new = z.copy()
+        z_new[:n_active] = np.clip(z[:n_active] + delta, lower[:n_active], upper[:n_active])
+        if _predicted_gain(a, b, delta) < CONVERGED_FRACTION * tol * cost:
+            return None, None, cost, lam
+        r_new = problem.residuals(z_new)
+        cost_new = _cost(r_new)
+        if np.isfinite(cost_new) and cost_new < cost:
+            return z_new, r_new, cost_new, max(lam / 3.0, 1e-9)
+        lam *= 5.0
+    return None, None, cost, lam
+
+
+@pytest.mark.parametrize("coulomb, damping", [(5.0, 0.2), (0.3, 1.0)])
+def test_dampings_tried_in_batches_give_the_fit_of_one_try_at_a_time(clean, monkeypatch, coulomb, damping):
+    """fit._lm_step simulates the dampings after a failed first try LOOKAHEAD at a time. The fit
+    must be, to the bit, the one of one damping per simulation (a test oracle: the step as it was
+    before): the first damping that lowers the cost wins, not the best of its batch, and the
+    damping handed on is that one's. From these starts steps succeed at the 3rd to 9th damping,
+    inside a batch."""
+    from admittance.ident import fit as fit_module
+
+    ds = load_dataset(clean)
+    sim = Simulator(ds.trials, ds.mode)
+    start = vector_from({"motor_inertia": MX64["motor_inertia"], "damping": damping * MX64["damping"],
+                         "coulomb": coulomb * MX64["coulomb"]})
+    free = free_params("geometry", [], False)
+    x0 = initial_states(ds.trials)
+    batches = []
+    real_run = sim.run
+
+    def counting_run(rows, x0s, velocity=False):
+        batches.append(rows.shape[0])
+        return real_run(rows, x0s, velocity)
+
+    monkeypatch.setattr(sim, "run", counting_run)
+    batched = fit_output_error(sim, start, free, x0, torque_scale=0.3, max_iter=25)
+    calls = list(batches)
+    monkeypatch.setattr(fit_module, "_lm_step", _oracle_lm_step)
+    batches.clear()
+    one = fit_output_error(sim, start, free, x0, torque_scale=0.3, max_iter=25)
+    assert fit_module.LOOKAHEAD in calls and len(calls) < len(batches)  # damping batches ran, in fewer calls
+    assert one.iterations == batched.iterations and one.damping == batched.damping
+    np.testing.assert_array_equal(one.vector, batched.vector)
+    np.testing.assert_array_equal(one.x0, batched.x0)
+    for a, b in zip(one.residuals, batched.residuals):
+        np.testing.assert_array_equal(a, b)
