@@ -192,3 +192,40 @@ def test_router_three_benches_one_monitor_and_an_acl(tmp_path, capfd):
                                  and sum("/MP/" in t for t in ts) >= 2)
         assert any("/NN/%/%arm1/admittance" in t for t in tokens), tokens
         assert sum("/MP/" in t for t in tokens) == 2, tokens
+
+
+def test_a_bench_started_before_its_router_is_reached_once_the_router_is_up(tmp_path, capfd):
+    """A lab after a power cut: the daemon is up before its router. It says so and runs; once the
+    router listens, the lab's tools see it alive, read its parameters and its ROS 2 graph through
+    the router, with the ACL on. (It used to fall back to a peer session: connected, and never
+    seen, since a router does not route between two peers.)"""
+    files = lab_files(tmp_path, free_endpoint())
+    admittance = command(capfd)
+    log = tmp_path / "arm1.log"
+    procs = []
+    try:
+        with log.open("w") as err:
+            procs.append(subprocess.Popen([str(ADMITTANCE), "run", "--config", str(files["lab/arm1"])],
+                                          stdout=subprocess.DEVNULL, stderr=err))
+        deadline = time.monotonic() + LAB_START_TIMEOUT_S
+        while "no router at" not in log.read_text():
+            assert time.monotonic() < deadline and procs[0].poll() is None, log.read_text()
+            time.sleep(0.1)
+        procs.append(subprocess.Popen([str(ADMITTANCE), "router", "--zenoh-config", str(files["router"])],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        with login(files["alice"]) as alice:
+            deadline = time.monotonic() + WAIT_S
+            while not alice.alive("lab/arm1", timeout=0.5):
+                assert time.monotonic() < deadline, f"never seen behind the router:\n{log.read_text()}"
+        got = admittance("get", "1.virtual_damping", "--json", "--prefix", "lab/arm1", "--zenoh-config",
+                         str(files["alice"]))
+        assert got.returncode == 0 and "1.virtual_damping" in json.loads(got.stdout), got.stderr
+        with login(files["visitor"]) as visitor:
+            tokens = ros2_tokens(visitor, lambda ts: any("/NN/%/%arm1/admittance" in t for t in ts))
+        assert any("/NN/%/%arm1/admittance" in t for t in tokens), tokens
+        assert "zenoh: connected to the router" in log.read_text()
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in reversed(procs):
+            proc.wait(timeout=EXIT_TIMEOUT_S)

@@ -271,8 +271,11 @@ def test_router_with_a_malformed_endpoint_is_one_line(capsys):
 
 
 def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(caplog):
-    """[zenoh] mode = "client": the session opens with the router down (the loop must run), the
-    start line says it is not connected, and once a router listens there the state reaches it."""
+    """[zenoh] mode = "client": the interface starts with the router down (the loop must run), the
+    start line says it is not connected, and once a router listens there the state reaches it, and
+    the lab's tools (``Client``: a session that listens nowhere, connected to the router) see the
+    daemon alive and have their queries answered through the router. (A daemon that fell back to a
+    peer session was connected, but a router does not route between two peers: it was never seen.)"""
     import zenoh
 
     from admittance.daemon.zenoh_iface import make_config
@@ -280,9 +283,11 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
     endpoint = free_endpoint()
     zcfg = ZenohConfig(prefix="lab/arm1", mode="client", connect=[endpoint], listen=[])
     iface = DaemonInterface(zcfg, Codec("json"), FakeHandler())
+    iface.serve()
     router = None
     try:
         assert iface.where() == f"a client of the router at {endpoint}, NOT connected yet (the loop runs; zenoh keeps retrying)"
+        assert iface.poll() == 0  # nothing to answer, and no error, before there is a session
         router = zenoh.open(make_config(mode="router", listen=[endpoint]))
         got = []
         router.declare_subscriber("lab/arm1/state", lambda sample: got.append(sample))
@@ -295,6 +300,17 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
         assert got, "the state never reached the router"
         assert iface.where().endswith(", connected")
         assert f"zenoh: connected to the router at {endpoint}" in caplog.text
+        with Client([endpoint]) as tool:
+            assert tool.alive("lab/arm1", timeout=2.0), "the lab's tools never saw the daemon alive"
+            answers = []
+            asker = threading.Thread(target=lambda: answers.append(tool.query_params("lab/arm1", timeout=5.0)))
+            asker.start()
+            deadline = time.monotonic() + 6
+            while asker.is_alive() and time.monotonic() < deadline:
+                iface.poll()  # the supervisor's tick answers queries
+                time.sleep(0.02)
+            asker.join(timeout=1)
+            assert answers and answers[0]["params"]["1.virtual_damping"] == 0.05
     finally:
         iface.close()
         if router is not None:

@@ -58,11 +58,12 @@ class Ecosystem:
         stack.callback(self._close_bag)
 
     def start_views(self, stack: contextlib.ExitStack, cfg: Any, interface: Any) -> None:
-        """The ROS 2 bridge declares on the Zenoh interface's own session."""
+        """The ROS 2 bridge declares on the Zenoh interface's own session (once it is open: a
+        client whose router is down gets it later, zenoh_iface.RouterLink)."""
         if cfg.ros2.enabled:
             from admittance.ros2.rmw_zenoh import Ros2Bridge
 
-            self._add_view(stack, Ros2Bridge(interface.session, cfg))
+            interface.when_connected(lambda session: self._add_view(stack, Ros2Bridge(session, cfg)))
         if cfg.foxglove.enabled:
             from admittance.daemon.foxglove_view import FoxgloveView
 

@@ -26,9 +26,11 @@ order, before any servo is written; the queryables and the liveliness token are 
 from __future__ import annotations
 
 import json
+import queue
 import logging
 import re
 import socket
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -113,19 +115,20 @@ class DaemonInterface:
         self._codec = codec
         self._handler = handler
         self._log = RateLimitedLog(log)  # at most one line per kind of query problem per 10 s
-        self._link = RouterLink(zcfg)
-        self._session = self._link.open(
-            lambda mode, listen: make_config(mode=mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
-                                             security=security_of(zcfg)))
-        encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
+        self._encoding = zenoh.Encoding.APPLICATION_JSON if codec.encoding == "json" else zenoh.Encoding(
             "application/msgpack")
-        self._encoding = encoding
-        declare = self._session.declare_publisher
-        self._state_pub = declare(f"{self.prefix}/state", encoding=encoding,
-                                  congestion_control=zenoh.CongestionControl.DROP, express=True)
-        self._stats_pub = declare(f"{self.prefix}/stats", encoding=encoding)
+        self._state_pub = self._stats_pub = None
         self._queryables: dict[str, tuple[Any, Callable[[bytes, bool], Any]]] = {}
         self._token = None
+        self._serving = False
+        self._waiting: list[Callable[[zenoh.Session], None]] = []  # what declares on the session once it opens
+        self._link = RouterLink(zcfg)
+        # None while a client's router is down: the loop runs, the link keeps trying (RouterLink).
+        self._session: zenoh.Session | None = self._link.open(
+            lambda mode, listen: make_config(mode=mode, listen=listen, connect=zcfg.connect, scouting=zcfg.scouting,
+                                             security=security_of(zcfg)))
+        if self._session is not None:
+            self._declare_publishers()
         self.queries = 0
         self.query_errors = 0
         self.longest_poll_gap_s = 0.0  # the longest a query could have waited for the main thread
@@ -137,11 +140,47 @@ class DaemonInterface:
         return self._link.where(self._session)
 
     def watch_link(self) -> None:
-        """Log once when a client's router comes or goes (a client runs on without it)."""
+        """On the main thread, every tick: take the client session a retry opened (then declare
+        everything on it), and log once when a client's router comes or goes."""
+        if self._session is None:
+            session = self._link.opened()
+            if session is None:
+                return
+            self._session = session
+            self._declare_publishers()
+            if self._serving:
+                self._declare_served()
+            waiting, self._waiting = self._waiting, []
+            for declare in waiting:
+                try:
+                    declare(session)
+                except Exception as exc:  # one view that cannot declare must not stop the loop
+                    log.error("zenoh: %s could not declare on the session: %s: %s", getattr(declare, "__qualname__", declare),
+                              type(exc).__name__, clip(str(exc), 160))
         self._link.watch(self._session)
 
     def serve(self) -> None:
-        """Declare the queryables and the liveliness token: the daemon is now visible and steerable."""
+        """Declare the queryables and the liveliness token: the daemon is now visible and steerable
+        (once its session is open: at once, or when a client's router comes up)."""
+        self._serving = True
+        if self._session is not None:
+            self._declare_served()
+
+    def when_connected(self, declare: Callable[[zenoh.Session], None]) -> None:
+        """Call ``declare(session)`` with the daemon's own session, now or once it opens (the
+        ROS 2 bridge declares its publishers and tokens on it)."""
+        if self._session is not None:
+            declare(self._session)
+        else:
+            self._waiting.append(declare)
+
+    def _declare_publishers(self) -> None:
+        declare = self._session.declare_publisher
+        self._state_pub = declare(f"{self.prefix}/state", encoding=self._encoding,
+                                  congestion_control=zenoh.CongestionControl.DROP, express=True)
+        self._stats_pub = declare(f"{self.prefix}/stats", encoding=self._encoding)
+
+    def _declare_served(self) -> None:
         self._queryables = {
             f"{self.prefix}/{leaf}": (self._session.declare_queryable(
                 f"{self.prefix}/{leaf}", zenoh.handlers.FifoChannel(QUERY_BACKLOG)), answer)
@@ -150,15 +189,17 @@ class DaemonInterface:
         self._token = self._session.liveliness().declare_token(f"{self.prefix}/alive")
 
     @property
-    def session(self) -> zenoh.Session:
-        """The daemon's own session: the ROS 2 bridge declares its publishers and tokens on it."""
+    def session(self) -> zenoh.Session | None:
+        """The daemon's own session (None while a client's router is down: ``when_connected``)."""
         return self._session
 
     def publish_state(self, message: Any) -> None:
-        self._state_pub.put(self._codec.encode(message))
+        if self._state_pub is not None:  # no session yet: nobody could receive it
+            self._state_pub.put(self._codec.encode(message))
 
     def publish_stats(self, message: Any) -> None:
-        self._stats_pub.put(self._codec.encode(message))
+        if self._stats_pub is not None:
+            self._stats_pub.put(self._codec.encode(message))
 
     def poll(self) -> int:
         """Answer the pending queries, at most MAX_QUERIES_PER_POLL per key (a flood of sets
@@ -214,10 +255,13 @@ class DaemonInterface:
     def close(self) -> None:
         """Withdraw the liveliness token first, so watchers see the daemon leave at once."""
         queryables = [queryable for queryable, _ in self._queryables.values()]
+        publishers = [pub for pub in (self._state_pub, self._stats_pub) if pub is not None]
         entities = [self._token] if self._token is not None else []
-        for entity in (*entities, *queryables, self._state_pub, self._stats_pub):
+        for entity in (*entities, *queryables, *publishers):
             entity.undeclare()
-        self._session.close()
+        if self._session is not None:
+            self._session.close()
+        self._link.close()
 
 
 MAX_LOGIN_CHARS = 64
@@ -256,13 +300,18 @@ class RouterLink:
     """A daemon's place on the network, and a client's link to its router.
 
     A daemon in ``mode = "client"`` must run its loop whether or not the lab's router is up. It
-    opens a zenoh client session; when that fails because no router answers, it opens a *peer*
-    session that listens nowhere and only connects to the configured endpoints: zenoh retries them
-    in the background and the router, once up, routes for it. What the start line says, and the
-    lines when the router comes and goes, are read from the session, not from the configuration.
+    opens a zenoh client session; when that fails because no router answers, the loop runs
+    without a session and a thread (:class:`_Reopener`) opens the client session again every
+    :data:`RETRY_PERIOD_S` until a router answers; the main thread takes it (:meth:`opened`) and
+    declares everything on it. Why not a peer session that keeps connecting (what this did
+    before): a router does not route between two peers, and the lab's tools (``Client``) are
+    peers, so such a daemon was connected to its router and yet never seen. What the start line
+    says, and the lines when the router comes and goes, are read from the session, not from the
+    configuration.
     """
 
     CHECK_PERIOD_S = 1.0
+    RETRY_PERIOD_S = 1.0
 
     def __init__(self, zcfg) -> None:
         self.client = zcfg.mode == "client"
@@ -272,8 +321,10 @@ class RouterLink:
         self._listening = list(zcfg.listen)
         self._connected: bool | None = None
         self._next_check = 0.0
+        self._reopener: _Reopener | None = None
 
-    def open(self, config: Callable[[str, list[str] | None], zenoh.Config]) -> zenoh.Session:
+    def open(self, config: Callable[[str, list[str] | None], zenoh.Config]) -> zenoh.Session | None:
+        """The session, or None when a client's router is down (then :meth:`opened` hands it over later)."""
         if not self.client:
             return open_session(lambda: config(self.mode, self.listen),
                                 f"listening on {', '.join(self._listening) or 'defaults'}")
@@ -283,10 +334,20 @@ class RouterLink:
         except DeviceError as exc:
             if "Unable to connect" not in str(exc):  # a bad endpoint or security file: not a router that is down
                 raise
-        log.warning("zenoh: no router at %s yet; the loop runs without it and zenoh keeps retrying",
+        log.warning("zenoh: no router at %s yet; the loop runs without it and keeps trying to reach it",
                     ", ".join(self.connect))
         self._connected = False
-        return open_session(lambda: config("peer", []), what, log_level="off")
+        self._reopener = _Reopener(lambda: open_session(lambda: config("client", None), what, log_level="off"),
+                                   self.RETRY_PERIOD_S)
+        return None
+
+    def opened(self) -> zenoh.Session | None:
+        """The client session a retry has opened since (once), else None."""
+        return self._reopener.take() if self._reopener is not None else None
+
+    def close(self) -> None:
+        if self._reopener is not None:
+            self._reopener.stop()
 
     def routers(self, session: zenoh.Session) -> int:
         try:
@@ -298,7 +359,7 @@ class RouterLink:
         if not self.client:
             extra = f", connecting to {', '.join(self.connect)}" if self.connect else ""
             return f"listening on {', '.join(self._listening) or 'zenoh defaults'}{extra}"
-        self._connected = self.routers(session) > 0
+        self._connected = session is not None and self.routers(session) > 0
         state = "connected" if self._connected else "NOT connected yet (the loop runs; zenoh keeps retrying)"
         return f"a client of the router at {', '.join(self.connect)}, {state}"
 
@@ -315,6 +376,46 @@ class RouterLink:
                 log.warning("zenoh: the router at %s is gone; the loop runs on, zenoh keeps retrying",
                             ", ".join(self.connect))
         self._connected = connected
+
+
+class _Reopener:
+    """A thread that calls ``open_client()`` every ``period`` s until it returns a session (each
+    failure is a router still down: zenoh says "Unable to connect", and the first try at start
+    already refused anything else), and keeps it for the main thread (:meth:`take`). Opening a
+    session costs the thread a fraction of a second; the loop never waits for it."""
+
+    def __init__(self, open_client: Callable[[], zenoh.Session], period: float) -> None:
+        self._open = open_client
+        self._period = period
+        self._stopped = threading.Event()
+        self._ready: queue.Queue = queue.Queue(maxsize=1)
+        self._thread = threading.Thread(target=self._run, name="zenoh-reopen", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stopped.wait(self._period):
+            try:
+                session = self._open()
+            except Exception:  # still no router (or a transient refusal): try again
+                continue
+            if self._stopped.is_set():  # the daemon closed meanwhile: nobody will take it
+                session.close()
+            else:
+                self._ready.put(session)
+            return
+
+    def take(self) -> zenoh.Session | None:
+        try:
+            return self._ready.get_nowait()
+        except queue.Empty:
+            return None
+
+    def stop(self) -> None:
+        self._stopped.set()
+        self._thread.join(timeout=5.0)
+        leftover = self.take()  # opened after the daemon's last tick
+        if leftover is not None:
+            leftover.close()
 
 
 def _apply(decode_request: Any, apply: Any, payload: bytes) -> SetReply:
