@@ -62,17 +62,23 @@ def test_equation_error_start_is_close(clean):
     assert vec[2] == pytest.approx(MX64["coulomb"], rel=0.2)
 
 
-def test_jacobian_comes_from_one_batch_with_per_trial_initial_states(clean, monkeypatch):
-    ds = load_dataset(clean)
-    sim = Simulator(ds.trials[:3], ds.mode)
-    calls = []
+def batch_sizes(sim: Simulator, monkeypatch) -> list[int]:
+    """The number of parameter sets of each call ``sim`` makes to the plant, from now on."""
+    sizes: list[int] = []
     real_run = sim.run
 
     def counting_run(rows, x0, velocity=False):
-        calls.append(rows.shape[0])
+        sizes.append(rows.shape[0])
         return real_run(rows, x0, velocity)
 
     monkeypatch.setattr(sim, "run", counting_run)
+    return sizes
+
+
+def test_jacobian_comes_from_one_batch_with_per_trial_initial_states(clean, monkeypatch):
+    ds = load_dataset(clean)
+    sim = Simulator(ds.trials[:3], ds.mode)
+    calls = batch_sizes(sim, monkeypatch)
     truth = vector_from(json.loads((clean / "truth.json").read_text())["params"])
     problem = _Problem(sim, truth, free_params("geometry", [], False), True, 0.3)
     z = np.concatenate([truth[:3], initial_states(ds.trials[:3]).ravel()])
@@ -222,14 +228,7 @@ def test_dampings_tried_in_batches_give_the_fit_of_one_try_at_a_time(clean, monk
                          "coulomb": coulomb * MX64["coulomb"]})
     free = free_params("geometry", [], False)
     x0 = initial_states(ds.trials)
-    batches = []
-    real_run = sim.run
-
-    def counting_run(rows, x0s, velocity=False):
-        batches.append(rows.shape[0])
-        return real_run(rows, x0s, velocity)
-
-    monkeypatch.setattr(sim, "run", counting_run)
+    batches = batch_sizes(sim, monkeypatch)
     batched = fit_output_error(sim, start, free, x0, torque_scale=0.3, max_iter=25)
     calls = list(batches)
     monkeypatch.setattr(fit_module, "_lm_step", _oracle_lm_step)
