@@ -141,3 +141,18 @@ def test_a_cycle_repeated_across_two_drains_keeps_its_place_in_the_bag(tmp_path,
     assert [m.wrench.force.x for _, m in topics["/wrench"]] == forces.tolist()
     stamps = [s for s, _ in topics["/joint_states"]]
     assert stamps == sorted(stamps) and stamps[50] == stamps[49]  # the repeat ties, in the file's order
+
+
+def test_the_wall_offset_is_read_where_the_two_clocks_were_read_closest_together(monkeypatch):
+    """A thread preempted between its clock reads (5 ms here, as on CI) would put the whole
+    session's wall stamps off by that much: of a few tries, the narrowest bracket counts."""
+    from types import SimpleNamespace
+
+    from admittance.daemon import telemetry
+
+    offset = 1_700_000_000_000_000_000
+    reads = iter([0, offset + 5_000_000, 5_000_100,  # preempted after the monotonic read
+                  *[x for k in range(1, 5) for x in (k * 10**7, k * 10**7 + offset + 40, k * 10**7 + 80)]])
+    clock = SimpleNamespace(monotonic_ns=lambda: next(reads), time_ns=lambda: next(reads))
+    monkeypatch.setattr(telemetry, "time", clock)
+    assert telemetry.wall_offset_ns() == offset

@@ -120,9 +120,9 @@ class Recorder:
         self._last_row_t: dict[int, float] = {}
         self._last_cycle_t: dict[int, float] = {}
         self.gaps: list[dict[str, Any]] = []
-        # Per joint: the gap that opened the current segment, with its fault bits, while that
-        # segment may still be dropped (fewer than MIN_ROWS rows): its end moves on with the
-        # CSV's next kept row. And the t of the last row of a segment that is kept.
+        # Per joint: the gap that opened the current segment, with its fault bits: if that
+        # segment is dropped (fewer than MIN_ROWS rows), the gap's end moves on to the CSV's
+        # next kept row. And the t of the last row of a segment that is kept.
         self._open_gap: dict[int, tuple[dict[str, Any], int]] = {}
         self._kept_row_t: dict[int, float] = {}
         self.dropped: list[dict[str, Any]] = []  # trials too short to fit, removed from the CSV
@@ -289,7 +289,6 @@ class Recorder:
         self._last_row_t[joint_id] = float(rows["t"][-1])
         if self._segment_rows[joint_id] >= MIN_ROWS:  # this segment stays in the CSV
             self._kept_row_t[joint_id] = self._last_row_t[joint_id]
-            self._open_gap.pop(joint_id, None)
         return len(table)
 
     def _gap(self, joint_id: int, t_start: float, t_end: float, fault: int) -> None:
