@@ -118,12 +118,13 @@ def wall_offset_ns() -> int:
     The wall clock is read between two monotonic reads, and of a few tries the one whose reads
     lay closest together is taken: a thread preempted between two reads (a loaded machine)
     would otherwise be off by the whole preemption, milliseconds."""
-    best = None
-    for _ in range(OFFSET_READS):
-        before, wall, after = time.monotonic_ns(), time.time_ns(), time.monotonic_ns()
-        if best is None or after - before < best[0]:
-            best = (after - before, wall - (before + after) // 2)
-    return best[1]
+    return min(_bracketed_offset() for _ in range(OFFSET_READS))[1]
+
+
+def _bracketed_offset() -> tuple[int, int]:
+    """(how far apart the two monotonic reads were, the offset at their midpoint), ns."""
+    before, wall, after = time.monotonic_ns(), time.time_ns(), time.monotonic_ns()
+    return after - before, wall - (before + after) // 2
 
 
 def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = None) -> State:
