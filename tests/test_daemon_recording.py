@@ -371,3 +371,73 @@ def test_a_full_disk_cuts_the_csv_at_its_last_whole_row_and_the_dataset_stays_re
     # The first batch's rows (its last cycle waits for the next); the batch that did not fit is cut
     # back whole, not left half a row long.
     assert trial.n_samples == len(text.splitlines()) - 1 == 199
+
+
+def rowless_stretches(t: np.ndarray, longer_than: float) -> list[tuple[float, float]]:
+    """(last row before, first row after) of each stretch of the CSV without rows."""
+    wide = np.diff(t) > longer_than
+    return list(zip(t[:-1][wide].tolist(), t[1:][wide].tolist()))
+
+
+def replug_after_a_lost_bus(period: float = 1e-3) -> dict[str, np.ndarray]:
+    """CI's failed replug (tests/test_hil_faults.py), cycle by cycle: rows to 0.518 s, the bus
+    lost (no reads) to 2.080 s, one read there, then a stall the loop did not catch up (the model
+    lost its time: a new trial), the rows resuming at 2.206 s."""
+    from admittance.daemon.telemetry import fault_names
+
+    lost = 1 << fault_names(0xFF).index("bus_lost")
+    up, down, first_read, resumed = batch(0.0, 519), batch(0.519, 1561), batch(2.080, 1), batch(2.206, 400)
+    down["theta_present"][:], down["fault"][:], down["mode"][:] = np.nan, lost, 2.0
+    cols = {k: np.concatenate([p[k] for p in (up, down, first_read, resumed)]) for k in up}
+    cols["cycle"] = np.arange(len(cols["t"]), dtype=float)  # one cycle after another, the stall's included
+    return cols
+
+
+@pytest.mark.parametrize("chunk", [None, 100, 7])
+def test_a_gap_spans_every_row_the_csv_lacks_when_the_trial_after_it_is_too_short(tmp_path, chunk):
+    """After a gap, the first rows may form a trial too short to fit (a stall or a hold cut it
+    after one row) and be dropped: the gap then reaches the first row the CSV kept, as its
+    manifest entry says ("stretches with no rows"); the dropped row is still listed. The same
+    whether the drain arrives in one batch or in the supervisor's chunks."""
+    cols = replug_after_a_lost_bus()
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=1e-3)
+    step = chunk or len(cols["t"])
+    for start in range(0, len(cols["t"]), step):
+        rec.append(1, {k: v[start:start + step] for k, v in cols.items()})
+    rec.close()
+    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    t = all_rows(tmp_path)[:, COLUMNS.index("t")]
+    gaps = manifest["gaps"]
+    for before, after in rowless_stretches(t, 0.25):
+        assert any(g["t_start"] <= before and g["t_end"] >= after for g in gaps), \
+            f"rows stop at {before:.3f} s, resume at {after:.3f} s, and no gap says why: {gaps}"
+    assert [g["faults"] for g in gaps] == [["bus_lost"]]
+    assert gaps[0]["t_start"] == pytest.approx(0.518) and gaps[0]["t_end"] == pytest.approx(2.206)
+    assert manifest["dropped"] == [{"joint_id": 1, "t_start": pytest.approx(2.080), "t_end": pytest.approx(2.080),
+                                    "rows": 1, "faults": ["bus_lost"]}]
+
+
+def test_gaps_around_dropped_pieces_say_where_the_csv_has_no_rows(tmp_path):
+    """A short hold just before a gap, a piece of 3 rows between two gaps, and a run that ends
+    unread after a gap and 5 rows: every dropped piece lies inside a gap, the two gaps around
+    the 3 rows are one (with the faults of both), and the last gap reaches the run's last cycle."""
+    from admittance.daemon.telemetry import fault_names
+
+    bit = {name: 1 << fault_names(0xFF).index(name) for name in ("bus_lost", "servo_silent")}
+    starts = [0.0, 0.3, 0.303, 0.703, 0.706, 1.106, 1.406, 1.806, 1.811, 2.211]
+    parts = [batch(t, round((end - t) * 1e3)) for t, end in zip(starts, starts[1:])]
+    parts[1]["mode"][:] = 1.0  # a hold of 3 rows, then the bus lost
+    for k, fault in ((2, "bus_lost"), (4, "servo_silent"), (6, "bus_lost"), (8, "bus_lost")):
+        parts[k]["theta_present"][:], parts[k]["fault"][:] = np.nan, bit[fault]
+    rec = Recorder(tmp_path, [(1, "MX-64")], measured_theta=True, t0=0.0, period_s=1e-3)
+    for part in parts:
+        rec.append(1, part)
+    rec.close()
+    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    assert [(g["t_start"], g["t_end"], g["faults"]) for g in manifest["gaps"]] == [
+        (pytest.approx(0.299), pytest.approx(1.106), ["servo_silent", "bus_lost"]),
+        (pytest.approx(1.405), pytest.approx(2.210), ["bus_lost"])]
+    assert [(d["t_start"], d["rows"]) for d in manifest["dropped"]] == [
+        (pytest.approx(0.3), 3), (pytest.approx(0.703), 3), (pytest.approx(1.806), 5)]
+    t = all_rows(tmp_path)[:, COLUMNS.index("t")]
+    assert rowless_stretches(t, 0.25) == [(pytest.approx(0.299), pytest.approx(1.106))]

@@ -111,3 +111,48 @@ def test_a_bag_that_fails_stops_alone(tmp_path):
     eco.record_cycles({1: batch(100.005, 5, 1)})
     assert eco.bag is None and bag.closed and eco.mcap is not None and written == [1, 1]
     assert [w for w in eco.publish(None) if "rosbag2" in w] == ["rosbag2 stopped: OSError: [Errno 28] No space left on device"]
+
+
+def test_a_cycle_repeated_across_two_drains_keeps_its_place_in_the_bag(tmp_path, monkeypatch):
+    """A cycle that took no step repeats its predecessor's ``t`` (docs/daemon.md). When the two
+    fall in different drains (a backlog is drained in chunks), a wall offset measured afresh per
+    drain, one microsecond smaller the second time (clock-read jitter; a preemption between the
+    two clock reads makes it milliseconds), stamped the repeat before its predecessor, and a
+    ROS 2 reader, which orders by stamp, gave them in the wrong order: the same velocity (the
+    repeated state), another cycle's force (CI, under load)."""
+    from types import SimpleNamespace
+
+    from admittance.daemon import telemetry
+    from admittance.daemon.ecosystem import Ecosystem
+
+    offsets = iter([WALL_OFFSET_NS, WALL_OFFSET_NS - 1_000] * 4)
+    monkeypatch.setattr(telemetry, "wall_offset_ns", lambda: next(offsets))
+    first, second = batch(100.0, 50, 1), batch(100.05, 50, 1)
+    second["t"][0] = first["t"][-1]  # the second drain opens with a cycle that took no step
+    second["omega_model"][0] = first["omega_model"][-1]
+    eco = Ecosystem()
+    eco.mcap = SimpleNamespace(append=lambda *_: None, flush=lambda: None)
+    eco.bag = bag = Ros2Bag(tmp_path / "rosbag2", {1: "joint1"}, "f", force_axis=0)
+    eco.record_cycles({1: first})
+    eco.record_cycles({1: second})
+    bag.close()
+    _, topics = read_bag(tmp_path / "rosbag2")
+    forces = np.concatenate([first["force"], second["force"]])
+    assert [m.wrench.force.x for _, m in topics["/wrench"]] == forces.tolist()
+    stamps = [s for s, _ in topics["/joint_states"]]
+    assert stamps == sorted(stamps) and stamps[50] == stamps[49]  # the repeat ties, in the file's order
+
+
+def test_the_wall_offset_is_read_where_the_two_clocks_were_read_closest_together(monkeypatch):
+    """A thread preempted between its clock reads (5 ms here, as on CI) would put the whole
+    session's wall stamps off by that much: of a few tries, the narrowest bracket counts."""
+    from types import SimpleNamespace
+
+    from admittance.daemon import telemetry
+
+    offset = 1_700_000_000_000_000_000
+    reads = iter([0, offset + 5_000_000, 5_000_100,  # preempted after the monotonic read
+                  *[x for k in range(1, 5) for x in (k * 10**7, k * 10**7 + offset + 40, k * 10**7 + 80)]])
+    clock = SimpleNamespace(monotonic_ns=lambda: next(reads), time_ns=lambda: next(reads))
+    monkeypatch.setattr(telemetry, "time", clock)
+    assert telemetry.wall_offset_ns() == offset

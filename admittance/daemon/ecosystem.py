@@ -30,6 +30,12 @@ class Ecosystem:
         self.bag: Any = None  # admittance.ros2.bag.Ros2Bag
         self.views: list[Any] = []  # objects with publish(state) and close()
         self._failed: list[str] = []
+        # CLOCK_REALTIME − CLOCK_MONOTONIC, measured at the first drain and kept for the session:
+        # a cycle's wall stamp is its monotonic t plus this, so stamps keep the cycles' order. A
+        # fresh measurement per drain moved by its jitter (µs, ms when preempted between the
+        # clock reads) and stamped a repeated cycle (same t) at the start of one drain before
+        # its predecessor at the end of the last; a ROS 2 reader orders the bag by stamp.
+        self.wall_offset_ns: int | None = None
 
     def start_mcap(self, stack: contextlib.ExitStack, folder: Path, cfg: Any, t0: float,
                    params: dict[str, Any], joint_info: dict[int, dict] | None = None) -> None:
@@ -76,7 +82,9 @@ class Ecosystem:
     def record_cycles(self, by_joint: dict[int, dict[str, Any]]) -> None:
         if self.mcap is None:
             return
-        offset = telemetry.wall_offset_ns()
+        if self.wall_offset_ns is None:
+            self.wall_offset_ns = telemetry.wall_offset_ns()
+        offset = self.wall_offset_ns
 
         def write() -> None:
             for joint_id, columns in by_joint.items():

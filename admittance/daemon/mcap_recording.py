@@ -19,7 +19,8 @@ with the next cycle's (recording.with_next_cycle), so both files give the same d
 
 Every message's ``log_time`` is its wall-clock time (ns since the Unix epoch) and
 ``publish_time`` its CLOCK_MONOTONIC time (ns): the loop stamps cycles on the monotonic clock and
-the wall time is that plus the offset between the two clocks when the cycles were drained.
+the wall time is that plus the offset between the two clocks, measured once, at the session's
+first drain (ecosystem.Ecosystem.wall_offset_ns), so the wall times keep the cycles' order.
 
 Chunks are :data:`CHUNK_BYTES` long (about 1.5 s of one joint at 1 kHz) and the file is
 flushed after every tick, so a session cut short (SIGKILL, power loss) leaves a file that reads

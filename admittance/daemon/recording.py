@@ -66,7 +66,10 @@ Faults: a row needs the servo's measured angle, so while a fault keeps the servo
 read (the bus unplugged, a servo rebooting or browned out) there are no rows. Such a *gap*
 (rows further apart than ``gap_s``) ends the segment, the rows after it open a new one (an
 open-loop refit must not integrate across it), and the manifest lists it under ``[[gaps]]``
-(joint, ``t_start``, ``t_end``, the ``faults`` seen), also when the run ends inside it. The
+(joint, ``t_start``, ``t_end``, the ``faults`` seen), also when the run ends inside it. A gap
+spans the CSV's stretch without rows: from the last row kept before it to the first row kept
+after it (a dropped piece next to it, below, lies inside it, and two gaps with only a dropped
+piece between them are one). The
 first row after a gap carries the gap's fault bits and ``held`` (gathered since the previous
 row), and ``session.mcap`` holds every cycle of the gap, marked. A trial shorter than
 ``MIN_ROWS`` (between two gaps, or a short hold) is too short to fit and is dropped from the CSV
@@ -117,6 +120,11 @@ class Recorder:
         self._last_row_t: dict[int, float] = {}
         self._last_cycle_t: dict[int, float] = {}
         self.gaps: list[dict[str, Any]] = []
+        # Per joint: the gap that opened the current segment, with its fault bits: if that
+        # segment is dropped (fewer than MIN_ROWS rows), the gap's end moves on to the CSV's
+        # next kept row. And the t of the last row of a segment that is kept.
+        self._open_gap: dict[int, tuple[dict[str, Any], int]] = {}
+        self._kept_row_t: dict[int, float] = {}
         self.dropped: list[dict[str, Any]] = []  # trials too short to fit, removed from the CSV
         self.models = dict(joints)
         # Per joint: the parameter file, plant and loop settings (the manifest's [[joints]]).
@@ -279,19 +287,43 @@ class Recorder:
         self._segment_faults[joint_id] |= int(np.bitwise_or.reduce(rows["fault"].astype(np.int64)))
         self._segment_rows[joint_id] += len(table)
         self._last_row_t[joint_id] = float(rows["t"][-1])
+        if self._segment_rows[joint_id] >= MIN_ROWS:  # this segment stays in the CSV
+            self._kept_row_t[joint_id] = self._last_row_t[joint_id]
         return len(table)
 
     def _gap(self, joint_id: int, t_start: float, t_end: float, fault: int) -> None:
-        """The servo went unread from ``t_start`` to ``t_end``: listed, and a new segment after it."""
-        self.gaps.append({"joint_id": joint_id, "t_start": t_start, "t_end": t_end, "faults": fault_names(fault)})
-        self._next_segment(joint_id, t_end)
+        """The servo went unread from ``t_start`` to ``t_end``: listed, and a new segment after it.
+        A gap lists a stretch of the CSV without rows: when the segment before it is dropped, it
+        starts at the last row kept, and it is one with a gap that opened the dropped segment."""
+        open_gap = self._open_gap.pop(joint_id, None)
+        dropped = self._close_segment(joint_id)
+        if dropped and open_gap is not None:
+            entry, fault = open_gap[0], open_gap[1] | fault
+            entry.update(t_end=t_end, faults=fault_names(fault))
+        else:
+            if dropped:
+                t_start = self._kept_row_t.get(joint_id, 0.0)
+            entry = {"joint_id": joint_id, "t_start": t_start, "t_end": t_end, "faults": fault_names(fault)}
+            self.gaps.append(entry)
+        self._open_gap[joint_id] = (entry, fault)
+        self._open_segment(joint_id, t_end)
 
     def _next_segment(self, joint_id: int, t: float) -> None:
-        """Close the segment (dropping it when too short to fit: the MCAP keeps its cycles), open the next."""
-        self._files[joint_id].close()
-        if self._segment_rows[joint_id] < MIN_ROWS:
-            self._drop_segment(joint_id)
+        """Close the segment (dropping it when too short to fit: the MCAP keeps its cycles), open
+        the next; a gap that opened the dropped segment then reaches the next one."""
+        open_gap = self._open_gap.pop(joint_id, None)
+        if self._close_segment(joint_id) and open_gap is not None:
+            open_gap[0]["t_end"] = t
+            self._open_gap[joint_id] = open_gap
         self._open_segment(joint_id, t)
+
+    def _close_segment(self, joint_id: int) -> bool:
+        """Close the joint's segment; drop it when too short to fit. True when dropped."""
+        self._files[joint_id].close()
+        if self._segment_rows[joint_id] >= MIN_ROWS:
+            return False
+        self._drop_segment(joint_id)
+        return True
 
     def _drop_segment(self, joint_id: int) -> None:
         """Remove the joint's last segment (file and manifest entry); list it when it had rows."""
@@ -312,17 +344,31 @@ class Recorder:
         for joint_id, pending in list(self._pending.items()):
             self._write(joint_id, pending)
         self._pending.clear()
-        for joint_id, last_cycle in self._last_cycle_t.items():
-            last_row = self._last_row_t.get(joint_id, 0.0)
-            if last_cycle - last_row > self.gap_s:
-                fault = self._carry.get(joint_id, (0, 0))[1]
-                self.gaps.append({"joint_id": joint_id, "t_start": last_row, "t_end": last_cycle,
-                                  "faults": fault_names(fault)})
         for joint_id, fh in self._files.items():
             fh.close()
-            if self._segment_rows[joint_id] < MIN_ROWS and len(self._segments[joint_id]) > 1:
+            dropped = self._segment_rows[joint_id] < MIN_ROWS and len(self._segments[joint_id]) > 1
+            if dropped:
                 self._drop_segment(joint_id)
+            self._gap_at_the_end(joint_id, dropped)
         self._write_manifest()
+
+    def _gap_at_the_end(self, joint_id: int, dropped: bool) -> None:
+        """A run that ended inside a gap lists it up to its last cycle; so does a gap whose
+        segment, the last, was dropped (no row of the CSV follows it)."""
+        last_cycle = self._last_cycle_t.get(joint_id)
+        if last_cycle is None:
+            return
+        fault = self._carry.get(joint_id, (0, 0))[1]
+        open_gap = self._open_gap.pop(joint_id, None) if dropped else None
+        if open_gap is not None:
+            entry, bits = open_gap
+            entry.update(t_end=max(entry["t_end"], last_cycle), faults=fault_names(bits | fault))
+            return
+        last_row = self._last_row_t.get(joint_id, 0.0)
+        if last_cycle - last_row > self.gap_s:
+            t_start = self._kept_row_t.get(joint_id, 0.0) if dropped else last_row
+            self.gaps.append({"joint_id": joint_id, "t_start": t_start, "t_end": last_cycle,
+                              "faults": fault_names(fault)})
 
     def abort(self) -> None:
         """Stop after a write failed: close the files (each ends at a whole row) and write what the

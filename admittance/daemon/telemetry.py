@@ -110,9 +110,21 @@ def joint_name(joint) -> str:
     return getattr(joint, "name", "") or f"joint{joint.id}"
 
 
+OFFSET_READS = 5  # tries at reading both clocks back to back (the narrowest bracket wins)
+
+
 def wall_offset_ns() -> int:
-    """CLOCK_REALTIME − CLOCK_MONOTONIC now: the loop stamps cycles on the monotonic clock only."""
-    return time.time_ns() - time.monotonic_ns()
+    """CLOCK_REALTIME − CLOCK_MONOTONIC now: the loop stamps cycles on the monotonic clock only.
+    The wall clock is read between two monotonic reads, and of a few tries the one whose reads
+    lay closest together is taken: a thread preempted between two reads (a loaded machine)
+    would otherwise be off by the whole preemption, milliseconds."""
+    return min(_bracketed_offset() for _ in range(OFFSET_READS))[1]
+
+
+def _bracketed_offset() -> tuple[int, int]:
+    """(how far apart the two monotonic reads were, the offset at their midpoint), ns."""
+    before, wall, after = time.monotonic_ns(), time.time_ns(), time.monotonic_ns()
+    return after - before, wall - (before + after) // 2
 
 
 def latest_state(records: np.ndarray, cfg, rendering: RenderingError | None = None) -> State:

@@ -12,7 +12,9 @@ read. The topics are those of the live ROS 2 bridge (rmw_zenoh.py, docs/ros2.md)
 | ``/joint_states`` | ``sensor_msgs/msg/JointState`` | loop cycle | per joint: ``name``, ``position`` (rad: the measured angle on the cycles that read it, else the model's), ``velocity`` (rad/s, the model's), ``effort`` (N·m, the torque the cycle integrated) |
 | ``/wrench`` | ``geometry_msgs/msg/WrenchStamped`` | loop cycle | the cycle's force (N) on the sensor's configured axis, ``header.frame_id`` the sensor's frame |
 
-``header.stamp`` and the message's log time are the cycle's wall-clock time. ``metadata.yaml``
+``header.stamp`` and the message's log time are the cycle's wall-clock time, with the session's
+one clock offset (as session.mcap): a reader that orders by stamp keeps the cycles' order, and a
+cycle that took no step (its predecessor's ``t``) ties with it and follows it. ``metadata.yaml``
 (written as JSON, which YAML reads) is written at the close; a session cut short leaves the MCAP
 file readable up to its last chunk, and ``ros2 bag reindex`` rebuilds the metadata.
 """
