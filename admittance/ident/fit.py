@@ -127,12 +127,13 @@ class _Problem:
         self.simulations = 0
         self.scale_slot = self.free.index(TAU_SCALE) if TAU_SCALE in self.free else None
         self._sims: dict[float, Simulator] = {sim.tau_scale: sim}
+        # Where each free parameter other than the torque scale goes in a parameter row.
+        self._columns = np.array([j for j, n in enumerate(self.free) if n != TAU_SCALE], dtype=np.intp)
+        self._slots = np.array([INDEX[n] for n in self.free if n != TAU_SCALE], dtype=np.intp)
 
     def rows(self, gmat: np.ndarray) -> np.ndarray:
         rows = np.repeat(self.vector[None, :], gmat.shape[0], axis=0)
-        for j, name in enumerate(self.free):
-            if name != TAU_SCALE:
-                rows[:, INDEX[name]] = gmat[:, j]
+        rows[:, self._slots] = gmat[:, self._columns]
         return rows
 
     def simulate(self, gmat: np.ndarray, x0s: np.ndarray) -> list[np.ndarray]:
@@ -163,7 +164,7 @@ class _Problem:
     def residuals(self, z: np.ndarray) -> list[np.ndarray]:
         g, x0 = self.split(z)
         sims = self.simulate(g[None, :], x0[None, :, :])
-        return [s[0] - m for s, m in zip(sims, self.measured)]
+        return [_subtract_into(s[0], m) for s, m in zip(sims, self.measured)]
 
     def steps(self, g: np.ndarray, upper: np.ndarray) -> np.ndarray:
         h = np.array([max(REL_STEP * abs(v), self._step_floor(n)) for n, v in zip(self.free, g)])
@@ -194,7 +195,7 @@ class _Problem:
             x0s[self.n_g + 1, :, 1] += OMEGA0_STEP
         steps = np.concatenate([h, [THETA0_STEP, OMEGA0_STEP] if self.fit_x0 else []])
         sims = self.simulate(gmat, x0s)
-        return [(s - (r + m)[None, :]) / steps[:, None] for s, r, m in zip(sims, residuals, self.measured)]
+        return [chord_slopes(s, r + m, steps) for s, r, m in zip(sims, residuals, self.measured)]
 
 
     def tangent(self, z: np.ndarray) -> list[np.ndarray]:
@@ -215,24 +216,53 @@ class _Problem:
 
 
 def normal_equations(jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
-    """JᵀJ and Jᵀr of the whole problem, assembled from per-trial blocks."""
+    """JᵀJ and Jᵀr of the whole problem, assembled from per-trial blocks.
+
+    Each block is the BLAS product it always was, one call per block and trial: merging a
+    trial's blocks into one call of another shape changes their last bits (tried: the global
+    × own x0 and Jᵀr blocks differ). What is saved is around the calls: every product is
+    written straight into its place (``out=``), the global blocks are summed in trial order
+    by one ``add.accumulate`` (0 + first + second + …, as the loop's ``+=`` did), the lower
+    cross blocks are one transposed copy, and a fit with no free globals does no empty
+    products."""
     n_t = len(jac)
     n = n_g + (2 * n_t if fit_x0 else 0)
     a = np.zeros((n, n))
     b = np.zeros(n)
+    gg = np.zeros((n_t + 1, n_g, n_g))  # per trial gₖgₖᵀ after a row of zeros the running sum starts from
+    gr = np.zeros((n_t + 1, n_g))
     for k, (jk, rk) in enumerate(zip(jac, residuals)):
         gk = jk[:n_g]
-        a[:n_g, :n_g] += gk @ gk.T
-        b[:n_g] += gk @ rk
+        if n_g:
+            np.matmul(gk, gk.T, out=gg[k + 1])
+            np.matmul(gk, rk, out=gr[k + 1])
         if fit_x0:
             xk = jk[n_g:]
-            s = slice(n_g + 2 * k, n_g + 2 * k + 2)
-            cross = gk @ xk.T
-            a[:n_g, s] = cross
-            a[s, :n_g] = cross.T
-            a[s, s] = xk @ xk.T
-            b[s] = xk @ rk
+            s = n_g + 2 * k
+            if n_g:
+                np.matmul(gk, xk.T, out=a[:n_g, s : s + 2])
+            np.matmul(xk, xk.T, out=a[s : s + 2, s : s + 2])
+            np.matmul(xk, rk, out=b[s : s + 2])
+    if n_g:
+        a[:n_g, :n_g] = np.add.accumulate(gg, axis=0)[-1]
+        b[:n_g] = np.add.accumulate(gr, axis=0)[-1]
+        if fit_x0:
+            a[n_g:, :n_g] = a[:n_g, n_g:].T
     return a, b
+
+
+def chord_slopes(perturbed: np.ndarray, base: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(perturbed − base) / step per row: a trial's finite-difference Jacobian block from its
+    perturbed simulations (rows, n_k), computed in the simulation's own array when it may be
+    written (the same subtraction and division, without two temporaries of its size)."""
+    out = perturbed if perturbed.flags.writeable else None
+    slopes = np.subtract(perturbed, base[None, :], out=out)
+    return np.divide(slopes, steps[:, None], out=slopes)
+
+
+def _subtract_into(simulated: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """simulated − measured, in ``simulated``'s own array when it may be written."""
+    return np.subtract(simulated, measured, out=simulated if simulated.flags.writeable else None)
 
 
 def fit_output_error(
@@ -276,8 +306,10 @@ def fit_output_error(
     else:
         r = problem.residuals(z)
     cost = _cost(r)
+    samples = max(sum(m.size for m in problem.measured), 1)
     lam = damping
     jac: list[np.ndarray] = []
+    a = None
     jac_at = None
     iteration = 0
     for iteration in range(1, max_iter + 1):
@@ -290,11 +322,11 @@ def fit_output_error(
         improvement = cost - cost_new
         step = np.max(np.abs(z_new - z) / (np.abs(z) + 1e-9))
         z, r, cost = z_new, r_new, cost_new
-        if progress:
-            progress(f"{label}: iteration {iteration}, rmse {1e3 * rmse(r):.3f} mrad")
+        if progress:  # rmse(r), from the cost already summed (the same sums in the same order)
+            progress(f"{label}: iteration {iteration}, rmse {1e3 * np.sqrt(cost / samples):.3f} mrad")
         if improvement <= tol * cost or step < 1e-10:
             break
-    result = _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result = _result(problem, z, r, jac, a, iteration, time.perf_counter() - started)
     result.damping = lam
     if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
         result.end_point = EndPoint(problem, z, r, jac)
@@ -385,10 +417,15 @@ def _lm_step(problem, z, a, b, cost, lam, lower, upper, tol=0.0):
     all simulations of an effect search (measured with cProfile, bench/identify_speed.py); a step
     that did succeed there would gain less than the fit's own stopping tolerance."""
     n_active = a.shape[0]
-    diag = np.maximum(np.diag(a), 1e-12 * max(np.diag(a).max(), 1e-300))
+    a_diag = np.diag(a)
+    diag = np.maximum(a_diag, 1e-12 * max(a_diag.max(), 1e-300))
+    on_diagonal = np.diag_indices(n_active)
+    # a + lam·diag(d) without forming diag(d): + 0.0 is what the zeros off the diagonal added.
+    damped = a + 0.0
     while lam < 1e10:
+        damped[on_diagonal] = a_diag + lam * diag
         try:
-            delta = np.linalg.solve(a + lam * np.diag(diag), -b)
+            delta = np.linalg.solve(damped, -b)
         except np.linalg.LinAlgError:
             lam *= 10.0
             continue
@@ -410,11 +447,12 @@ def _predicted_gain(a: np.ndarray, b: np.ndarray, step: np.ndarray) -> float:
     return float(-(2.0 * b @ step + step @ a @ step))
 
 
-def _result(problem: _Problem, z, r, jac, iterations, seconds) -> FitResult:
+def _result(problem: _Problem, z, r, jac, jtj, iterations, seconds) -> FitResult:
+    """``jtj``: JᵀJ of ``jac`` as the last iteration assembled it (it depends on nothing else)."""
     g, x0 = problem.split(z)
     vector = problem.rows(g[None, :])[0]
     tau_scale = float(g[problem.scale_slot]) if problem.scale_slot is not None else problem.sim.tau_scale
-    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0) if jac else None
+    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0, jtj) if jac else None
     return FitResult(
         vector=vector,
         tau_scale=tau_scale,
@@ -438,15 +476,18 @@ class _Covariance:
     pseudo-inverse were a tenth of an effect search's CPU (cProfile, docs/identification.md,
     *Speed*). Computed later from the same Jacobian and residuals, it is bit for bit the same."""
 
-    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
-        self._inputs = (jac, residuals, n_g, fit_x0)
+    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool,
+                 jtj: np.ndarray | None = None):
+        # ``jtj``: JᵀJ of ``jac`` when the fit has it already (its last iteration assembled it).
+        self._inputs = (jac, residuals, n_g, fit_x0, jtj)
         self._full: np.ndarray | None = None
         self.n_g = n_g
 
     def full(self) -> np.ndarray:
         if self._full is None:
-            jac, residuals, n_g, fit_x0 = self._inputs
-            a, _ = normal_equations(jac, residuals, n_g, fit_x0)
+            jac, residuals, n_g, fit_x0, a = self._inputs
+            if a is None:
+                a, _ = normal_equations(jac, residuals, n_g, fit_x0)
             m = sum(res.size for res in residuals)
             dof = max(m - a.shape[0], 1)
             variance = _cost(residuals) / dof * autocorrelation_time(residuals)
@@ -489,15 +530,8 @@ def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) ->
     pooled over trials: the factor by which correlated samples overstate the information."""
     num = np.zeros(max_lag + 1)
     den = 0.0
-    for r in residuals:
-        if r.size < 2:  # an empty or one-sample piece has no correlation to add
-            continue
-        x = r - r.mean()
-        n = x.size
-        lags = min(max_lag, n - 1)
-        spec = np.fft.rfft(x, 2 * n)
-        acov = np.fft.irfft(spec * np.conj(spec))[: lags + 1]
-        num[: lags + 1] += acov
+    for acov in autocovariances(residuals, max_lag):
+        num[: acov.size] += acov
         den += acov[0]
     if den <= 0:
         return 1.0
@@ -505,6 +539,36 @@ def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) ->
     negative = np.flatnonzero(rho[1:] < 0)
     cut = negative[0] + 1 if negative.size else rho.size
     return float(max(1.0, 1.0 + 2.0 * rho[1:cut].sum()))
+
+
+def autocovariances(pieces: Sequence[np.ndarray], max_lag: int) -> list[np.ndarray]:
+    """Per piece of two samples or more (in order; shorter ones have no correlation to add), its
+    autocovariance Σₜ xₜxₜ₊ₖ about its mean for lags k ≤ min(max_lag, n − 1), by FFT (zero-padded
+    to 2n, so nothing wraps around).
+
+    Pieces of one length share one transform each way: numpy's rfft/irfft of a stack are, row
+    by row, bit for bit the transforms of each row alone (a trial of 1201 samples takes a
+    2402-point transform with a prime factor, about 0.3 ms each way). The power spectrum is
+    taken row by row: numpy's complex product of a 2D stack rounds differently from that of
+    one row (checked in tests/test_ident_fit_numerics.py)."""
+    pieces = [np.asarray(p, dtype=float) for p in pieces]
+    pieces = [p for p in pieces if p.size >= 2]
+    by_length: dict[int, list[int]] = {}
+    for i, p in enumerate(pieces):
+        by_length.setdefault(p.size, []).append(i)
+    out: list[np.ndarray] = [np.empty(0)] * len(pieces)
+    for n, members in by_length.items():
+        centred = np.empty((len(members), n))
+        for row, i in zip(centred, members):
+            np.subtract(pieces[i], pieces[i].mean(), out=row)
+        spectra = np.fft.rfft(centred, 2 * n, axis=1)
+        for spectrum in spectra:
+            np.multiply(spectrum, np.conj(spectrum), out=spectrum)
+        acov = np.fft.irfft(spectra, axis=1)
+        lags = min(max_lag, n - 1)
+        for row, i in zip(acov, members):
+            out[i] = row[: lags + 1]
+    return out
 
 
 def fit_initial_states(sim: Simulator, vector: np.ndarray, x0: np.ndarray, tau_scale: float | None = None,
@@ -560,7 +624,7 @@ def closest_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarr
     batch simulated it already (each trial and row is simulated on its own, so it is bit for
     bit what a fit from there would simulate first: ``fit_output_error(..., residuals=)``)."""
     sims = sim.run(np.repeat(np.asarray(vector, float)[None, :], len(starts), axis=0), np.stack(starts))
-    choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
-              for s, m in zip(sims, sim.measured)]
+    # Each row's mean square, a row at a time (the reduction of one row is the 1D one).
+    choice = [int(np.argmin(np.mean((s - m[None, :]) ** 2, axis=1))) for s, m in zip(sims, sim.measured)]
     x0 = np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
     return x0, [s[c] - m for s, c, m in zip(sims, choice, sim.measured)]
