@@ -164,7 +164,7 @@ class _Problem:
     def residuals(self, z: np.ndarray) -> list[np.ndarray]:
         g, x0 = self.split(z)
         sims = self.simulate(g[None, :], x0[None, :, :])
-        return [_subtract_into(s[0], m) for s, m in zip(sims, self.measured)]
+        return [s[0] - m for s, m in zip(sims, self.measured)]
 
     def steps(self, g: np.ndarray, upper: np.ndarray) -> np.ndarray:
         h = np.array([max(REL_STEP * abs(v), self._step_floor(n)) for n, v in zip(self.free, g)])
@@ -258,11 +258,6 @@ def chord_slopes(perturbed: np.ndarray, base: np.ndarray, steps: np.ndarray) -> 
     out = perturbed if perturbed.flags.writeable else None
     slopes = np.subtract(perturbed, base[None, :], out=out)
     return np.divide(slopes, steps[:, None], out=slopes)
-
-
-def _subtract_into(simulated: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """simulated − measured, in ``simulated``'s own array when it may be written."""
-    return np.subtract(simulated, measured, out=simulated if simulated.flags.writeable else None)
 
 
 def fit_output_error(
