@@ -127,13 +127,12 @@ class _Problem:
         self.simulations = 0
         self.scale_slot = self.free.index(TAU_SCALE) if TAU_SCALE in self.free else None
         self._sims: dict[float, Simulator] = {sim.tau_scale: sim}
-        # Where each free parameter other than the torque scale goes in a parameter row.
-        self._columns = np.array([j for j, n in enumerate(self.free) if n != TAU_SCALE], dtype=np.intp)
-        self._slots = np.array([INDEX[n] for n in self.free if n != TAU_SCALE], dtype=np.intp)
 
     def rows(self, gmat: np.ndarray) -> np.ndarray:
         rows = np.repeat(self.vector[None, :], gmat.shape[0], axis=0)
-        rows[:, self._slots] = gmat[:, self._columns]
+        for j, name in enumerate(self.free):
+            if name != TAU_SCALE:
+                rows[:, INDEX[name]] = gmat[:, j]
         return rows
 
     def simulate(self, gmat: np.ndarray, x0s: np.ndarray) -> list[np.ndarray]:
@@ -412,15 +411,10 @@ def _lm_step(problem, z, a, b, cost, lam, lower, upper, tol=0.0):
     all simulations of an effect search (measured with cProfile, bench/identify_speed.py); a step
     that did succeed there would gain less than the fit's own stopping tolerance."""
     n_active = a.shape[0]
-    a_diag = np.diag(a)
-    diag = np.maximum(a_diag, 1e-12 * max(a_diag.max(), 1e-300))
-    on_diagonal = np.diag_indices(n_active)
-    # a + lam·diag(d) without forming diag(d): + 0.0 is what the zeros off the diagonal added.
-    damped = a + 0.0
+    diag = np.maximum(np.diag(a), 1e-12 * max(np.diag(a).max(), 1e-300))
     while lam < 1e10:
-        damped[on_diagonal] = a_diag + lam * diag
         try:
-            delta = np.linalg.solve(damped, -b)
+            delta = np.linalg.solve(a + lam * np.diag(diag), -b)
         except np.linalg.LinAlgError:
             lam *= 10.0
             continue
