@@ -537,7 +537,7 @@ def autocovariances(pieces: Sequence[np.ndarray], max_lag: int) -> list[np.ndarr
 
     Pieces of one length share one transform each way: numpy's rfft/irfft of a stack are, row
     by row, bit for bit the transforms of each row alone (a trial of 1201 samples takes a
-    2402-point transform with a prime factor, about 0.3 ms each way). The power spectrum is
+    2402-point transform with a prime factor, about 0.25 ms each way). The power spectrum is
     taken row by row: numpy's complex product of a 2D stack rounds differently from that of
     one row (checked in tests/test_ident_fit_numerics.py)."""
     pieces = [np.asarray(p, dtype=float) for p in pieces]
