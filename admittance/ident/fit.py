@@ -204,7 +204,7 @@ class _Problem:
             x0s[self.n_g + 1, :, 1] += OMEGA0_STEP
         steps = np.concatenate([h, [THETA0_STEP, OMEGA0_STEP] if self.fit_x0 else []])
         sims = self.simulate(gmat, x0s)
-        return [(s - (r + m)[None, :]) / steps[:, None] for s, r, m in zip(sims, residuals, self.measured)]
+        return [chord_slopes(s, r + m, steps) for s, r, m in zip(sims, residuals, self.measured)]
 
 
     def tangent(self, z: np.ndarray) -> list[np.ndarray]:
@@ -225,24 +225,48 @@ class _Problem:
 
 
 def normal_equations(jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
-    """JᵀJ and Jᵀr of the whole problem, assembled from per-trial blocks."""
+    """JᵀJ and Jᵀr of the whole problem, assembled from per-trial blocks.
+
+    Each block is the BLAS product it always was, one call per block and trial: merging a
+    trial's blocks into one call of another shape changes their last bits (tried: the global
+    × own x0 and Jᵀr blocks differ). What is saved is around the calls: every product is
+    written straight into its place (``out=``), the global blocks are summed in trial order
+    by one ``add.accumulate`` (0 + first + second + …, as the loop's ``+=`` did), the lower
+    cross blocks are one transposed copy, and a fit with no free globals does no empty
+    products."""
     n_t = len(jac)
     n = n_g + (2 * n_t if fit_x0 else 0)
     a = np.zeros((n, n))
     b = np.zeros(n)
+    gg = np.zeros((n_t + 1, n_g, n_g))  # per trial gₖgₖᵀ after a row of zeros the running sum starts from
+    gr = np.zeros((n_t + 1, n_g))
     for k, (jk, rk) in enumerate(zip(jac, residuals)):
         gk = jk[:n_g]
-        a[:n_g, :n_g] += gk @ gk.T
-        b[:n_g] += gk @ rk
+        if n_g:
+            np.matmul(gk, gk.T, out=gg[k + 1])
+            np.matmul(gk, rk, out=gr[k + 1])
         if fit_x0:
             xk = jk[n_g:]
-            s = slice(n_g + 2 * k, n_g + 2 * k + 2)
-            cross = gk @ xk.T
-            a[:n_g, s] = cross
-            a[s, :n_g] = cross.T
-            a[s, s] = xk @ xk.T
-            b[s] = xk @ rk
+            s = n_g + 2 * k
+            if n_g:
+                np.matmul(gk, xk.T, out=a[:n_g, s : s + 2])
+            np.matmul(xk, xk.T, out=a[s : s + 2, s : s + 2])
+            np.matmul(xk, rk, out=b[s : s + 2])
+    if n_g:
+        a[:n_g, :n_g] = np.add.accumulate(gg, axis=0)[-1]
+        b[:n_g] = np.add.accumulate(gr, axis=0)[-1]
+        if fit_x0:
+            a[n_g:, :n_g] = a[:n_g, n_g:].T
     return a, b
+
+
+def chord_slopes(perturbed: np.ndarray, base: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(perturbed − base) / step per row: a trial's finite-difference Jacobian block from its
+    perturbed simulations (rows, n_k), computed in the simulation's own array when it may be
+    written (the same subtraction and division, without two temporaries of its size)."""
+    out = perturbed if perturbed.flags.writeable else None
+    slopes = np.subtract(perturbed, base[None, :], out=out)
+    return np.divide(slopes, steps[:, None], out=slopes)
 
 
 def fit_output_error(
@@ -286,8 +310,10 @@ def fit_output_error(
     else:
         r = problem.residuals(z)
     cost = _cost(r)
+    samples = max(sum(m.size for m in problem.measured), 1)
     lam = damping
     jac: list[np.ndarray] = []
+    a = None
     jac_at = None
     iteration = 0
     for iteration in range(1, max_iter + 1):
@@ -300,11 +326,11 @@ def fit_output_error(
         improvement = cost - cost_new
         step = np.max(np.abs(z_new - z) / (np.abs(z) + 1e-9))
         z, r, cost = z_new, r_new, cost_new
-        if progress:
-            progress(f"{label}: iteration {iteration}, rmse {1e3 * rmse(r):.3f} mrad")
+        if progress:  # rmse(r), from the cost already summed (the same sums in the same order)
+            progress(f"{label}: iteration {iteration}, rmse {1e3 * np.sqrt(cost / samples):.3f} mrad")
         if improvement <= tol * cost or step < 1e-10:
             break
-    result = _result(problem, z, r, jac, iteration, time.perf_counter() - started)
+    result = _result(problem, z, r, jac, a, iteration, time.perf_counter() - started)
     result.damping = lam
     if jac_at is z and problem.n_g:  # the last Jacobian was taken at the end point (it ended on a failed step)
         result.end_point = EndPoint(problem, z, r, jac)
@@ -443,11 +469,12 @@ def _predicted_gain(a: np.ndarray, b: np.ndarray, step: np.ndarray) -> float:
     return float(-(2.0 * b @ step + step @ a @ step))
 
 
-def _result(problem: _Problem, z, r, jac, iterations, seconds) -> FitResult:
+def _result(problem: _Problem, z, r, jac, jtj, iterations, seconds) -> FitResult:
+    """``jtj``: JᵀJ of ``jac`` as the last iteration assembled it (it depends on nothing else)."""
     g, x0 = problem.split(z)
     vector = problem.rows(g[None, :])[0]
     tau_scale = float(g[problem.scale_slot]) if problem.scale_slot is not None else problem.sim.tau_scale
-    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0) if jac else None
+    uncertainty = _Covariance(jac, r, problem.n_g, problem.fit_x0, jtj) if jac else None
     return FitResult(
         vector=vector,
         tau_scale=tau_scale,
@@ -471,15 +498,18 @@ class _Covariance:
     pseudo-inverse were a tenth of an effect search's CPU (cProfile, docs/identification.md,
     *Speed*). Computed later from the same Jacobian and residuals, it is bit for bit the same."""
 
-    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool):
-        self._inputs = (jac, residuals, n_g, fit_x0)
+    def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool,
+                 jtj: np.ndarray | None = None):
+        # ``jtj``: JᵀJ of ``jac`` when the fit has it already (its last iteration assembled it).
+        self._inputs = (jac, residuals, n_g, fit_x0, jtj)
         self._full: np.ndarray | None = None
         self.n_g = n_g
 
     def full(self) -> np.ndarray:
         if self._full is None:
-            jac, residuals, n_g, fit_x0 = self._inputs
-            a, _ = normal_equations(jac, residuals, n_g, fit_x0)
+            jac, residuals, n_g, fit_x0, a = self._inputs
+            if a is None:
+                a, _ = normal_equations(jac, residuals, n_g, fit_x0)
             m = sum(res.size for res in residuals)
             dof = max(m - a.shape[0], 1)
             variance = _cost(residuals) / dof * autocorrelation_time(residuals)
@@ -522,15 +552,8 @@ def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) ->
     pooled over trials: the factor by which correlated samples overstate the information."""
     num = np.zeros(max_lag + 1)
     den = 0.0
-    for r in residuals:
-        if r.size < 2:  # an empty or one-sample piece has no correlation to add
-            continue
-        x = r - r.mean()
-        n = x.size
-        lags = min(max_lag, n - 1)
-        spec = np.fft.rfft(x, 2 * n)
-        acov = np.fft.irfft(spec * np.conj(spec))[: lags + 1]
-        num[: lags + 1] += acov
+    for acov in autocovariances(residuals, max_lag):
+        num[: acov.size] += acov
         den += acov[0]
     if den <= 0:
         return 1.0
@@ -538,6 +561,36 @@ def autocorrelation_time(residuals: Sequence[np.ndarray], max_lag: int = 400) ->
     negative = np.flatnonzero(rho[1:] < 0)
     cut = negative[0] + 1 if negative.size else rho.size
     return float(max(1.0, 1.0 + 2.0 * rho[1:cut].sum()))
+
+
+def autocovariances(pieces: Sequence[np.ndarray], max_lag: int) -> list[np.ndarray]:
+    """Per piece of two samples or more (in order; shorter ones have no correlation to add), its
+    autocovariance Σₜ xₜxₜ₊ₖ about its mean for lags k ≤ min(max_lag, n − 1), by FFT (zero-padded
+    to 2n, so nothing wraps around).
+
+    Pieces of one length share one transform each way: numpy's rfft/irfft of a stack are, row
+    by row, bit for bit the transforms of each row alone (a trial of 1201 samples takes a
+    2402-point transform with a prime factor, about 0.25 ms each way). The power spectrum is
+    taken row by row: numpy's complex product of a 2D stack rounds differently from that of
+    one row (checked in tests/test_ident_fit_numerics.py)."""
+    pieces = [np.asarray(p, dtype=float) for p in pieces]
+    pieces = [p for p in pieces if p.size >= 2]
+    by_length: dict[int, list[int]] = {}
+    for i, p in enumerate(pieces):
+        by_length.setdefault(p.size, []).append(i)
+    out: list[np.ndarray] = [np.empty(0)] * len(pieces)
+    for n, members in by_length.items():
+        centred = np.empty((len(members), n))
+        for row, i in zip(centred, members):
+            np.subtract(pieces[i], pieces[i].mean(), out=row)
+        spectra = np.fft.rfft(centred, 2 * n, axis=1)
+        for spectrum in spectra:
+            np.multiply(spectrum, np.conj(spectrum), out=spectrum)
+        acov = np.fft.irfft(spectra, axis=1)
+        lags = min(max_lag, n - 1)
+        for row, i in zip(acov, members):
+            out[i] = row[: lags + 1]
+    return out
 
 
 def fit_initial_states(sim: Simulator, vector: np.ndarray, x0: np.ndarray, tau_scale: float | None = None,
@@ -593,7 +646,7 @@ def closest_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarr
     batch simulated it already (each trial and row is simulated on its own, so it is bit for
     bit what a fit from there would simulate first: ``fit_output_error(..., residuals=)``)."""
     sims = sim.run(np.repeat(np.asarray(vector, float)[None, :], len(starts), axis=0), np.stack(starts))
-    choice = [int(np.argmin([np.mean((s[k] - m) ** 2) for k in range(len(starts))]))
-              for s, m in zip(sims, sim.measured)]
+    # Each row's mean square, a row at a time (the reduction of one row is the 1D one).
+    choice = [int(np.argmin(np.mean((s - m[None, :]) ** 2, axis=1))) for s, m in zip(sims, sim.measured)]
     x0 = np.array([starts[c][i] for i, c in enumerate(choice)], dtype=float).reshape(-1, 2)
     return x0, [s[c] - m for s, c, m in zip(sims, choice, sim.measured)]
