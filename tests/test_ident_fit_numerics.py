@@ -143,6 +143,9 @@ class _Linear:
     def residuals(self, z):
         return [self.jac @ z - self.y]
 
+    def residuals_of(self, zs):
+        return [self.residuals(z) for z in zs]
+
 
 def test_the_damped_system_is_a_plus_lambda_diag_bit_for_bit():
     rng = np.random.default_rng(2)  # a draw where LAPACK's step does follow the zero's sign
