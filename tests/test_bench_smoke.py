@@ -78,6 +78,10 @@ SKIPPED = {
     "fidelity.py": "its smallest run (--quick --skip-inertia --seconds 2) is 18 `admittance run` sessions "
                    "(two servos: an identification, then 3 sines and a multi-sine, each without and with "
                    "compensation), about 50 s on a 2-core VM; no option runs fewer sessions",
+    "fit_numerics.py": "whole identify runs of 30-drop sets, this tree's fit.py against a commit's, several rounds "
+                       "(minutes); what it times is held bit for bit per function by tests/test_ident_fit_numerics.py",
+    "fit_numerics_replay.py": "replays every call of a whole identify run through a commit's fit.py (minutes); "
+                              "the per-function bit-for-bit claim is tests/test_ident_fit_numerics.py's",
 }
 
 
