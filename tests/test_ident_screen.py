@@ -59,6 +59,9 @@ class _Quadratic:
         self.calls += 1
         return [self.jac @ z - self.y]
 
+    def residuals_of(self, zs):
+        return [self.residuals(z) for z in zs]
+
 
 def _normal(problem: _Quadratic, z):
     r = problem.residuals(z)[0]

@@ -425,8 +425,7 @@ def _lm_step(problem, z, a, b, cost, lam, lower, upper, tol=0.0):
     a quadratic drag, bench/identify_speed.py's set). Once it has failed, the next
     :data:`LOOKAHEAD` dampings are simulated together in one batch, each as if the ones before
     it failed: a failed first try is usually the start of a run of them (up to 11 tries on that
-    set, at a kink of stick friction), and a batch of dampings on the same trials costs the
-    plant less than as many calls. The result is the one the steps taken one by one give, to the
+    set, at a kink of stick friction), and one call for them replaces several. The result is the one the steps taken one by one give, to the
     bit: the first that lowers the cost wins, and each is simulated exactly as alone."""
     proposals = _damped_steps(z, a, b, lam, lower, upper, CONVERGED_FRACTION * tol * cost)
     for size in itertools.chain([1], itertools.repeat(LOOKAHEAD)):
