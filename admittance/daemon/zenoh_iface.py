@@ -26,8 +26,8 @@ order, before any servo is written; the queryables and the liveliness token are 
 from __future__ import annotations
 
 import json
-import queue
 import logging
+import queue
 import re
 import socket
 import threading
@@ -155,8 +155,8 @@ class DaemonInterface:
                 try:
                     declare(session)
                 except Exception as exc:  # one view that cannot declare must not stop the loop
-                    log.error("zenoh: %s could not declare on the session: %s: %s", getattr(declare, "__qualname__", declare),
-                              type(exc).__name__, clip(str(exc), 160))
+                    log.error("zenoh: a view could not declare on the session: %s: %s", type(exc).__name__,
+                              clip(str(exc), 160))
         self._link.watch(self._session)
 
     def serve(self) -> None:
