@@ -41,6 +41,7 @@ CASES = [
     ("servo_play_variants.py", ["--fits", "docs/fidelity/servo_forms_two_horizons.json"],
      r"^\| MX-64 geared, 1° backlash \| now \| \d+\.\d+ \| \d+\.\d+× \|"),
     ("servo_scan.py", ["--baud", "1000000"], r"^\s+ServoBus\.scan\(ids\) ping per ID .*found 1\)$"),
+    ("plant_lanes.py", ["--sets", "1", "2", "--repeats", "1"], r"^\| 2 \| \d+\.\d+ ms \| \d+\.\d+ ms \| \d+\.\d+× \|"),
     ("sim_step.py", [], r"^\s+rayon \(\d+ cpus\)\s+\d+\.\d+ M substeps/s"),
     ("wire_limit.py", ["--servos", "2", "--bauds", "4000000", "--rdt", "0", "--cycles", "20", "--rates", "250",
                        "--point-s", "0.3"], r"^\| 0 \| 2 \| 4 \| \d+ \| \d+ \(\d+.*\| (none|250) \(\d/1\) \|$"),

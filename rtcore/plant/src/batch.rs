@@ -11,7 +11,13 @@ use crate::error::{require_finite, PlantError};
 use crate::friction::FrictionLaw;
 use crate::model::State;
 use crate::params::Params;
-use crate::trial::{simulate_into, validate_max_step, Trial};
+use crate::trial::{simulate_lanes, validate_max_step, Trial};
+
+/// Parameter sets stepped side by side in one work item. Measured on the 30 drops of
+/// bench/identify_speed.py (one trial, fitted parameters, one thread): 2 lanes cut the time of a
+/// substep about as much as 4 or 8; 4 leave fewer, larger items for the Jacobian's 8–10 sets.
+pub const LANES: usize = 4;
+const _: () = assert!(LANES == 4, "Batch::run_group dispatches 1 to 4 lanes");
 
 /// What a batch returns per sample: the angle, or the angle and the velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -73,31 +79,62 @@ impl Batch<'_> {
         let n_sets = self.params.len();
         let mut outs: Vec<Vec<f64>> =
             self.trials.iter().map(|tr| vec![0.0; n_sets * tr.n_samples() * width]).collect();
+        // (trial, first set, the sets' rows): up to LANES sets per item (`lanes_for`).
         let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(n_sets * self.trials.len());
         for (k, out) in outs.iter_mut().enumerate() {
             let row = self.trials[k].n_samples() * width;
-            for (s, chunk) in out.chunks_mut(row.max(1)).enumerate() {
-                jobs.push((s, k, chunk));
+            let mut rest: &mut [f64] = out;
+            let mut s = 0;
+            while s < n_sets {
+                let lanes = lanes_for(n_sets - s);
+                let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(lanes * row);
+                jobs.push((k, s, chunk));
+                rest = tail;
+                s += lanes;
             }
         }
         in_pool(self.threads, move || {
-            jobs.into_par_iter().for_each(|(s, k, chunk)| self.run_one(s, k, chunk));
+            jobs.into_par_iter().for_each(|(k, s, chunk)| self.run_group(k, s, chunk));
         })?;
         Ok(outs)
     }
 
-    fn run_one(&self, s: usize, k: usize, out: &mut [f64]) {
-        let x0 = self.x0[s * self.trials.len() + k];
-        let p = &self.params[s];
+    /// Sets `s..s + n` on trial `k`, `n` = `chunk`'s rows (1 to `LANES`).
+    fn run_group(&self, k: usize, s: usize, chunk: &mut [f64]) {
+        let row = self.trials[k].n_samples() * self.output.width();
+        match chunk.len() / row.max(1) {
+            4 => self.run_lanes::<4>(k, s, chunk),
+            3 => self.run_lanes::<3>(k, s, chunk),
+            2 => self.run_lanes::<2>(k, s, chunk),
+            _ => self.run_lanes::<1>(k, s, chunk),
+        }
+    }
+
+    fn run_lanes<const L: usize>(&self, k: usize, s: usize, chunk: &mut [f64]) {
+        let trial = self.trials[k];
+        let n = trial.n_samples();
+        let params: [&Params; L] = std::array::from_fn(|l| &self.params[s + l]);
+        let x0: [State; L] = std::array::from_fn(|l| self.x0[(s + l) * self.trials.len() + k]);
         match self.output {
             Output::Theta => {
-                simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| out[i] = st.theta)
+                simulate_lanes(trial, params, self.law, x0, self.max_step, |l, i, st| chunk[l * n + i] = st.theta)
             }
-            Output::ThetaOmega => simulate_into(self.trials[k], p, self.law, x0, self.max_step, |i, st| {
-                out[2 * i] = st.theta;
-                out[2 * i + 1] = st.omega;
+            Output::ThetaOmega => simulate_lanes(trial, params, self.law, x0, self.max_step, |l, i, st| {
+                chunk[2 * (l * n + i)] = st.theta;
+                chunk[2 * (l * n + i) + 1] = st.omega;
             }),
         }
+    }
+}
+
+/// How many of `remaining` sets the next work item takes: all of them up to `LANES`, and never
+/// so many that a single set is left for an item of its own (5 = 3 + 2, not 4 + 1): one lane
+/// alone has nothing to overlap with.
+fn lanes_for(remaining: usize) -> usize {
+    match remaining {
+        0..=LANES => remaining,
+        5 => 3,
+        _ => LANES,
     }
 }
 

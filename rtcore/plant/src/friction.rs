@@ -73,7 +73,8 @@ pub(crate) fn direction(omega: f64, drive: f64) -> f64 {
 /// friction that pushes the joint.
 #[inline]
 pub fn level(p: &Params, theta: f64, omega: f64, drive: f64, load_torque: f64) -> f64 {
-    let mut level = p.coulomb + direction(omega, drive) * p.coulomb_asym;
+    // Without an asymmetry the direction is not needed (the product would be a signed zero).
+    let mut level = if p.coulomb_asym != 0.0 { p.coulomb + direction(omega, drive) * p.coulomb_asym } else { p.coulomb };
     if p.friction_ripple_amplitude != 0.0 {
         level += p.friction_ripple_amplitude * (p.friction_ripple_period * theta + p.friction_ripple_phase).sin();
     }
@@ -108,7 +109,21 @@ pub fn advance_velocity(
     h: f64,
 ) -> f64 {
     // Velocity change per unit torque over the substep; loop-invariant in a trial's interval.
-    let gain = h / inertia;
+    advance_with_gain(omega, h / inertia, drive, dissipation, level, law, tanh_k)
+}
+
+/// `advance_velocity` given `gain` = h / inertia, the velocity change per unit torque over the
+/// substep (a simulation computes it once per sample interval: a division fewer per substep).
+#[inline(always)]
+pub fn advance_with_gain(
+    omega: f64,
+    gain: f64,
+    drive: f64,
+    dissipation: f64,
+    level: f64,
+    law: FrictionLaw,
+    tanh_k: f64,
+) -> f64 {
     let free = omega + gain * drive;
     let numerator = match law {
         FrictionLaw::Stick => {

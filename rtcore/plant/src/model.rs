@@ -35,13 +35,20 @@ pub struct StaticTorques {
 
 #[inline]
 pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
+    angle_torques(p, load, theta, true)
+}
+
+/// `static_torques`, the spring left at 0 unless `with_spring` (`Substep` adds its own).
+#[inline(always)]
+fn angle_torques(p: &Params, load: &Load, theta: f64, with_spring: bool) -> StaticTorques {
     let gravity = load.gravity_torque * (theta - p.angle_offset).sin();
     let cogging = if p.cogging_amplitude != 0.0 {
         p.cogging_amplitude * (p.cogging_period * theta + p.cogging_phase).sin()
     } else {
         0.0
     };
-    StaticTorques { gravity, cogging, spring: p.spring_stiffness * (theta - p.spring_neutral) }
+    let spring = if with_spring { p.spring_stiffness * (theta - p.spring_neutral) } else { 0.0 };
+    StaticTorques { gravity, cogging, spring }
 }
 
 /// Advances `state` by one semi-implicit Euler substep of length `h` (velocity first, then
@@ -50,25 +57,73 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
 /// (`friction::advance_velocity`), everything else at the start of the substep.
 ///
 /// Expects validated parameters (`Params::validate`) and `h > 0`; it does not check them
-/// because it runs millions of times per identification.
+/// because it runs millions of times per identification. A simulation that takes many
+/// substeps with one parameter set prepares them once (`Substep`); this is the same substep.
 #[inline]
 pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
-    let inertia = p.motor_inertia + load.inertia;
-    let omega = state.omega;
-    let dissipation = p.damping + p.quadratic_drag * omega.abs();
-    let (drive, level) = drive_and_level(state, p, load, tau, t);
-    state.omega = friction::advance_velocity(omega, inertia, drive, dissipation, level, law, p.tanh_k, h);
-    state.theta += h * state.omega;
+    Substep::new(p, load, law).advance(state, tau, t, h / (p.motor_inertia + load.inertia), h);
 }
 
-/// The torque that does not depend on the velocity (`drive`) and the friction's level, at the
-/// start of a substep: `step`'s, and `rests_for_good`'s test of the same numbers.
-#[inline]
-fn drive_and_level(state: &State, p: &Params, load: &Load, tau: f64, t: f64) -> (f64, f64) {
-    let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
-    let StaticTorques { gravity, cogging, spring } = static_torques(p, load, state.theta);
-    let drive = tau_corrected - gravity - cogging - spring;
-    (drive, friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected))
+/// One parameter set and load made ready for many substeps: what does not change from one
+/// substep to the next is read once (the inertia, and which optional terms are there at all).
+///
+/// Why: a simulation's cost is its substeps, and an identification runs millions of them;
+/// a term that is absent (a spring of stiffness 0, a torque with no correction) is skipped
+/// rather than computed as a zero. Skipping is exact: the skipped term is a signed zero, and
+/// adding it changes at most the sign of a zero drive or friction level, which no later
+/// operation of the substep can tell apart (a zero drive gives no direction and a velocity
+/// of exactly 0 at rest; a zero level clips nothing). Tests hold `Substep` to the full
+/// formula bit for bit (tests/substep.rs).
+#[derive(Clone, Copy)]
+pub struct Substep<'a> {
+    p: &'a Params,
+    load: &'a Load,
+    law: FrictionLaw,
+    /// Motor plus load inertia; `gain` below is h over it.
+    pub inertia: f64,
+    /// The measured torque is corrected (gain ≠ 1, or a bias, or a drift).
+    corrected: bool,
+    spring: bool,
+}
+
+impl<'a> Substep<'a> {
+    #[inline]
+    pub fn new(p: &'a Params, load: &'a Load, law: FrictionLaw) -> Self {
+        Substep {
+            p,
+            load,
+            law,
+            inertia: p.motor_inertia + load.inertia,
+            corrected: p.torque_gain != 1.0 || p.torque_bias != 0.0 || p.torque_drift != 0.0,
+            spring: p.spring_stiffness != 0.0,
+        }
+    }
+
+    /// `step`, given `gain` = h / `self.inertia` (computed once per sample interval by callers
+    /// that take many equal substeps).
+    #[inline(always)]
+    pub fn advance(&self, state: &mut State, tau: f64, t: f64, gain: f64, h: f64) {
+        let p = self.p;
+        let omega = state.omega;
+        let dissipation = p.damping + p.quadratic_drag * omega.abs();
+        let (drive, level) = self.drive_and_level(state, tau, t);
+        state.omega = friction::advance_with_gain(omega, gain, drive, dissipation, level, self.law, p.tanh_k);
+        state.theta += h * state.omega;
+    }
+
+    /// The torque that does not depend on the velocity (`drive`) and the friction's level, at
+    /// the start of a substep: `advance`'s, and `rests_for_good`'s test of the same numbers.
+    #[inline(always)]
+    fn drive_and_level(&self, state: &State, tau: f64, t: f64) -> (f64, f64) {
+        let p = self.p;
+        let tau_corrected = if self.corrected { p.torque_gain * tau - p.torque_bias - p.torque_drift * t } else { tau };
+        let StaticTorques { gravity, cogging, .. } = angle_torques(p, self.load, state.theta, false);
+        let mut drive = tau_corrected - gravity - cogging;
+        if self.spring {
+            drive -= p.spring_stiffness * (state.theta - p.spring_neutral);
+        }
+        (drive, friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected))
+    }
 }
 
 /// Whether a joint in `state` stays exactly where it is through every later substep, whatever
@@ -86,10 +141,10 @@ pub fn rests_for_good(state: &State, p: &Params, load: &Load, law: FrictionLaw, 
     if law != FrictionLaw::Stick || state.omega != 0.0 || p.torque_drift != 0.0 {
         return false;
     }
-    let inertia = p.motor_inertia + load.inertia;
-    if !(inertia.is_normal() && inertia > 0.0) {
+    let substep = Substep::new(p, load, law);
+    if !(substep.inertia.is_normal() && substep.inertia > 0.0) {
         return false;
     }
-    let (drive, level) = drive_and_level(state, p, load, tau, 0.0);
+    let (drive, level) = substep.drive_and_level(state, tau, 0.0);
     drive.abs() <= level
 }

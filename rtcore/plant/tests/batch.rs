@@ -52,6 +52,33 @@ fn batch_matches_single_runs_on_any_thread_count() {
     }
 }
 
+/// Any number of sets: the batch cuts them into groups stepped side by side (4, 3 + 2, ...),
+/// and every set still gets its own numbers, on both outputs.
+#[test]
+fn batches_of_one_to_nine_sets_match_single_runs() {
+    let owned = trials();
+    let refs: Vec<&Trial> = owned.iter().collect();
+    for n_sets in 1..=9 {
+        let params: Vec<Params> = (0..n_sets)
+            .map(|s| Params { damping: 0.003 * s as f64, coulomb: 0.002 + 0.001 * s as f64, ..bare(2e-3) })
+            .collect();
+        let starts = x0(n_sets * refs.len());
+        for output in [Output::Theta, Output::ThetaOmega] {
+            let out = Batch { output, ..batch(&refs, &params, &starts) }.run().unwrap();
+            let width = if output == Output::Theta { 1 } else { 2 };
+            for (k, trial) in refs.iter().enumerate() {
+                let n = trial.n_samples();
+                for (s, p) in params.iter().enumerate() {
+                    let single = run(trial, p, FrictionLaw::Stick, starts[s * refs.len() + k], 5e-4);
+                    let row = &out[k][s * n * width..(s + 1) * n * width];
+                    let got: Vec<f64> = row.iter().step_by(width).copied().collect();
+                    assert_eq!(got, thetas(&single), "{n_sets} sets, set {s}, trial {k}, {output:?}");
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn batch_refuses_bad_requests_before_running() {
     let (owned, params, starts) = request();

@@ -66,3 +66,45 @@ pub fn params() -> impl Strategy<Value = Params> {
             friction_ripple_phase: rph,
         })
 }
+
+/// `params()` with a random subset of the optional terms switched off exactly (a spring of
+/// stiffness 0, no asymmetry, no cogging, no ripple, no Stribeck, no load-dependent level, an
+/// uncorrected torque, no offset), as the fit's models have them: most terms are absent.
+pub fn sparse_params() -> impl Strategy<Value = Params> {
+    (params(), any::<u16>()).prop_map(|(p, off)| {
+        let mut p = p;
+        let gone = |bit: u16| off & (1 << bit) != 0;
+        if gone(0) {
+            p.spring_stiffness = 0.0;
+        }
+        if gone(1) {
+            p.coulomb_asym = 0.0;
+        }
+        if gone(2) {
+            p.cogging_amplitude = 0.0;
+        }
+        if gone(3) {
+            p.friction_ripple_amplitude = 0.0;
+        }
+        if gone(4) {
+            p.stribeck_torque = 0.0;
+        }
+        if gone(5) {
+            p.load_coulomb = 0.0;
+        }
+        // Each correction alone: a torque is left uncorrected only when all three are absent.
+        if gone(6) {
+            p.torque_gain = 1.0;
+        }
+        if gone(7) {
+            p.torque_bias = 0.0;
+        }
+        if gone(8) {
+            p.torque_drift = 0.0;
+        }
+        if gone(9) {
+            p.angle_offset = 0.0;
+        }
+        p
+    })
+}
