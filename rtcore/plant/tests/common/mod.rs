@@ -71,7 +71,10 @@ pub fn params() -> impl Strategy<Value = Params> {
 /// stiffness 0, no asymmetry, no cogging, no ripple, no Stribeck, no load-dependent level, an
 /// uncorrected torque, no offset), as the fit's models have them: most terms are absent.
 pub fn sparse_params() -> impl Strategy<Value = Params> {
-    (params(), any::<u16>()).prop_map(|(p, off)| {
+    // A third of the draws have every optional term absent (the plant's plain path), a third
+    // all but one, a third any mix; bit 10 probes a friction level below zero (validate allows it).
+    let all_but_one = (0..10u16).prop_map(|bit| u16::MAX & !(1 << bit) & !(1 << 10));
+    (params(), prop_oneof![Just(u16::MAX & !(1 << 10)), all_but_one, any::<u16>()]).prop_map(|(p, off)| {
         let mut p = p;
         let gone = |bit: u16| off & (1 << bit) != 0;
         if gone(0) {
@@ -104,6 +107,9 @@ pub fn sparse_params() -> impl Strategy<Value = Params> {
         }
         if gone(9) {
             p.angle_offset = 0.0;
+        }
+        if gone(10) {
+            p.coulomb = -p.coulomb;
         }
         p
     })
