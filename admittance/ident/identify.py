@@ -279,11 +279,27 @@ def identify_dataset(dataset: Dataset, settings: IdentifySettings | None = None)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
     try:
-        result = _run(dataset, settings, progress, timings)
+        with one_blas_thread():
+            result = _run(dataset, settings, progress, timings)
     finally:
         progress.done()
     timings["total"] = time.perf_counter() - clock
     return result
+
+
+def one_blas_thread():
+    """NumPy's BLAS limited to one thread while identifying (restored after).
+
+    Why: the identification's linear algebra is small (normal equations of about 70 unknowns, a
+    trial's Jacobian products of a few rows by a thousand samples), too small to gain from
+    threads, while the Rust plant's own threads keep the cores busy; BLAS threads that wake
+    and spin beside them take cores from the simulations. Measured on 30 drops with a drag,
+    another job on the 2 cores: 2.9–3.0 s of CPU against 3.5–3.7 s with BLAS's default threads
+    (docs/identification.md, *Speed*). The results do not change (the products are the same
+    sums on one thread; tests/test_ident_blas.py)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 @contextmanager
