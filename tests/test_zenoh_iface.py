@@ -13,7 +13,7 @@ import pytest
 from admittance.cli import main
 from admittance.daemon.config import ZenohConfig
 from admittance.daemon.messages import Codec, JointState, State, decode
-from admittance.daemon.zenoh_iface import Client, DaemonInterface
+from admittance.daemon.zenoh_iface import Client, DaemonInterface, RouterLink
 from admittance.logs import RateLimitedLog
 from admittance.errors import DeviceError
 
@@ -286,7 +286,8 @@ def test_a_client_runs_without_its_router_says_so_and_connects_when_it_appears(c
     iface.serve()
     router = None
     try:
-        assert iface.where() == f"a client of the router at {endpoint}, NOT connected yet (the loop runs; zenoh keeps retrying)"
+        assert iface.where() == (f"a client of the router at {endpoint}, NOT connected yet (the loop runs; the daemon "
+                                 f"tries again every {RouterLink.RETRY_PERIOD_S:g} s)")
         assert iface.poll() == 0  # nothing to answer, and no error, before there is a session
         router = zenoh.open(make_config(mode="router", listen=[endpoint]))
         got = []

@@ -355,12 +355,16 @@ class RouterLink:
         except Exception:  # a closing session: no router
             return 0
 
-    def where(self, session: zenoh.Session) -> str:
+    def where(self, session: zenoh.Session | None) -> str:
         if not self.client:
             extra = f", connecting to {', '.join(self.connect)}" if self.connect else ""
             return f"listening on {', '.join(self._listening) or 'zenoh defaults'}{extra}"
         self._connected = session is not None and self.routers(session) > 0
-        state = "connected" if self._connected else "NOT connected yet (the loop runs; zenoh keeps retrying)"
+        # No session yet: the daemon's own thread opens one when the router answers (_Reopener);
+        # a session whose router went away is zenoh's to reconnect.
+        retry = (f"the daemon tries again every {self.RETRY_PERIOD_S:g} s" if session is None
+                 else "zenoh keeps retrying")
+        state = "connected" if self._connected else f"NOT connected yet (the loop runs; {retry})"
         return f"a client of the router at {', '.join(self.connect)}, {state}"
 
     def watch(self, session: zenoh.Session) -> None:
