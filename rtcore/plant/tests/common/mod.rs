@@ -76,41 +76,27 @@ pub fn sparse_params() -> impl Strategy<Value = Params> {
     let all_but_one = (0..10u16).prop_map(|bit| u16::MAX & !(1 << bit) & !(1 << 10));
     (params(), prop_oneof![Just(u16::MAX & !(1 << 10)), all_but_one, any::<u16>()]).prop_map(|(p, off)| {
         let mut p = p;
-        let gone = |bit: u16| off & (1 << bit) != 0;
-        if gone(0) {
-            p.spring_stiffness = 0.0;
-        }
-        if gone(1) {
-            p.coulomb_asym = 0.0;
-        }
-        if gone(2) {
-            p.cogging_amplitude = 0.0;
-        }
-        if gone(3) {
-            p.friction_ripple_amplitude = 0.0;
-        }
-        if gone(4) {
-            p.stribeck_torque = 0.0;
-        }
-        if gone(5) {
-            p.load_coulomb = 0.0;
-        }
-        // Each correction alone: a torque is left uncorrected only when all three are absent.
-        if gone(6) {
-            p.torque_gain = 1.0;
-        }
-        if gone(7) {
-            p.torque_bias = 0.0;
-        }
-        if gone(8) {
-            p.torque_drift = 0.0;
-        }
-        if gone(9) {
-            p.angle_offset = 0.0;
-        }
-        if gone(10) {
-            p.coulomb = -p.coulomb;
+        for (bit, switch) in SWITCHES.iter().enumerate() {
+            if off & (1 << bit) != 0 {
+                switch(&mut p);
+            }
         }
         p
     })
 }
+
+/// What bit i of `sparse_params`'s mask does: terms 0–9 switched off, each alone (a torque is
+/// left uncorrected only when gain, bias and drift are all absent); bit 10 a level below zero.
+const SWITCHES: [fn(&mut Params); 11] = [
+    |p| p.spring_stiffness = 0.0,
+    |p| p.coulomb_asym = 0.0,
+    |p| p.cogging_amplitude = 0.0,
+    |p| p.friction_ripple_amplitude = 0.0,
+    |p| p.stribeck_torque = 0.0,
+    |p| p.load_coulomb = 0.0,
+    |p| p.torque_gain = 1.0,
+    |p| p.torque_bias = 0.0,
+    |p| p.torque_drift = 0.0,
+    |p| p.angle_offset = 0.0,
+    |p| p.coulomb = -p.coulomb,
+];
