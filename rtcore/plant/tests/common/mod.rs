@@ -73,8 +73,10 @@ pub fn params() -> impl Strategy<Value = Params> {
 pub fn sparse_params() -> impl Strategy<Value = Params> {
     // A third of the draws have every optional term absent (the plant's plain path), a third
     // all but one, a third any mix; bit 10 probes a friction level below zero (validate allows it).
-    let all_but_one = (0..10u16).prop_map(|bit| u16::MAX & !(1 << bit) & !(1 << 10));
-    (params(), prop_oneof![Just(u16::MAX & !(1 << 10)), all_but_one, any::<u16>()]).prop_map(|(p, off)| {
+    let level_sign = |below: bool| if below { u16::MAX } else { u16::MAX & !(1 << 10) };
+    let all_absent = any::<bool>().prop_map(level_sign);
+    let all_but_one = (0..10u16, any::<bool>()).prop_map(move |(bit, below)| level_sign(below) & !(1 << bit));
+    (params(), prop_oneof![all_absent, all_but_one, any::<u16>()]).prop_map(|(p, off)| {
         let mut p = p;
         for (bit, switch) in SWITCHES.iter().enumerate() {
             if off & (1 << bit) != 0 {
