@@ -240,3 +240,57 @@ def test_dampings_tried_in_batches_give_the_fit_of_one_try_at_a_time(clean, monk
     np.testing.assert_array_equal(one.x0, batched.x0)
     for a, b in zip(one.residuals, batched.residuals):
         np.testing.assert_array_equal(a, b)
+
+
+def _stribeck_drops(tmp_path, seed: int):
+    """The families bench's regime row: the test oracle's 6 drops on a 4096-tick encoder with
+    Stribeck at 1.5× the Coulomb level (breakaway 0.21 N·m, sliding 0.084)."""
+    from oracles import ivp as ivp_oracle
+
+    spec = ivp_oracle.OracleSpec(effect="stribeck", size=1.5 * 0.084, noise=0.0, ticks=4096, declare_ticks=True,
+                                 seed=seed)
+    return load_dataset(ivp_oracle.generate(tmp_path, spec))
+
+
+def test_rest_level_is_the_torque_that_holds_a_trial_where_it_rests():
+    """A trial still at its end needs |G·sin θ − τ| to stay there; one still swinging needs nothing."""
+    from admittance.formats.trial import TrialData
+    from admittance.ident.base import rest_level
+
+    t = np.arange(0.0, 3.0, 1 / 120)
+    resting = np.where(t < 1.5, 0.3 * np.cos(4 * t), 0.3 * np.cos(6.0))  # settles at 1.5 s
+    swinging = 0.3 * np.cos(4 * t)
+    held = TrialData(name="a", t=t, theta=resting, tau=None, load_inertia=0.01, gravity_torque=0.4)
+    moving = TrialData(name="b", t=t, theta=swinging, tau=None, load_inertia=0.01, gravity_torque=0.9)
+    assert rest_level(Simulator([held, moving], "geometry")) == pytest.approx(0.4 * abs(np.sin(0.3 * np.cos(6.0))))
+    assert rest_level(Simulator([moving], "geometry")) == 0.0
+
+
+def test_base_fit_holds_drops_where_they_rest(tmp_path, monkeypatch):
+    """Drops whose breakaway (Stribeck) exceeds the sliding friction rest further out than the
+    equation error's Coulomb level can hold; from every start of the friction grid the LM let two
+    of them swing on (52 mrad), the starts held at the data's rest reach the base model's optimum
+    (8–9 mrad, its Coulomb level at the largest rest torque). Fails with the held starts removed."""
+    from admittance.ident import base
+    from admittance.ident.angle_sensor import sensor_for
+    from admittance.ident.equation_error import initial_state_starts
+    from admittance.ident.split import stratified_pick
+
+    ds = _stribeck_drops(tmp_path, seed=1)
+    _, training = stratified_pick(ds.trials)
+    trials = [ds.trials[i] for i in training]
+    start, tau_scale = fit_equation_error(trials, ds.mode)
+    sim = Simulator(trials, ds.mode, tau_scale=tau_scale)
+    free = free_params("geometry", [], False)
+
+    def fitted():
+        return base.fit_base(sim, start, free, initial_state_starts(trials), sensor_for(trials, ds.encoder_ticks),
+                             base.torque_scale_of(ds))
+
+    fit, record = fitted()
+    rest = base.rest_level(sim)
+    assert rest > 1.5 * start[2]  # the drops rest where the sliding level cannot hold them
+    assert fit.rmse < 0.012 and fit.vector[2] > 0.97 * rest
+    assert any("held at rest" in r["start"] for r in record)
+    monkeypatch.setattr(base, "REST_DAMPINGS", ())
+    assert fitted()[0].rmse > 0.04

@@ -284,6 +284,7 @@ def fit_output_error(
     damping: float = 1e-3,
     residuals: list[np.ndarray] | None = None,
     known: EndPoint | None = None,
+    floors: Mapping[str, float] | None = None,
 ) -> FitResult:
     """Levenberg–Marquardt on simulated − measured θ over all trials of ``sim``.
 
@@ -295,10 +296,12 @@ def fit_output_error(
     it again, so bit for bit the same fit with one simulation fewer. Ignored when the bounds
     move the start. ``known``: where another fit ended (:class:`EndPoint`); its residuals and
     Jacobian blocks are taken when this fit starts exactly there, on those trials or a subset.
+    ``floors``: lower bounds above the physical ones for some free parameters, for this fit only
+    (the base fit's start held at the data's rest, base.py).
     """
     started = time.perf_counter()
     problem = _Problem(sim, vector, free, fit_x0, torque_scale)
-    lower, upper = _z_bounds(problem)
+    lower, upper = _z_bounds(problem, floors)
     g0 = np.array([sim.tau_scale if n == TAU_SCALE else vector[INDEX[n]] for n in problem.free], dtype=float)
     start = np.concatenate([g0, np.asarray(x0, dtype=float).ravel()])
     z = np.clip(start, lower, upper)
@@ -403,8 +406,11 @@ def end_point_of(sim: Simulator, fit: FitResult, torque_scale: float) -> EndPoin
     return EndPoint(problem, z, fit.residuals, problem.jacobian(z, fit.residuals, upper))
 
 
-def _z_bounds(problem: _Problem) -> tuple[np.ndarray, np.ndarray]:
+def _z_bounds(problem: _Problem, floors: Mapping[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     lo, hi = bounds_for(problem.free)
+    for name, floor in (floors or {}).items():
+        k = problem.free.index(name)
+        lo[k] = max(lo[k], floor)
     n_x = 2 * problem.n_trials
     return np.concatenate([lo, np.full(n_x, -np.inf)]), np.concatenate([hi, np.full(n_x, np.inf)])
 
