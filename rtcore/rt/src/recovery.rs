@@ -304,6 +304,8 @@ struct Servo {
     history_len: usize,
     last_overload_ns: Option<u64>,
     counts: ServoCounts,
+    /// The state of the anchor retries' jitter (`retry_jitter_ns`), never 0.
+    jitter: u32,
 }
 
 impl Servo {
@@ -323,7 +325,24 @@ impl Servo {
             history_len: 0,
             last_overload_ns: None,
             counts: ServoCounts::default(),
+            jitter: 0x9E37_79B9,
         }
+    }
+
+    /// A delay in [0, RETRY_NS) drawn anew each call (xorshift32: no allocation, no clock).
+    ///
+    /// Why: a refused anchor read is read again later, and at a fixed interval the anchor reads
+    /// keep one phase against the reads between them (the SyncRead's, one per cycle): an encoder
+    /// that glitches periodically can then hit every anchor read, and the joint never re-anchors
+    /// (every third read out of range, 10 ms retries landing 11 cycles apart: 12 reads, every
+    /// anchor read glitched; recovery_tests.rs `a_periodic_glitch_cannot_starve_a_re_anchor`).
+    fn retry_jitter_ns(&mut self) -> u64 {
+        let mut x = self.jitter;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.jitter = x;
+        u64::from(x) % RETRY_NS
     }
 
     fn enter(&mut self, phase: Phase, next_ns: u64) {
@@ -434,7 +453,8 @@ impl Recovery {
         let phase = s.phase;
         let Ok(value) = result else {
             if !matches!(phase, Phase::Ok | Phase::Rebooting { .. } | Phase::AwaitClear { .. } | Phase::Stopped) {
-                self.servos[k].next_ns = now_ns + RETRY_NS;
+                let jitter = if phase == Phase::Reanchor { self.servos[k].retry_jitter_ns() } else { 0 };
+                self.servos[k].next_ns = now_ns + RETRY_NS + jitter;
             }
             if let Phase::Rebooting { .. } = phase {
                 self.servos[k].next_ns = now_ns + REBOOT_POLL_NS;

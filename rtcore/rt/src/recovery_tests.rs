@@ -465,3 +465,54 @@ fn a_horn_speed_outside_its_range_is_refused() {
         assert_eq!(FaultPolicy { horn_speed_max: good, ..policy() }.validate(), Ok(()));
     }
 }
+
+/// An encoder that glitches every third read of Present Position (out of range, so a glitched
+/// read also drops the anchoring read before it), read once per 1 ms cycle by the SyncRead and
+/// by the re-anchor's own reads. A refused anchor read used to be retried exactly 10 ms later,
+/// which in a loop whose retry lands just after a cycle's check is 11 cycles, 12 reads: a
+/// multiple of 3, so every anchor read hit the glitch's phase and the joint stayed in
+/// `reanchoring` for good (the HIL test `test_glitched_position_reads_never_move_the_joint`
+/// hung so about one run in three). The retry of a refused anchor read is jittered, so no
+/// periodic pattern can hold it.
+#[test]
+fn a_periodic_glitch_cannot_starve_a_re_anchor() {
+    use crate::anchor::ReadCheck;
+    use crate::joint::TickMap;
+    use crate::params::Limits;
+    const TICKS: TickMap = TickMap { zero_tick: 2048, direction: 1, ticks_per_rev: 4096.0, tick_min: 0, tick_max: 4095 };
+    const LIMITS: Limits = Limits { position_min: -3.1, position_max: 3.1, velocity_max: 6.0, acceleration_max: 1e3 };
+    const HORN: i64 = 2700; // where the limp horn rests; +2000 is out of the tick range
+    for phase in 0..3u64 {
+        let mut r = Recovery::new(1, policy(), true, true);
+        let mut reads = ReadCheck::default();
+        let mut count = phase; // reads of Present Position so far; every third is glitched
+        let mut read = || {
+            count += 1;
+            if count % 3 == 0 { HORN + 2000 } else { HORN }
+        };
+        let mut t = 1_000 * MS;
+        r.on_result(0, Action::ReadTorqueEnable, Ok(0), t); // torque found off: diagnose
+        let mut enabled_at = None;
+        for cycle in 0..2_000u64 {
+            t = 1_000 * MS + cycle * MS;
+            read(); // the cycle's SyncRead
+            let check = t + 200_000; // the recovery's turn comes after the SyncRead...
+            let Some((k, action)) = r.next_action(check) else { continue };
+            let answered_at = check + 300_000; // ...and its reply 0.3 ms later
+            let result = match action {
+                Action::ReadHardwareError => Ok(0),
+                Action::ReadTorqueEnable => Ok(if r.view(k).unwrap().phase == Phase::Verify { 1 } else { 0 }),
+                Action::ReadPresent => reads.anchor(read(), answered_at, &TICKS, &LIMITS, 50.0).map_err(|_| ()),
+                Action::EnableTorque => {
+                    enabled_at.get_or_insert(cycle);
+                    Ok(0)
+                }
+                Action::Reboot => Ok(0),
+            };
+            r.observe(k, true, false, answered_at);
+            r.on_result(k, action, result, answered_at);
+        }
+        let cycle = enabled_at.unwrap_or_else(|| panic!("glitch phase {phase}: never re-anchored, {:?}", r.view(0).unwrap().phase));
+        assert!(cycle < 200, "glitch phase {phase}: re-anchored only after {cycle} ms");
+    }
+}
