@@ -248,10 +248,16 @@ def test_glitched_position_reads_never_move_the_joint(tmp_path, bench):
     assert told(daemon.stderr, "fault: position_glitch") >= 1
     stats = json.loads((tmp_path / "stats.json").read_text())
     rec = read_recording(tmp_path / "rec")
-    goal_steps = np.abs(np.diff(rec["theta_goal"]))
-    # The glitch is 3.07 rad; the joint moves under a light push and a re-anchor takes the horn's
-    # sag while it was limp: a few hundredths of a radian at most.
-    assert goal_steps.max() < 0.1, f"a goal stepped {goal_steps.max():.3f} rad"
+    # The glitch is 3.07 rad; the joint moves under a light push: a few hundredths of a radian
+    # per cycle. A re-anchor puts the goal where the limp horn has got to (its sag: 0.16–0.40 rad
+    # when a loaded machine's recovery took seconds), which moves nothing: every larger step must
+    # land on the horn's own (trusted) position, never on a glitched one.
+    goal, theta = rec["theta_goal"], rec["theta"]
+    for i in np.flatnonzero(np.abs(np.diff(goal)) >= 0.1) + 1:
+        near = theta[max(i - 3, 0) : i + 4]
+        near = near[np.isfinite(near)]
+        assert near.size and np.min(np.abs(near - goal[i])) < 0.02, (
+            f"the goal stepped {goal[i] - goal[i - 1]:+.3f} rad to {goal[i]:.3f}, away from the horn at {near}")
     theta_steps = np.abs(np.diff(rec["theta"]))
     assert theta_steps.max() < 0.1, f"a recorded θ jumped {theta_steps.max():.3f} rad: a glitch reached it"
     assert np.any(rec["fault"].astype(np.int64) & bit("position_glitch")), "glitched rows are marked"

@@ -5,7 +5,8 @@
 //!
 //! - **Anchoring** (the loop's start, a recovery's re-anchor): the model and the goal are put
 //!   where the horn is, and torque may then go on. A read anchors only when *confirmed*
-//!   ([`ReadCheck::anchor`]): a second read agrees with the one before it (within
+//!   ([`ReadCheck::anchor`]): it agrees with the anchoring read before it or with the last
+//!   trusted running read, either taken within [`PAIR_WINDOW_NS`] (within
 //!   [`READ_TOLERANCE_RAD`] plus what the joint's own `velocity_max` allows in the time between
 //!   them), it lies inside the servo's tick range and the joint's position limits, and it is
 //!   consistent with the last trusted read and the time since (at `horn_speed_max`). One glitched
@@ -76,12 +77,17 @@ impl ReadCheck {
             self.anchoring = None;
             return Err(AnchorRefusal::OutOfRange { tick });
         }
-        let before = self.anchoring.filter(|p| t_ns.saturating_sub(p.t_ns) <= PAIR_WINDOW_NS);
+        // Its partner: the anchoring read before it, or the last trusted running read (the
+        // SyncRead's, every cycle: a recovery's own reads may come seconds apart on a busy bus,
+        // each too old for the one before; the HIL glitch test stayed in `reanchoring` so).
+        let recent = |p: &Read| t_ns.saturating_sub(p.t_ns) <= PAIR_WINDOW_NS;
+        let partners = [self.anchoring.filter(recent), self.trusted.filter(recent)];
         self.anchoring = Some(read);
-        match before {
-            None => return Err(AnchorRefusal::Unconfirmed),
-            Some(p) if !within(ticks, p, read, limits.velocity_max) => return Err(AnchorRefusal::Disagrees),
-            Some(_) => {}
+        if partners.iter().all(Option::is_none) {
+            return Err(AnchorRefusal::Unconfirmed);
+        }
+        if !partners.iter().flatten().any(|p| within(ticks, *p, read, limits.velocity_max)) {
+            return Err(AnchorRefusal::Disagrees);
         }
         let theta = ticks.theta_of(tick);
         let (lo, hi) = (limits.position_min - READ_TOLERANCE_RAD, limits.position_max + READ_TOLERANCE_RAD);
@@ -231,6 +237,19 @@ mod tests {
         c.anchor(2100, 5 * MS, &TICKS, &LIMITS, SPEED).unwrap_err();
         assert!(c.running(2100, 6 * MS, &TICKS, SPEED));
         assert_eq!(c.anchor(2100, 15 * MS, &TICKS, &LIMITS, SPEED), Ok(2100));
+    }
+
+    #[test]
+    fn a_recent_trusted_running_read_confirms_an_anchoring_read() {
+        let mut c = ReadCheck::default();
+        assert!(c.running(2700, 0, &TICKS, SPEED));
+        assert_eq!(c.anchor(2701, 2 * MS, &TICKS, &LIMITS, SPEED), Ok(2701));
+        // A glitched anchoring read disagrees with it; an old one confirms nothing.
+        let mut c = ReadCheck::default();
+        assert!(c.running(2700, 0, &TICKS, SPEED));
+        assert_eq!(c.anchor(4700, 2 * MS, &TICKS, &LIMITS, SPEED), Err(AnchorRefusal::OutOfRange { tick: 4700 }));
+        assert_eq!(c.anchor(3700, 3 * MS, &TICKS, &LIMITS, SPEED), Err(AnchorRefusal::Disagrees));
+        assert_eq!(c.anchor(2700, 500 * MS, &TICKS, &LIMITS, SPEED), Err(AnchorRefusal::Unconfirmed));
     }
 
     #[test]
