@@ -470,9 +470,9 @@ fn a_horn_speed_outside_its_range_is_refused() {
 /// read also drops the anchoring read before it), read once per 1 ms cycle by the SyncRead and
 /// by the re-anchor's own reads. A refused anchor read used to be retried exactly 10 ms later,
 /// which in a loop whose retry lands just after a cycle's check is 11 cycles, 12 reads: a
-/// multiple of 3, so every anchor read hit the glitch's phase and the joint stayed in
-/// `reanchoring` for good (the HIL test `test_glitched_position_reads_never_move_the_joint`
-/// hung so about one run in three). The retry of a refused anchor read is jittered, so no
+/// multiple of 3, so every anchor read could hit the glitch's phase and the joint stay in
+/// `reanchoring` for good (here with only the recovery's own reads to pair: no running read is
+/// fed to the check, see anchor.rs). The retry of a refused anchor read is jittered, so no
 /// periodic pattern can hold it.
 #[test]
 fn a_periodic_glitch_cannot_starve_a_re_anchor() {
