@@ -61,7 +61,8 @@ fn angle_torques(p: &Params, load: &Load, theta: f64, with_spring: bool) -> Stat
 /// substeps with one parameter set prepares them once (`Substep`); this is the same substep.
 #[inline]
 pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
-    Substep::new(p, load, law).advance(state, tau, t, h / (p.motor_inertia + load.inertia), h);
+    let substep = Substep::new(p, load, law);
+    substep.advance(state, tau, t, h / substep.inertia, h);
 }
 
 /// One parameter set and load made ready for many substeps: what does not change from one
