@@ -6,13 +6,16 @@ Each rule decides what is computed, so each is a gate: these tests fail when it 
 - regime.regime_inconsistency measures the model's own floor (the parametric bootstrap) only
   when a split's gain exceeds the allowance's fixed part: below it the verdict is "one model"
   whatever the floor is.
-- search._judge carries a candidate's short refits to convergence unless another candidate
+- search._refit_judged carries a candidate's short refits to convergence unless another candidate
   already leaves nothing but sensor noise and this one's short refits fit the training data
   worse by more than search.FAR_BEHIND noise variances.
 - candidate_screen.explore_round carries a candidate's first short refits (SCREEN_ITERATIONS LM
   iterations) on at once only when their linearised reach is within FAR_BEHIND noise variances
-  of the floor; search._judge carries the others on when their turn comes, unless a candidate of
+  of the floor; search._refit_judged carries the others on when their turn comes, unless a candidate of
   the round already leaves nothing but sensor noise and their reach is that far behind it.
+- search._judge_round assesses a refit that leaves nothing but sensor noise before the refits
+  judged earlier that do not, so those face the model at the floor (refused without
+  cross-validation when materially worse) instead of going through every test first.
 """
 
 from __future__ import annotations
@@ -80,7 +83,7 @@ def test_a_split_gain_above_the_fixed_allowance_is_judged_on_the_models_own_floo
 
 
 def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str]:
-    """search._judge on a candidate whose best short refit fits ``behind_over_floor`` noise
+    """search._refit_judged on a candidate whose best short refit fits ``behind_over_floor`` noise
     variances worse than a model at the floor (None: no model at the floor yet). Returns
     (whether it was refitted further, the reason it was refused)."""
     at_floor = search.AtFloor(SimpleNamespace(rmse=FLOOR), None, FLOOR)
@@ -93,7 +96,7 @@ def _carried_on(monkeypatch, behind_over_floor: float | None) -> tuple[bool, str
     ctx = SimpleNamespace(sim=None, sensor=None)
     floor_model = at_floor if behind_over_floor is not None else None
     screened = Screened(explored, reach=reached**2, complete=True)
-    search._judge(ctx, SimpleNamespace(full=None), evidence, False, floor_model, screened)
+    search._refit_judged(ctx, SimpleNamespace(full=None), evidence, floor_model, screened)
     return bool(refits), evidence.reason
 
 
@@ -114,7 +117,7 @@ def test_a_candidate_within_reach_of_the_floor_or_without_one_is_refitted(monkey
 
 def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool,
                     trailing_over_floor: float = 100.0) -> tuple[bool, bool, str]:
-    """search._judge on a candidate that ran only its first short refits, whose linearised reach
+    """search._refit_judged on a candidate that ran only its first short refits, whose linearised reach
     is ``reach_over_floor`` noise variances above a model at the floor (``at_floor``: whether
     the round has one), and whose first short refits trailed that model's first ones by
     ``trailing_over_floor`` noise variances. Returns (carried on, refitted, the reason it was refused)."""
@@ -128,8 +131,8 @@ def _screened_judge(monkeypatch, reach_over_floor: float, at_floor: bool,
     monkeypatch.setattr(search, "carry_on", lambda ctx, evidence, screened: carried.append(screened))
     monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
     evidence = Evidence("cogging")
-    search._judge(SimpleNamespace(sim=None, sensor=None), SimpleNamespace(full=None), evidence, False,
-                  floor_model if at_floor else None, Screened(entries, reach))
+    search._refit_judged(SimpleNamespace(sim=None, sensor=None), SimpleNamespace(full=None), evidence,
+                         floor_model if at_floor else None, Screened(entries, reach))
     return bool(carried), bool(refits), evidence.reason
 
 
@@ -223,3 +226,42 @@ def test_short_refits_carried_on_take_the_steps_of_one_longer_fit(tmp_path):
     explore_further(sim, entries, 1.0, 9, "fit")
     assert np.array_equal(entries[0][0].vector, whole.vector)
     assert np.array_equal(entries[0][0].x0, whole.x0)
+
+
+def _round(monkeypatch, at_the_floor: set[str]):
+    """search._judge_round on three candidates judged in the order given, each refit leaving
+    nothing but noise when named in ``at_the_floor``. Returns [(effect, whether a model at the
+    floor was known when it was assessed)] in the order of assessment, and the admissible effects."""
+    names = ["cogging", "stribeck", "friction_ripple"]
+    assessed = []
+    monkeypatch.setattr(search, "judging_order", lambda entries: [0, 1, 2])
+    monkeypatch.setattr(search, "_refit_judged", lambda ctx, current, evidence, at_floor, screened:
+                        SimpleNamespace(effect=evidence.effect, rmse=FLOOR))
+    monkeypatch.setattr(search, "nothing_left", lambda sim, fit, sensor: fit.effect in at_the_floor)
+    monkeypatch.setattr(search, "noise_of", lambda sim, fit, sensor: SimpleNamespace(
+        nothing_left=fit.effect in at_the_floor, floor=FLOOR))
+
+    def assess(ctx, current, evidence, refit, stand_ins, at_floor):
+        assessed.append((evidence.effect, at_floor is not None))
+        # What assess does with a model at the floor: a fit short of it is materially worse.
+        if at_floor is not None and refit.effect not in at_the_floor:
+            return None
+        return SimpleNamespace(full=refit)
+
+    monkeypatch.setattr(search, "assess", assess)
+    ctx = SimpleNamespace(sim=None, sensor=None, say=lambda m: None)
+    explored = [Screened([], reach=0.0) for _ in names]
+    admissible = search._judge_round(ctx, SimpleNamespace(full=None), [Evidence(n) for n in names], explored, False)
+    return assessed, [e.effect for e, _ in admissible]
+
+
+def test_a_refit_at_the_floor_is_assessed_before_earlier_refits_short_of_it(monkeypatch):
+    assessed, admissible = _round(monkeypatch, {"stribeck"})
+    assert assessed == [("stribeck", False), ("friction_ripple", True), ("cogging", True)]
+    assert admissible == ["stribeck"]
+
+
+def test_without_a_refit_at_the_floor_every_candidate_is_assessed_in_the_judging_order(monkeypatch):
+    assessed, admissible = _round(monkeypatch, set())
+    assert assessed == [("cogging", False), ("stribeck", False), ("friction_ripple", False)]
+    assert admissible == ["cogging", "stribeck", "friction_ripple"]

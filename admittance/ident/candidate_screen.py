@@ -8,7 +8,7 @@ the wrong sign) keep their rank after the others.
 
 Why the order matters: once a candidate's model leaves nothing but sensor noise, the candidates
 judged after it can at best tie with it, so the search gives them only their linearised starts
-and no cross-validation when they fit the training data materially worse (search._judge's
+and no cross-validation when they fit the training data materially worse (search._judge_round's
 ``at_floor``). The linear test is a poor guide to which candidate that will be: on 30 drops
 with a Stribeck term it ranked Stribeck fifth, behind cogging, a friction ripple, a
 load-dependent Coulomb level and a drag, each of which then went through its fallback starts,
@@ -22,7 +22,7 @@ candidate whose reach is within :data:`FAR_BEHIND` noise variances of the sensor
 set the floor or tie with the one that does: its starts are carried on to
 :data:`effects.EXPLORE_ITERATIONS` at once, before any candidate is judged, so the candidates
 that matter are judged in the order of their twelve-iteration error as before. The others are
-carried on when their turn comes (search._judge), unless a candidate of the round already
+carried on when their turn comes (search._refit_judged), unless a candidate of the round already
 leaves nothing but sensor noise and this one is out of its reach (search._behind_the_floor): its
 reach more than :data:`FAR_BEHIND` noise variances worse than that model, *and* after the same
 first iterations it stood that far behind where that one stood then. On 30 drops with a
