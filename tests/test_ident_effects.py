@@ -262,3 +262,63 @@ def test_stribeck_on_the_level_velocity_ridge_is_named(tmp_path, monkeypatch):
     assert j["effects"] == ["stribeck"] and j["stand_ins"] == []
     monkeypatch.setattr(effects, "conditional_sigma", lambda fit, name: fit.sigma.get(name, np.inf))
     assert identify_dataset(dataset).to_json()["effects"] != ["stribeck"]
+
+
+def _freed_refits(monkeypatch, rmse_by_velocity: dict[float, float]):
+    """effects.fit_output_error replaced by a fit that ends where it starts, with the training
+    error ``rmse_by_velocity`` gives its Stribeck velocity; returns the starts it was given."""
+    from types import SimpleNamespace
+
+    from admittance.ident import effects
+    from admittance.ident.model import INDEX
+
+    starts = []
+
+    def fake_fit(sim, vector, free, x0, **kwargs):
+        velocity = float(vector[INDEX["stribeck_velocity"]])
+        starts.append(velocity)
+        return SimpleNamespace(vector=vector.copy(), rmse=rmse_by_velocity[velocity], x0=x0, free=free,
+                               value=lambda name, v=vector.copy(): float(v[INDEX[name]]))
+
+    monkeypatch.setattr(effects, "fit_output_error", fake_fit)
+    return starts
+
+
+def test_a_freed_stribeck_velocity_short_of_the_floor_is_restarted_from_its_grid(monkeypatch):
+    """The refit freed from the best grid start ended stuck (2.4 mrad); restarted with the
+    velocity at each other grid value, the best end is kept (0.3 rad/s: 2.0 mrad)."""
+    from admittance.ident import effects
+    from admittance.ident.model import vector_from
+
+    rmse = {0.03: 3.1e-3, 0.1: 2.4e-3, 0.3: 2.0e-3, 1.0: 2.7e-3}
+    starts = _freed_refits(monkeypatch, rmse)
+    stuck = effects.fit_output_error(None, vector_from({"stribeck_velocity": 0.1}), ("stribeck_velocity",), None)
+    best = effects._freed_from_the_grid(None, stuck, effects.Evidence("stribeck"), ("stribeck_velocity",), 1.0)
+    assert starts[1:] == [0.03, 0.3, 1.0]  # every other grid value, not the one it ended at
+    assert best.rmse == 2.0e-3 and best.value("stribeck_velocity") == 0.3
+
+
+@pytest.mark.parametrize("fallbacks, at_floor, restarted", [(True, False, True), (True, True, False),
+                                                            (False, False, False)])
+def test_the_grid_restarts_run_only_for_a_freed_refit_short_of_the_floor(monkeypatch, fallbacks, at_floor, restarted):
+    """refit_candidate restarts a freed Stribeck velocity from its grid only when the freed refit
+    leaves more than sensor noise and fallback starts are wanted (no other candidate of the
+    round leaves nothing but noise)."""
+    from types import SimpleNamespace
+
+    from admittance.ident import effects
+    from admittance.ident.model import vector_from
+
+    _freed_refits(monkeypatch, {0.1: 2.4e-3})
+    grid = []
+    monkeypatch.setattr(effects, "_freed_from_the_grid", lambda sim, fit, *a: grid.append(fit) or fit)
+    settled = SimpleNamespace(vector=vector_from({"stribeck_velocity": 0.1}), x0=None, rmse=2.4e-3)
+    monkeypatch.setattr(effects, "_settle", lambda *a: (settled, "linearised"))
+    for name in ("fallback_starts", "sliding_starts", "_equation_error_starts", "_explore"):
+        monkeypatch.setattr(effects, name, lambda *a, **k: [])
+    current = SimpleNamespace(tau_scale=1.0, free=("motor_inertia", "damping", "coulomb"))
+    sim = SimpleNamespace(with_tau_scale=lambda scale: sim, trials=[], mode="lumped")
+    evidence = effects.Evidence("stribeck", params=("stribeck_torque", "stribeck_velocity"))
+    effects.refit_candidate(sim, current, evidence, 1.0, {}, lambda fit: at_floor, fallbacks=fallbacks,
+                            explored=[[settled, "linearised", True]])
+    assert bool(grid) == restarted
