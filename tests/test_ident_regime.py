@@ -74,3 +74,41 @@ def test_a_model_without_the_effect_at_work_is_not_one_model(torque_bias_on_an_e
     assert "not one model" in why, records
     worst = max(records, key=lambda r: r["gain_over_floor"])
     assert worst["gain_over_floor"] > 10 * max(worst["model_floor_over_floor"], REGIME_MATERIAL)
+
+
+def _value_split(monkeypatch, gain_over_floor: float):
+    """regime_inconsistency on one fake split whose halves put the effect's value far apart (a
+    Wald statistic far above its limit, 98 % of its size) while the whole model passes the
+    stability test; the halves' own parameters gain ``gain_over_floor`` × the noise variance."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from admittance.ident import regime
+
+    floor, joint = 2e-3, 2.1e-3
+    labels = ("large-swing", "small-swing")
+    record = {"split": list(labels), "statistic": 0.0, "limit": 20.0, "rmse_joint": joint,
+              "rmse_apart": float(np.sqrt(joint**2 - gain_over_floor * floor**2)), "effect": ["stribeck_torque"],
+              "effect_wald": 1.4e4, "effect_limit": 11.2, "effect_relative": 0.98,
+              "params": {"stribeck_torque": {"large-swing": [0.114, 0.06], "small-swing": [7.27, 2.6e-6]}}}
+    monkeypatch.setattr(regime, "noise_of", lambda *a, **k: SimpleNamespace(floor=floor))
+    monkeypatch.setattr(regime, "_regimes", lambda ctx, fit: [(labels, None)])
+    monkeypatch.setattr(regime, "_stability", lambda *a, **k: (dict(record), []))
+    monkeypatch.setattr(regime, "model_floor", lambda *a, **k: {labels: 0.0})
+    why, _ = regime.regime_inconsistency(SimpleNamespace(sim=None, sensor=None), Evidence("stribeck"),
+                                         SimpleNamespace(rmse=joint), SimpleNamespace(rmse=10e-3))
+    return why
+
+
+def test_an_effect_value_the_halves_move_and_the_data_support_is_a_stand_in(monkeypatch):
+    """The value test itself: separate values that fit materially better (twice the fixed
+    allowance) say the effect follows the regime. Fails with the value test removed."""
+    assert "its value differs" in _value_split(monkeypatch, 2 * REGIME_MATERIAL)
+
+
+def test_an_effect_value_moved_along_a_flat_direction_is_no_regime(monkeypatch):
+    """Stribeck on the small swings of 6 encoder drops (families' regime row, seed 1): one half
+    put the level at 7.3 N·m and 0.057 rad/s for 0.07× the noise variance; one value fits both
+    halves as well, so the effect is one law across them. Fails without the materiality rule."""
+    assert _value_split(monkeypatch, 0.5 * REGIME_MATERIAL) == ""
