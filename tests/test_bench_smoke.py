@@ -59,6 +59,8 @@ CASES = [
     # A fault a second: torque off, brown-out, hardware error, then the bus unplugged and back.
     ("soak.py", ["--seconds", "6", "--fault-every", "1"], r"^fault_events\s+[1-9]"),
     ("syncwrite_cycle.py", [], r"^\s+12\s+4M \|"),
+    # One run of the HIL glitch test, its recovery holds read from its MCAP.
+    ("recovery_holds.py", ["--runs", "1"], r"^recovery holds: median \d+\.\d+ s, longest \d+\.\d+ s, \d+ of \d+ over 0\.5 s; \d+ of 1 runs failed"),
     # One servo, one inertia, guard off and on (after a short identification of the servo model).
     ("passivity.py", ["--servos", "lag 25 ms", "--factors", "1", "--seconds", "4", "--identify-seconds", "8",
                       "--skip-fidelity", "--skip-stiff"], r"^guard on: [0-9] of 1 gripped sessions"),

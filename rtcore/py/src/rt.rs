@@ -473,8 +473,9 @@ impl PyAdmittanceLoop {
     }
 
     /// The --stats-json object of the daemon contract (plus work_us, telemetry_drops, sync_reads,
-    /// bus_error_kinds: bus_errors by where they came from, faults: events per fault kind, and
-    /// mode: "running", "holding" or "faulted", passivity: each joint's passivity guard).
+    /// reads_deferred, bus_error_kinds: bus_errors by where they came from, faults: events per
+    /// fault kind, and mode: "running", "holding" or "faulted", passivity: each joint's passivity
+    /// guard).
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.stats();
         let d = PyDict::new(py);
@@ -495,6 +496,7 @@ impl PyAdmittanceLoop {
         d.set_item("telemetry_drops", s.telemetry_drops)?;
         d.set_item("compensation_fallbacks", s.compensation_fallbacks)?;
         d.set_item("sync_reads", s.sync_reads)?;
+        d.set_item("reads_deferred", s.reads_deferred)?;
         let faults = PyDict::new(py);
         for (name, events) in &s.faults {
             faults.set_item(*name, *events)?;

@@ -26,7 +26,10 @@
 //! 6. `read_present`: every `sync_read_divisor` cycles, with a deadline inside the period.
 //! 7. `tend_servos`: at most one transaction the servos' recovery asks for (`recovery`: a
 //!    torque check, a Hardware Error Status read, a REBOOT, a re-anchor, torque on), with the
-//!    same deadline; a wait (a reboot's silence) spans cycles, never one.
+//!    same deadline; a wait (a reboot's silence) spans cycles, never one. A transaction starts
+//!    only with a quarter cycle left for its reply; a recovery that a long SyncRead kept from
+//!    that for [`RECOVERY_WAIT_CYCLES`] cycles gets the next cycle's bus first, its SyncRead
+//!    put off a cycle.
 //! 8. `publish`: telemetry records (with the model's time, each joint's fault bits and the
 //!    loop's mode) and counters.
 //!
@@ -111,6 +114,27 @@ pub const MAX_CATCH_UP_STEPS: u64 = 10;
 /// at most twice the model's step a cycle (docs/fidelity.md, "The catch-up, spread").
 pub const CATCH_UP_STEPS_PER_CYCLE: u64 = 2;
 
+/// A servo recovery kept waiting this many cycles in a row for lack of time gets the next
+/// cycle's bus first: that cycle's SyncRead of the present positions is deferred to the cycle
+/// after it (`run_cycle`).
+///
+/// Why: a recovery's transaction starts only with a quarter cycle left before the bus's
+/// deadline (`tend_servos`), and a SyncRead that takes most of the cycle (many servos at a low
+/// baud rate, a loaded host's serial port) leaves that in few cycles or none: the recovery's
+/// reads came 0.4–13 s apart in the HIL glitch test, and a torque check never ran at all with
+/// a SyncRead of 0.7 period (cycle_busy_bus_tests.rs). The rule itself stays (a wait cut short
+/// would pass for a silent servo): it is the SyncRead that yields. Deferring one is cheap, since
+/// the next cycle's read covers it: the passivity guard averages the hand's torque over the
+/// cycles up to whatever read comes next, the record has no present position for that cycle (as for a
+/// divisor > 1; a recording's gap is ten read periods), and the read's silence and alert
+/// checks run a cycle later. Why two cycles, not one: one late cycle can be one slow SyncRead;
+/// two in a row say the bus is busy. A slot is given only when the SyncWrite left a quarter
+/// cycle (else the recovery could not use it, and the read would be lost for nothing), and its
+/// transaction then runs, so the count starts again: the SyncRead runs in at least
+/// `RECOVERY_WAIT_CYCLES` of every `RECOVERY_WAIT_CYCLES + 1` cycles, and a transaction the
+/// recovery asks for runs within `RECOVERY_WAIT_CYCLES + 1` cycles of the first it could have.
+pub const RECOVERY_WAIT_CYCLES: u32 = 2;
+
 /// The fixed inputs of a controller.
 pub struct ControllerParts {
     pub rate_hz: f64,
@@ -151,6 +175,9 @@ pub struct Controller {
     /// A due read failed last cycle: try once more now (a recording's row, and the rendering
     /// error, would otherwise wait a whole divisor).
     read_retry: bool,
+    /// Cycles in a row the recovery had a transaction due and no time for it
+    /// ([`RECOVERY_WAIT_CYCLES`]).
+    recovery_waits: u32,
     cycle: u64,
     /// The deadline the model has been integrated up to.
     model_ns: Option<u64>,
@@ -211,6 +238,7 @@ impl Controller {
             bus: parts.bus,
             sync_read_divisor: parts.sync_read_divisor,
             read_retry: false,
+            recovery_waits: 0,
             cycle: 0,
             model_ns: None,
             latency_from_ns: None,
@@ -312,10 +340,12 @@ impl Controller {
         let written = link_up && self.write_goals(t, wake_ns);
         let latency_ns = self.measure_latency(&intake, written, clock.now_ns());
         let bus_deadline = due_ns + self.period_ns - self.period_ns / 10;
-        let read = written && self.read_present(t, bus_deadline, clock);
-        if written {
-            self.tend_servos(t, clock, bus_deadline);
-        }
+        // A recovery the SyncRead has kept waiting has this cycle's bus, if its reply fits
+        // (RECOVERY_WAIT_CYCLES): the SyncRead waits a cycle instead.
+        let slot = written && self.recovery_waits >= RECOVERY_WAIT_CYCLES && self.time_for_reply(clock.now_ns(), bus_deadline);
+        let read = written && self.read_present(t, bus_deadline, clock, slot);
+        let waited = written && self.tend_servos(t, clock, bus_deadline, slot);
+        self.recovery_waits = if waited { self.recovery_waits.saturating_add(1) } else { 0 };
         self.recovery.judge(clock.now_ns(), self.link_lost_since);
         self.publish(wake_ns, wake_ns.saturating_sub(due_ns), latency_ns, read);
         self.shared.stats.work.record(clock.now_ns().saturating_sub(wake_ns));
@@ -351,14 +381,22 @@ impl Controller {
         }
     }
 
-    /// Runs the one servo transaction the recovery asks for this cycle, if any.
-    fn tend_servos<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64) {
-        // Too little of the cycle left for a reply: next cycle (a cut-short wait would pass
-        // for a silent servo).
-        if clock.now_ns().saturating_add(self.period_ns / 4) >= deadline_ns {
-            return;
+    /// Whether a transaction started at `now_ns` leaves a quarter cycle for its reply before
+    /// `deadline_ns` (a wait cut short would pass for a silent servo).
+    fn time_for_reply(&self, now_ns: u64, deadline_ns: u64) -> bool {
+        now_ns.saturating_add(self.period_ns / 4) < deadline_ns
+    }
+
+    /// Runs the one servo transaction the recovery asks for this cycle, if any. True when it
+    /// asked for one and there was no time for it (it waits: [`RECOVERY_WAIT_CYCLES`]). `slot`:
+    /// this cycle's bus is the recovery's, its time checked before the SyncRead was deferred
+    /// (nothing was sent since), so the transaction it asks for runs.
+    fn tend_servos<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, clock: &C, deadline_ns: u64, slot: bool) -> bool {
+        let now_ns = clock.now_ns();
+        if !slot && !self.time_for_reply(now_ns, deadline_ns) {
+            return self.recovery.wants_action(now_ns); // next cycle
         }
-        let Some((k, action)) = self.recovery.next_action(clock.now_ns()) else { return };
+        let Some((k, action)) = self.recovery.next_action(now_ns) else { return false };
         let bus = &mut self.bus;
         let result = match action {
             Action::ReadHardwareError => bus.read_hardware_error(t, k, deadline_ns).map(i64::from),
@@ -377,6 +415,7 @@ impl Controller {
             result = self.reanchor(k, tick, now_ns);
         }
         self.recovery.on_result(k, action, result, now_ns);
+        false
     }
 
     /// The model of joint `k` starts again where its horn is, once a read confirms where that
@@ -558,12 +597,18 @@ impl Controller {
     /// Reads the present positions when due, or once more the cycle after a due read failed;
     /// true if this cycle read any. A silent servo so costs at most two reads per divisor, and
     /// the others' positions still arrive. Every answer (or its absence), with its alert bit,
-    /// goes to the servos' recovery.
-    fn read_present<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, deadline_ns: u64, clock: &C) -> bool {
+    /// goes to the servos' recovery. `defer`: the recovery has this cycle's bus, and a read due
+    /// now is made the next cycle instead ([`RECOVERY_WAIT_CYCLES`]).
+    fn read_present<C: Clock + ?Sized>(&mut self, t: &mut dyn Transport, deadline_ns: u64, clock: &C, defer: bool) -> bool {
         self.joints.iter_mut().for_each(|slot| slot.read_now = false);
         let due = self.sync_read_divisor > 0 && self.cycle.is_multiple_of(self.sync_read_divisor);
         let retry = std::mem::take(&mut self.read_retry);
         if !due && !retry {
+            return false;
+        }
+        if defer {
+            self.read_retry = true;
+            LoopStats::add(&self.shared.stats.reads_deferred, 1);
             return false;
         }
         self.read_retry = due && self.sync_read_divisor > 1;
@@ -740,3 +785,7 @@ mod fault_tests;
 #[cfg(test)]
 #[path = "cycle_passivity_tests.rs"]
 mod passivity_tests;
+
+#[cfg(test)]
+#[path = "cycle_busy_bus_tests.rs"]
+mod busy_bus_tests;

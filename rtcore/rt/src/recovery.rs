@@ -229,6 +229,15 @@ pub enum Action {
     EnableTorque,
 }
 
+/// What the recovery would do next (`Recovery::pick`): a joint's recovery step, a torque check
+/// of a joint that just came back, or the round-robin's check of this joint (if it is `Ok`).
+#[derive(Debug, Clone, Copy)]
+enum Pick {
+    Step(usize, Action),
+    CheckDue(usize),
+    RoundRobin(usize),
+}
+
 /// Where a joint's recovery stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
@@ -414,6 +423,32 @@ impl Recovery {
     /// The transaction to make this cycle, if any: a recovery step that is due, else a torque
     /// check (one who just came back first, then the round-robin's).
     pub fn next_action(&mut self, now_ns: u64) -> Option<(usize, Action)> {
+        match self.pick(now_ns)? {
+            Pick::Step(k, action) => Some((k, action)),
+            Pick::CheckDue(k) => {
+                self.servos[k].check_due = false;
+                Some((k, Action::ReadTorqueEnable))
+            }
+            Pick::RoundRobin(k) => {
+                self.next_check_ns = now_ns + self.policy.check_period_ns;
+                self.round_robin = (k + 1) % self.servos.len();
+                (self.servos[k].phase == Phase::Ok).then_some((k, Action::ReadTorqueEnable))
+            }
+        }
+    }
+
+    /// Whether `next_action` would make a transaction now; takes nothing. The cycle asks it when
+    /// the bus has no time left, to count how long the recovery has been kept waiting.
+    pub fn wants_action(&self, now_ns: u64) -> bool {
+        match self.pick(now_ns) {
+            None => false,
+            Some(Pick::RoundRobin(k)) => self.servos[k].phase == Phase::Ok,
+            Some(_) => true,
+        }
+    }
+
+    /// What is due now, in `next_action`'s order, without taking it.
+    fn pick(&self, now_ns: u64) -> Option<Pick> {
         if self.stop.is_some() {
             return None;
         }
@@ -428,22 +463,18 @@ impl Recovery {
                 Phase::Reanchor => Action::ReadPresent,
                 Phase::Enable => Action::EnableTorque,
             };
-            Some((k, action))
+            Some(Pick::Step(k, action))
         });
         if step.is_some() || !self.acts {
             return step;
         }
         if let Some(k) = self.servos.iter().position(|s| s.check_due && s.phase == Phase::Ok && !s.silent) {
-            self.servos[k].check_due = false;
-            return Some((k, Action::ReadTorqueEnable));
+            return Some(Pick::CheckDue(k));
         }
         if now_ns < self.next_check_ns || self.servos.is_empty() {
             return None;
         }
-        self.next_check_ns = now_ns + self.policy.check_period_ns;
-        let k = self.round_robin % self.servos.len();
-        self.round_robin = (k + 1) % self.servos.len();
-        (self.servos[k].phase == Phase::Ok).then_some((k, Action::ReadTorqueEnable))
+        Some(Pick::RoundRobin(self.round_robin % self.servos.len()))
     }
 
     /// The result of `action` on joint `k`: the value read (bits, 0/1, a tick; 0 for a write),

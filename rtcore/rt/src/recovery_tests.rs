@@ -454,6 +454,30 @@ proptest::proptest! {
     }
 }
 
+proptest::proptest! {
+    /// `wants_action` foretells `next_action` (the cycle counts a recovery's waits for the bus
+    /// with it, `cycle::RECOVERY_WAIT_CYCLES`), whatever the servos answered and whenever it is
+    /// asked: a wait counted is a transaction the recovery will ask for, and none is missed.
+    #[test]
+    fn wants_action_foretells_next_action(
+        answers in proptest::collection::vec((proptest::option::of(0u8..=255), proptest::prelude::any::<bool>(), 0u64..60), 1..300),
+        joints in 1usize..4,
+    ) {
+        let mut b = Bench::new(joints, policy());
+        for (i, &(answer, alert, dt_ms)) in answers.iter().enumerate() {
+            b.t += dt_ms * MS;
+            b.r.observe(i % joints, answer.is_some(), alert, b.t);
+            let wants = b.r.wants_action(b.t);
+            let step = b.r.next_action(b.t);
+            proptest::prop_assert_eq!(wants, step.is_some(), "{:?}", step);
+            if let Some((k, action)) = step {
+                b.r.on_result(k, action, answer.map(i64::from).ok_or(()), b.t);
+            }
+            b.r.judge(b.t, None);
+        }
+    }
+}
+
 #[test]
 fn a_horn_speed_outside_its_range_is_refused() {
     assert_eq!(policy().validate(), Ok(()));

@@ -103,6 +103,9 @@ pub struct LoopStats {
     pub sensor_stale_events: AtomicU64,
     pub telemetry_drops: AtomicU64,
     pub sync_reads: AtomicU64,
+    /// SyncReads of the present positions deferred a cycle to give a waiting servo recovery the
+    /// bus (`cycle`, `RECOVERY_WAIT_CYCLES`): non-zero says the bus is too busy for its cycle.
+    pub reads_deferred: AtomicU64,
     /// Times a joint's servo compensation made its horn worse than none and was turned off.
     pub compensation_fallbacks: AtomicU64,
     pub period: Histogram,
@@ -131,6 +134,7 @@ pub struct StatsSnapshot {
     pub sensor_stale_events: u64,
     pub telemetry_drops: u64,
     pub sync_reads: u64,
+    pub reads_deferred: u64,
     pub compensation_fallbacks: u64,
     /// (kind name, events), every kind.
     pub faults: Vec<(&'static str, u64)>,
@@ -163,6 +167,7 @@ impl LoopStats {
             sensor_stale_events: self.sensor_stale_events.load(Relaxed),
             telemetry_drops: self.telemetry_drops.load(Relaxed),
             sync_reads: self.sync_reads.load(Relaxed),
+            reads_deferred: self.reads_deferred.load(Relaxed),
             compensation_fallbacks: self.compensation_fallbacks.load(Relaxed),
             faults: self.faults.snapshot(),
             mode: self.faults.mode(),
