@@ -322,3 +322,52 @@ def test_the_grid_restarts_run_only_for_a_freed_refit_short_of_the_floor(monkeyp
     effects.refit_candidate(sim, current, evidence, 1.0, {}, lambda fit: at_floor, fallbacks=fallbacks,
                             explored=[[settled, "linearised", True]])
     assert bool(grid) == restarted
+
+
+def test_a_refit_short_of_the_floor_has_its_initial_states_fitted_again(monkeypatch):
+    """effects._initial_states_again: the units' states refitted under the refit's parameters,
+    from its own and from the data's screened starts, then the joint fit carried on from
+    there and kept only when it fits better; nothing to do without the data's starts."""
+    from types import SimpleNamespace
+
+    from admittance.ident import effects
+
+    stuck = SimpleNamespace(vector=np.zeros(3), x0=np.array([[0.1, 0.0], [0.5, 0.0]]), free=("damping",), rmse=4.0e-3)
+    moved = np.array([[0.1, 0.0], [0.7, 0.0]])  # the second unit's state from the data's start
+    monkeypatch.setattr(effects, "closest_starts", lambda sim, vector, starts: (moved, []))
+    monkeypatch.setattr(effects, "fit_initial_states_multi", lambda sim, vector, starts, **k: SimpleNamespace(
+        x0=moved if any(np.array_equal(s, moved) for s in starts) else stuck.x0))
+    joint = []
+
+    def fake_fit(sim, vector, free, x0, **kwargs):
+        joint.append(x0)
+        return SimpleNamespace(rmse=2.0e-3 if np.array_equal(x0, moved) else 5.0e-3, x0=x0)
+
+    monkeypatch.setattr(effects, "fit_output_error", fake_fit)
+    evidence = effects.Evidence("quadratic_drag")
+    assert effects._initial_states_again(None, stuck, evidence, [moved], 1.0).rmse == 2.0e-3
+    assert np.array_equal(joint[-1], moved)
+    assert effects._initial_states_again(None, stuck, evidence, [], 1.0) is stuck  # no data starts
+    moved = stuck.x0  # the states stay where they were: no joint refit
+    joint.clear()
+    assert effects._initial_states_again(None, stuck, evidence, [stuck.x0], 1.0) is stuck and not joint
+
+
+def test_the_initial_states_are_fitted_again_only_for_a_refit_short_of_the_floor(monkeypatch):
+    from types import SimpleNamespace
+
+    from admittance.ident import effects
+
+    calls = []
+    monkeypatch.setattr(effects, "_initial_states_again", lambda sim, fit, *a: calls.append(fit) or fit)
+    settled = SimpleNamespace(vector=np.zeros(3), x0=None, rmse=3e-3, free=("damping",))
+    monkeypatch.setattr(effects, "_settle", lambda *a: (settled, "linearised"))
+    for name in ("fallback_starts", "sliding_starts", "_equation_error_starts", "_explore"):
+        monkeypatch.setattr(effects, name, lambda *a, **k: [])
+    current = SimpleNamespace(tau_scale=1.0, free=("motor_inertia", "damping", "coulomb"))
+    sim = SimpleNamespace(with_tau_scale=lambda scale: sim, trials=[], mode="lumped")
+    for fallbacks, at_floor, expected in [(True, False, 1), (True, True, 0), (False, False, 0)]:
+        calls.clear()
+        effects.refit_candidate(sim, current, effects.Evidence("quadratic_drag", params=("quadratic_drag",)), 1.0, {},
+                                lambda fit: at_floor, fallbacks=fallbacks, explored=[[settled, "linearised", True]])
+        assert len(calls) == expected, (fallbacks, at_floor)
