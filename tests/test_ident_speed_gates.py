@@ -13,6 +13,8 @@ Each rule decides what is computed, so each is a gate: these tests fail when it 
   iterations) on at once only when their linearised reach is within FAR_BEHIND noise variances
   of the floor; search._refit_judged carries the others on when their turn comes, unless a candidate of
   the round already leaves nothing but sensor noise and their reach is that far behind it.
+- search._refit_judged does not refuse, however far its short refits trail, a candidate with
+  fewer parameters than the model at the floor: it would win a tie with that model.
 - search._judge_round assesses a refit that leaves nothing but sensor noise before the refits
   judged earlier that do not, so those face the model at the floor (refused without
   cross-validation when materially worse) instead of going through every test first.
@@ -265,3 +267,27 @@ def test_without_a_refit_at_the_floor_every_candidate_is_assessed_in_the_judging
     assessed, admissible = _round(monkeypatch, set())
     assert assessed == [("cogging", False), ("stribeck", False), ("friction_ripple", False)]
     assert admissible == ["cogging", "stribeck", "friction_ripple"]
+
+
+def test_a_simpler_candidate_far_behind_a_model_at_the_floor_is_refitted(monkeypatch):
+    """A spring (2 parameters) reached the floor on driven drops with a torque bias; the bias
+    (1 parameter) trailed it by 34 noise variances after three iterations and was refused, so
+    the spring was named. Fewer parameters win a tie: such a candidate is refitted whatever its
+    short refits say. Fails with the exemption removed."""
+    entries = [[SimpleNamespace(rmse=FLOOR * np.sqrt(1.0 + 100.0)), "linearised", True]]
+    refits = []
+    monkeypatch.setattr(search, "refit_effect", lambda *a, **k: refits.append(a) or None)
+    ctx = SimpleNamespace(sim=None, sensor=None)
+    for own, floor_params, refitted in [(1, 2, True), (2, 2, False), (1, 1, False)]:
+        refits.clear()
+        at_floor = search.AtFloor(SimpleNamespace(rmse=FLOOR), None, FLOOR, floor_params)
+        evidence = Evidence("torque_bias", params=("torque_bias",) if own == 1 else ("spring_stiffness", "spring_neutral"))
+        search._refit_judged(ctx, SimpleNamespace(full=None), evidence, at_floor, Screened(entries, reach=0.0, complete=True))
+        assert bool(refits) == refitted, (own, floor_params)
+
+
+def test_own_params_counts_what_an_effect_adds():
+    assert search.own_params(Evidence("torque_bias", params=("torque_bias",))) == 1
+    assert search.own_params(Evidence("stribeck", params=("stribeck_torque", "stribeck_velocity"))) == 2
+    cogging = Evidence("cogging", params=("cogging_amplitude", "cogging_phase", "cogging_period"))
+    assert search.own_params(cogging) == 2  # the period is held on its grid

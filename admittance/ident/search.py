@@ -110,6 +110,7 @@ class AtFloor:
     fit: FitResult
     screened: Screened | None  # its short refits (candidate_screen.py)
     floor: float  # the sensor's noise level (rad) in its noise verdict, computed once (residual.noise_of)
+    params: int = 0  # the effect's own fitted parameters (own_params); 0: none counts as simpler
 
 
 @dataclass
@@ -356,12 +357,15 @@ def _refit_judged(ctx: SearchContext, current: Scored, evidence: Evidence,
     materially worse, by more than a tenth of the noise variance). ``screened``: its
     linearised starts already run (candidate_screen.py); carried on to the full short refit
     here unless out of reach of ``at_floor``."""
+    # A candidate with fewer parameters than the model at the floor wins a tie with it (_choose),
+    # so how far its short refits trail says nothing about the verdict: it is refitted.
+    rival = None if at_floor is not None and own_params(evidence) < at_floor.params else at_floor
     if screened is not None and not screened.complete:
-        out_of_reach = _behind_the_floor(at_floor, screened)
+        out_of_reach = _behind_the_floor(rival, screened)
         if out_of_reach:
             return _refuse(evidence, out_of_reach)
         carry_on(ctx, evidence, screened)
-    behind_floor = _behind_the_floor(at_floor, screened)
+    behind_floor = _behind_the_floor(rival, screened)
     if behind_floor:
         return _refuse(evidence, behind_floor)
     explored = None if screened is None else screened.entries
@@ -383,8 +387,14 @@ def _admit(ctx: SearchContext, current: Scored, evidence: Evidence, refit: FitRe
     if at_floor is None:
         verdict = noise_of(ctx.sim, scored.full, ctx.sensor)
         if verdict.nothing_left:
-            return AtFloor(scored.full, screened, verdict.floor)
+            return AtFloor(scored.full, screened, verdict.floor, own_params(evidence))
     return at_floor
+
+
+def own_params(evidence: Evidence) -> int:
+    """How many parameters the effect adds to the model (a shape held on its grid not counted)."""
+    held = [n for n in SHAPE_PARAMS.get(evidence.effect, ()) if n not in FREED_SHAPES]
+    return len([n for n in evidence.params if n not in held])
 
 
 def _behind_the_floor(at_floor: AtFloor | None, screened: Screened | None) -> str:
