@@ -341,6 +341,9 @@ def refit_candidate(sim: Simulator, current: FitResult, evidence: Evidence, torq
     stopped at 6 mrad that way, against 2 mrad from a start that moved damping into drag).
     ``fallbacks=False`` skips them (another candidate already leaves nothing but noise: this
     one can at best tie, which its linearised refit shows); None when nothing was refitted.
+    A refit that still leaves structure (fallbacks wanted) then gets its units' initial states
+    fitted again (:func:`_initial_states_again`) and, for a freed shape, restarts from its grid
+    (:func:`_freed_from_the_grid`).
     ``explored``: the result of :func:`explore_linearised` when the caller already ran it."""
     sim = sim.with_tau_scale(current.tau_scale)
     shape = SHAPE_PARAMS.get(evidence.effect, ())
@@ -380,8 +383,8 @@ def _initial_states_again(sim, fit: FitResult, evidence: Evidence, x0_starts: Se
     turning point) stays there: the joint LM moves all parameters together and cannot jump one
     unit's stick event. On 3 long swings with a quadratic drag (tests/test_ident_honest.py's
     set, cut into 12 units) the drag's refit ended at 4.0 mrad, 11 of its units at the 2 mrad
-    noise and one at 11.9, under a plant whose sine differed in the last bit from the one
-    whose refit reached the noise; the regime test then called the drag a stand-in."""
+    noise and one at 11.9, with the plant's sine from the libm crate (glibc's reached the
+    noise); the regime test then called the drag a stand-in."""
     if not len(x0_starts):
         return fit
     screened = closest_starts(sim, fit.vector, x0_starts)[0]
@@ -399,8 +402,8 @@ def _freed_from_the_grid(sim, fit: FitResult, evidence: Evidence, free, torque_s
     With stick friction the error is rough in a Stribeck velocity: each value decides at which
     turning points the drops stick. On 30 test-oracle drops with Stribeck at 1.5× the Coulomb
     level (bench/identify_families.py's regime row, seed 1) the refit freed from 0.1 rad/s ended
-    at 0.123 and 2.41 mrad in one build of the plant and at the truth's 0.144 and the 2.0 mrad
-    noise in another whose sine differed in the last bit (a base fit a little elsewhere); from
+    at 0.123 and 2.41 mrad with the plant's sine from the libm crate (tried, not landed:
+    docs/identification.md) and at the truth's 0.144 and the 2.0 mrad noise with glibc's; from
     the stuck end, 0.3 rad/s reached 0.140 and 2.0 mrad, while 0.055, 0.071, 0.17 and 0.21 (half
     steps of the grid) ended at 2.1-2.7 mrad. Only a fit short of the noise floor pays for this."""
     best = fit
