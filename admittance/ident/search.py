@@ -316,11 +316,12 @@ def _judge_round(ctx: SearchContext, current: Scored, ranking: list[Evidence], e
     **A refit that leaves nothing but sensor noise is assessed first.** The short refits' order
     is a guess at which candidate will reach the floor, and a poor one when the right effect
     needs a fallback start to get there: on 30 drops with a Stribeck term (the base fit landed
-    a little differently after the plant's sine changed in its last bits) a cogging term and a
+    a little differently with the plant's sine from the libm crate, tried and not landed:
+    docs/identification.md) a cogging term and a
     friction ripple led after twelve iterations (6.1 and 5.0 mrad) while Stribeck reached the
     2 mrad floor only from its equation-error start; each was then cross-validated and put
     through the regime and transfer tests before Stribeck was judged, and the search took
-    343,000 trial simulations instead of 129,000. So a refit whose model still leaves
+    343,000 trial simulations instead of 128,000. So a refit whose model still leaves
     structure, while no candidate of the round has reached the floor, is assessed only after
     every candidate has been refitted. Once one has reached the floor and is admitted, the
     candidates assessed later face the ``at_floor`` rule the judging order already gave the
