@@ -85,6 +85,9 @@ SKIPPED = {
                        "(minutes); what it times is held bit for bit per function by tests/test_ident_fit_numerics.py",
     "fit_numerics_replay.py": "replays every call of a whole identify run through a commit's fit.py (minutes); "
                               "the per-function bit-for-bit claim is tests/test_ident_fit_numerics.py's",
+    "identify_perturbed.py": "builds this tree's extension a second time with another plant feature (minutes on a "
+                             "fresh machine) and runs the families bench under both (4-5 min); its comparison of "
+                             "the two runs is tested below (test_the_perturbed_bench_reports_what_changed)",
 }
 
 
@@ -105,3 +108,22 @@ def test_bench_runs_end_to_end(script, args, expected, tmp_path):
     assert done.returncode == 0, f"bench/{script} exited {done.returncode}:\n{output[-3000:]}"
     assert "Traceback" not in output, output[-3000:]
     assert re.search(expected, done.stdout, re.M), f"no line matching {expected!r} in:\n{done.stdout[-3000:]}"
+
+
+def test_the_perturbed_bench_reports_what_changed():
+    """bench/identify_perturbed.py's comparison: a verdict or a name that changed, or a held-out
+    error more than 10 % apart, is reported; a held-out error 0.5 % apart is not."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    try:
+        import identify_perturbed as bench
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+
+    def row(ok=True, effects=("stribeck",), after=2.0e-3, label="stribeck, 30 trials"):
+        return {"family": "regime", "label": label, "seed": 1, "ok": ok, "effects": list(effects), "after": after}
+
+    default = [row(), row(label="spring"), row(label="cogging"), row(label="drag")]
+    perturbed = [row(ok=False, effects=()), row(label="spring", after=2.01e-3), row(label="cogging", after=4.0e-3),
+                 row(label="drag", effects=("quadratic_drag",))]
+    changed = [a["label"] for a, _ in bench.differences(default, perturbed)]
+    assert changed == ["stribeck, 30 trials", "cogging", "drag"]

@@ -20,6 +20,7 @@ use std::str::FromStr;
 
 use crate::error::PlantError;
 use crate::params::Params;
+use crate::trig;
 
 /// How the friction level is applied.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -76,11 +77,11 @@ pub fn level(p: &Params, theta: f64, omega: f64, drive: f64, load_torque: f64) -
     // Without an asymmetry the direction is not needed (the product would be a signed zero).
     let mut level = if p.coulomb_asym != 0.0 { p.coulomb + direction(omega, drive) * p.coulomb_asym } else { p.coulomb };
     if p.friction_ripple_amplitude != 0.0 {
-        level += p.friction_ripple_amplitude * (p.friction_ripple_period * theta + p.friction_ripple_phase).sin();
+        level += p.friction_ripple_amplitude * trig::sin(p.friction_ripple_period * theta + p.friction_ripple_phase);
     }
     if p.stribeck_torque != 0.0 {
         let r = omega / p.stribeck_velocity;
-        level += p.stribeck_torque * (-r * r).exp();
+        level += p.stribeck_torque * trig::exp(-r * r);
     }
     if p.load_coulomb != 0.0 {
         level += p.load_coulomb * load_torque.abs();

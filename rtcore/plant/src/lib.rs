@@ -10,6 +10,8 @@
 //! - `batch`: parameter sets × trials in parallel (rayon), for identification.
 //! - `sensitivity`: the angle and its derivatives by parameters and initial state in one pass
 //!   (forward sensitivities of the substep), for identification's Jacobians.
+//! - `trig`: the plant's sine and exponential: the C library's, or with the `libm-sine` feature
+//!   the `libm` crate's (bench/identify_perturbed.py).
 //! - `inverse`: the model read backwards (the torque a recorded motion needs), for `predict`.
 //! - `admittance`: the RT loop's virtual joint and its stability gate.
 //! - `servo`: how a position servo's horn follows its goal (fitted by `fidelity`, inverted by
@@ -38,6 +40,7 @@ pub mod params;
 pub mod sensitivity;
 pub mod servo;
 pub mod trial;
+pub mod trig;
 
 pub use batch::{Batch, Output};
 pub use error::PlantError;

@@ -7,6 +7,7 @@
 //! defaults (gain 1, bias and drift 0).
 use crate::friction::{self, FrictionLaw};
 use crate::params::Params;
+use crate::trig;
 
 /// What hangs on the joint: its inertia about the axis and its gravity torque amplitude m·g·l.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -41,9 +42,9 @@ pub fn static_torques(p: &Params, load: &Load, theta: f64) -> StaticTorques {
 /// `static_torques`, the spring left at 0 unless `with_spring` (`Substep` adds its own).
 #[inline(always)]
 fn angle_torques(p: &Params, load: &Load, theta: f64, with_spring: bool) -> StaticTorques {
-    let gravity = load.gravity_torque * (theta - p.angle_offset).sin();
+    let gravity = load.gravity_torque * trig::sin(theta - p.angle_offset);
     let cogging = if p.cogging_amplitude != 0.0 {
-        p.cogging_amplitude * (p.cogging_period * theta + p.cogging_phase).sin()
+        p.cogging_amplitude * trig::sin(p.cogging_period * theta + p.cogging_phase)
     } else {
         0.0
     };
@@ -130,7 +131,7 @@ impl<'a> Substep<'a> {
     fn drive_and_level(&self, state: &State, tau: f64, t: f64) -> (f64, f64) {
         let p = self.p;
         if self.plain {
-            let gravity = self.load.gravity_torque * (state.theta - p.angle_offset).sin();
+            let gravity = self.load.gravity_torque * trig::sin(state.theta - p.angle_offset);
             return (tau - gravity, p.coulomb.max(0.0));
         }
         let tau_corrected = if self.corrected { p.torque_gain * tau - p.torque_bias - p.torque_drift * t } else { tau };

@@ -29,6 +29,7 @@ use crate::error::{require_finite, PlantError};
 use crate::friction::{direction, FrictionLaw};
 use crate::model::{step, Load, State};
 use crate::params::{Params, N_PARAMS};
+use crate::trig;
 use crate::trial::{validate_max_step, walk, TorqueCursor, Trial, Walk};
 
 /// Parameter indices (`PARAM_NAMES` order) with a closed-form derivative here: all of them.
@@ -241,11 +242,11 @@ impl Substep {
         let inertia = p.motor_inertia + load.inertia;
         let gh = input.h / inertia;
         let tc = p.torque_gain * input.applied - p.torque_bias - p.torque_drift * input.t_rel;
-        let (sg, cg) = (theta - p.angle_offset).sin_cos();
+        let (sg, cg) = trig::sin_cos(theta - p.angle_offset);
         let gravity = load.gravity_torque * sg;
-        let cog = if needs.cogging { (p.cogging_period * theta + p.cogging_phase).sin_cos() } else { (0.0, 0.0) };
+        let cog = if needs.cogging { trig::sin_cos(p.cogging_period * theta + p.cogging_phase) } else { (0.0, 0.0) };
         let ripple =
-            if needs.ripple { (p.friction_ripple_period * theta + p.friction_ripple_phase).sin_cos() } else { (0.0, 0.0) };
+            if needs.ripple { trig::sin_cos(p.friction_ripple_period * theta + p.friction_ripple_phase) } else { (0.0, 0.0) };
         let spring = p.spring_stiffness * (theta - p.spring_neutral);
         let drive = tc - gravity - p.cogging_amplitude * cog.0 - spring;
         let dir = direction(omega, drive);
@@ -255,7 +256,7 @@ impl Substep {
             0.0
         } else if p.stribeck_velocity != 0.0 {
             let r = omega / p.stribeck_velocity;
-            (-r * r).exp()
+            trig::exp(-r * r)
         } else if omega == 0.0 {
             1.0
         } else {

@@ -3,10 +3,10 @@
 //! computed, to the bit (up to the sign of a zero, which nothing downstream can tell apart).
 //!
 //! `full_formula_step` is a TEST ORACLE: Contract 1's substep written out term by term, as the
-//! plant computed it before `Substep` (docs/plant.md). It is not used by any production path.
+//! plant computed it before `Substep` (docs/plant.md), with the plant's own sine (`plant::trig`). It is not used by any production path.
 mod common;
 use common::sparse_params;
-use plant::{step, FrictionLaw, Load, Params, State};
+use plant::{step, trig, FrictionLaw, Load, Params, State};
 use proptest::prelude::*;
 
 /// TEST ORACLE: one semi-implicit Euler substep with every term of Contract 1 computed.
@@ -15,9 +15,9 @@ fn full_formula_step(state: &mut State, p: &Params, load: &Load, law: FrictionLa
     let omega = state.omega;
     let dissipation = p.damping + p.quadratic_drag * omega.abs();
     let tau_corrected = p.torque_gain * tau - p.torque_bias - p.torque_drift * t;
-    let gravity = load.gravity_torque * (state.theta - p.angle_offset).sin();
+    let gravity = load.gravity_torque * trig::sin(state.theta - p.angle_offset);
     let cogging = if p.cogging_amplitude != 0.0 {
-        p.cogging_amplitude * (p.cogging_period * state.theta + p.cogging_phase).sin()
+        p.cogging_amplitude * trig::sin(p.cogging_period * state.theta + p.cogging_phase)
     } else {
         0.0
     };
@@ -27,11 +27,11 @@ fn full_formula_step(state: &mut State, p: &Params, load: &Load, law: FrictionLa
     let direction = if v > 0.0 { 1.0 } else if v < 0.0 { -1.0 } else { 0.0 };
     let mut level = p.coulomb + direction * p.coulomb_asym;
     if p.friction_ripple_amplitude != 0.0 {
-        level += p.friction_ripple_amplitude * (p.friction_ripple_period * state.theta + p.friction_ripple_phase).sin();
+        level += p.friction_ripple_amplitude * trig::sin(p.friction_ripple_period * state.theta + p.friction_ripple_phase);
     }
     if p.stribeck_torque != 0.0 {
         let r = omega / p.stribeck_velocity;
-        level += p.stribeck_torque * (-r * r).exp();
+        level += p.stribeck_torque * trig::exp(-r * r);
     }
     if p.load_coulomb != 0.0 {
         level += p.load_coulomb * (gravity - tau_corrected).abs();
