@@ -218,7 +218,6 @@ class DaemonInterface:
                     self._answer(key, query, answer)
                 finally:
                     query.drop()
-                    self.requester = None
                 answered += 1
         self.queries += answered
         return answered
@@ -234,6 +233,11 @@ class DaemonInterface:
             self._log("handler", f"{key}: a query failed inside the daemon and was refused: "
                                  f"{type(exc).__name__}: {clip(str(exc), 120)}")
             reply = SetReply(accepted=False, reason=f"internal error ({type(exc).__name__}); see the daemon's log")
+        finally:
+            # Who asked matters only while the handler runs. Cleared before the reply leaves: a
+            # client that has its answer finds no stale requester (cleared after the reply, a
+            # test saw it still set on a loaded machine).
+            self.requester = None
         try:
             query.reply(key, self._codec.encode(reply), encoding=self._encoding)
         except Exception as exc:  # the asker left, the session is closing: nothing to undo
