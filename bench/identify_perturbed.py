@@ -123,7 +123,7 @@ def main() -> None:
     scored = lambda rows: [r for r in rows if r["ok"] is not None]  # noqa: E731
     for name, rows in (("C library's sine", default), ("libm's sine", perturbed)):
         print(f"{name}: passed {sum(r['ok'] for r in scored(rows))} of {len(scored(rows))} synthetic rows")
-    print(f"verdicts that changed with the last bit of the sine: {len(changed)} of {len(default)} rows")
+    print(f"rows whose verdict, names or held-out error changed with the last bit of the sine: {len(changed)} of {len(default)}")
     print(f"/proc/loadavg at the end: {_load()}")
 
 
