@@ -18,14 +18,13 @@
 //! cycle with its deadline at t (the sensor's arrival trigger puts it there on the real bench).
 use std::collections::VecDeque;
 use std::io;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 
 use rt::bus::{JointBus, Transport};
-use rt::clock::Clock;
+use rt::clock::{Clock, SharedClock};
 use rt::config::LoopConfig;
 use rt::cycle::{Controller, ControllerParts};
-use rt::doorbell::Doorbell;
 use rt::sensor::ForceSample;
 use rt::shared::Shared as LoopShared;
 use rt::telemetry::Record;
@@ -37,37 +36,13 @@ use crate::wire::Answerer;
 /// ns: the simulated clock's origin (any value well above 0: deadlines subtract from it).
 const EPOCH_NS: u64 = 1_000_000_000;
 
-/// The simulated clock, shared by the loop and the link (a reply's wait moves it on).
-#[derive(Clone, Default)]
-pub struct SimClock(Arc<AtomicU64>);
-
-impl SimClock {
-    fn set(&self, ns: u64) {
-        self.0.fetch_max(ns, Ordering::Relaxed);
-    }
-}
-
-impl Clock for SimClock {
-    fn now_ns(&self) -> u64 {
-        self.0.load(Ordering::Relaxed)
-    }
-
-    fn sleep_until(&mut self, deadline_ns: u64) {
-        self.set(deadline_ns);
-    }
-
-    fn wait_for_ring(&mut self, _bell: &Doorbell, _seq: u32, deadline_ns: u64) {
-        self.set(deadline_ns);
-    }
-}
-
 /// The loop's wire to the simulated servos on the simulated clock: a reply is readable once the
 /// clock reaches its due time, and waiting for it moves the clock there.
 pub struct LockstepLink {
     shared: Arc<Mutex<Shared>>,
     answerer: Answerer,
     output: VecDeque<u8>,
-    clock: SimClock,
+    clock: SharedClock, // the simulated time line, shared by the loop and the link (a reply's wait moves it on)
 }
 
 impl Transport for LockstepLink {
@@ -91,9 +66,9 @@ impl Transport for LockstepLink {
                 return Ok(n);
             }
             match self.answerer.next_due_ns() {
-                Some(due) if due <= deadline_ns => self.clock.set(due),
+                Some(due) if due <= deadline_ns => self.clock.advance_to(due),
                 _ => {
-                    self.clock.set(deadline_ns);
+                    self.clock.advance_to(deadline_ns);
                     return Ok(0);
                 }
             }
@@ -152,8 +127,8 @@ pub fn run(config: &LoopConfig, shared: Arc<Mutex<Shared>>, bus: BusConfig, hand
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
         return Err(format!("a lockstep run lasts 0 to 3600 s of model time, not {seconds}"));
     }
-    let clock = SimClock::default();
-    clock.set(EPOCH_NS);
+    let clock = SharedClock::default();
+    clock.advance_to(EPOCH_NS);
     let protocol = lock(&shared).bus.protocol();
     if protocol != config.protocol {
         return Err("the simulated servos and the loop's configuration use different protocols".into());
@@ -195,7 +170,7 @@ pub fn run(config: &LoopConfig, shared: Arc<Mutex<Shared>>, bus: BusConfig, hand
     let n = (seconds * config.rate_hz).round() as u64;
     for k in 0..n {
         let grid = first + k * period;
-        clock.set(grid);
+        clock.advance_to(grid);
         let t = (grid - first) as f64 * 1e-9 - hand.delay_s;
         let sensed = hand_at(&shared, hand, if t >= 0.0 { hand.profile.at(t) } else { 0.0 }, grid);
         let forces = hand.sensor.forces(sensed, &mut noise);

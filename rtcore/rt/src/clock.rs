@@ -17,6 +17,8 @@
 //! sample-triggered starts can be tested against a fake clock (with a scripted sensor),
 //! deterministically, without timed assertions.
 use crate::doorbell::Doorbell;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 
 /// A monotonic time source the loop can sleep on.
 pub trait Clock {
@@ -71,6 +73,34 @@ impl Clock for MonotonicClock {
 
     fn wait_for_ring(&mut self, bell: &Doorbell, seq: u32, deadline_ns: u64) {
         bell.wait(seq, deadline_ns);
+    }
+}
+
+/// A simulated monotonic clock that moves only when told to, shared by its clones across
+/// threads (unlike the tests' `FakeClock`, it is `Send`): the lockstep mock's model time
+/// (`dxlsim::lockstep`, where the link's waits move it) and a test bus whose packets cost time
+/// (`cycle_busy_bus_tests`). Sleeping moves it to the deadline; it never goes back.
+#[derive(Debug, Clone, Default)]
+pub struct SharedClock(Arc<AtomicU64>);
+
+impl SharedClock {
+    /// Moves the clock on to `ns` (no-op if it is already there or later).
+    pub fn advance_to(&self, ns: u64) {
+        self.0.fetch_max(ns, Ordering::Relaxed);
+    }
+}
+
+impl Clock for SharedClock {
+    fn now_ns(&self) -> u64 {
+        self.0.load(Ordering::Relaxed)
+    }
+
+    fn sleep_until(&mut self, deadline_ns: u64) {
+        self.advance_to(deadline_ns);
+    }
+
+    fn wait_for_ring(&mut self, _bell: &Doorbell, _seq: u32, deadline_ns: u64) {
+        self.advance_to(deadline_ns);
     }
 }
 

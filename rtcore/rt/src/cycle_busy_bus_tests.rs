@@ -8,31 +8,9 @@
 use super::tests::{rig, Rig, PERIOD};
 use super::*;
 use crate::bus::memory::MemoryTransport;
+use crate::clock::SharedClock;
 use crate::recovery::{FaultPolicy, Phase};
 use crate::sensor::ForceSample;
-use std::sync::atomic::AtomicU64;
-
-/// A monotonic clock that the transport can move on (the fake clock is not `Send`).
-#[derive(Clone, Default)]
-struct BusClock(Arc<AtomicU64>);
-
-impl BusClock {
-    fn set(&self, ns: u64) {
-        self.0.store(ns, Ordering::Relaxed);
-    }
-}
-
-impl Clock for BusClock {
-    fn now_ns(&self) -> u64 {
-        self.0.load(Ordering::Relaxed)
-    }
-    fn sleep_until(&mut self, deadline_ns: u64) {
-        self.0.fetch_max(deadline_ns, Ordering::Relaxed);
-    }
-    fn wait_for_ring(&mut self, _bell: &crate::doorbell::Doorbell, _seq: u32, deadline_ns: u64) {
-        self.sleep_until(deadline_ns);
-    }
-}
 
 /// One request on the wire: its instruction, when it was sent and the deadline of its reply.
 #[derive(Debug, Clone, Copy)]
@@ -48,7 +26,7 @@ struct Sent {
 /// to the deadline.
 struct BusyBus {
     wire: MemoryTransport,
-    clock: BusClock,
+    clock: SharedClock,
     packet_ns: u64,
     sync_write_ns: u64,
     sync_read_ns: u64,
@@ -64,7 +42,7 @@ impl Transport for BusyBus {
     fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let at_ns = self.clock.now_ns();
         let instruction = bytes[7];
-        self.clock.set(at_ns + if instruction == SYNC_WRITE { self.sync_write_ns } else { self.packet_ns });
+        self.clock.advance_to(at_ns + if instruction == SYNC_WRITE { self.sync_write_ns } else { self.packet_ns });
         let latency = if SYNC_READS.contains(&instruction) { self.sync_read_ns } else { self.packet_ns };
         self.reply_at = (instruction != SYNC_WRITE).then_some(self.clock.now_ns() + latency);
         self.sent.push(Sent { instruction, at_ns, deadline_ns: None });
@@ -102,8 +80,8 @@ fn busy(ids: &[u8], sync_read_ns: u64, packet_ns: u64) -> (Rig, BusyBus) {
     let mut r = rig(p, &present);
     r.ctl.set_fault_policy(FaultPolicy::default(), true);
     r.ctl.sync_read_divisor = 1;
-    let clock = BusClock::default();
-    clock.set(1_000_000_000);
+    let clock = SharedClock::default();
+    clock.advance_to(1_000_000_000);
     let mut bus = BusyBus { wire: r.bus.clone(), clock, packet_ns, sync_write_ns: packet_ns, sync_read_ns, reply_at: None, sent: Vec::new() };
     let start_deadline = bus.clock.now_ns() + 100 * PERIOD;
     let clock = bus.clock.clone();

@@ -185,7 +185,7 @@ fn live_limits_are_adopted_narrowed_and_widened_and_reported() {
     start.ramp_time_s = 0.0;
     let mut r = started(start.clone(), &[(1, 2048)]);
     let push = 4.0; // N: 0.4 N·m on 0.02 kg·m², 20 rad/s²
-    let mut run = |r: &mut Rig, set: Option<LoopParams>, cycles: usize| {
+    let run = |r: &mut Rig, set: Option<LoopParams>, cycles: usize| {
         if let Some(set) = set {
             r.params.write(set);
         }
