@@ -40,7 +40,7 @@ import numpy as np
 
 from admittance.errors import DataError
 from admittance.ident.equation_error import effect_start, fit_equation_error
-from admittance.ident.fit import FitResult, closest_starts, fit_initial_states_multi, fit_output_error, normal_equations
+from admittance.ident.fit import FitResult, closest_starts, fit_output_error, normal_equations, states_again
 from admittance.ident.model import EFFECTS, INDEX, LOWER, UPPER, Simulator, default_vector
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
@@ -391,8 +391,7 @@ def _initial_states_again(sim, fit: FitResult, evidence: Evidence, x0_starts: Se
     noise); the regime test then called the drag a stand-in."""
     if not len(x0_starts):
         return fit
-    screened = closest_starts(sim, fit.vector, x0_starts)[0]
-    x0 = fit_initial_states_multi(sim, fit.vector, [fit.x0, screened], label=f"fit +{evidence.effect}").x0
+    x0 = states_again(sim, fit.vector, fit.x0, x0_starts, label=f"fit +{evidence.effect}")
     if np.array_equal(x0, fit.x0):
         return fit
     again = fit_output_error(sim, fit.vector, fit.free, x0, torque_scale=torque_scale, label=f"fit +{evidence.effect}")

@@ -640,6 +640,15 @@ def fit_initial_states_multi(sim: Simulator, vector: np.ndarray, starts: Sequenc
     )
 
 
+def states_again(sim: Simulator, vector: np.ndarray, own: np.ndarray, starts: Sequence[np.ndarray],
+                 label: str = "initial states") -> np.ndarray:
+    """Each trial's initial state fitted under ``vector`` from ``own`` (the states a fit already
+    has) and from the data's candidate ``starts`` screened under ``vector``, each trial keeping
+    its best (:func:`fit_initial_states_multi`): a model that changed where the joint sticks
+    may want another release for some trials than the states it was handed."""
+    return fit_initial_states_multi(sim, vector, [own, screen_starts(sim, vector, starts)], label=label).x0
+
+
 def screen_starts(sim: Simulator, vector: np.ndarray, starts: Sequence[np.ndarray]) -> np.ndarray:
     """Per trial, the start (of ``starts``, each (T, 2)) whose simulation under ``vector`` is
     closest to the data: one batch, no fitting."""

@@ -36,7 +36,7 @@ from admittance.formats.dataset import Dataset
 from admittance.ident.datacheck import Finding, screen
 from admittance.ident.effects import Evidence, candidate_effects, grown, rank_candidates
 from admittance.ident.equation_error import fit_equation_error, initial_state_starts
-from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts
+from admittance.ident.fit import FitResult, fit_initial_states_multi, fit_output_error, rmse, screen_starts, states_again
 from admittance.ident.model import (
     EFFECTS,
     INDEX,
@@ -388,8 +388,7 @@ def _final_fit(sim_train: Simulator, base: FitResult, search: SearchOutcome | No
         # (Stribeck at 1.5x the Coulomb level, 30 drops) left 8 of 20 training trials at 4-9 mrad
         # in a wrong basin while the held-out trials, scored from the data's starts, were at the
         # 2 mrad noise: the residual verdict then judged a fit short of its optimum.
-        screened = screen_starts(sim, start, x0_starts)
-        x0 = fit_initial_states_multi(sim, start, [base.x0, screened], label="final fit").x0
+        x0 = states_again(sim, start, base.x0, x0_starts, label="final fit")
         fit = fit_output_error(sim, start, search.fit.free, x0, torque_scale=torque_scale, progress=progress,
                                label="final fit")
         if best is None or fit.rmse < best.rmse:
