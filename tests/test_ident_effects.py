@@ -313,7 +313,7 @@ def test_the_grid_restarts_run_only_for_a_freed_refit_short_of_the_floor(monkeyp
     grid = []
     monkeypatch.setattr(effects, "_freed_from_the_grid", lambda sim, fit, *a: grid.append(fit) or fit)
     settled = SimpleNamespace(vector=vector_from({"stribeck_velocity": 0.1}), x0=None, rmse=2.4e-3)
-    monkeypatch.setattr(effects, "_settle", lambda *a: (settled, "linearised"))
+    monkeypatch.setattr(effects, "_settle", lambda *a, **k: (settled, "linearised"))
     for name in ("fallback_starts", "sliding_starts", "_equation_error_starts", "_explore"):
         monkeypatch.setattr(effects, name, lambda *a, **k: [])
     current = SimpleNamespace(tau_scale=1.0, free=("motor_inertia", "damping", "coulomb"))
@@ -361,7 +361,7 @@ def test_the_initial_states_are_fitted_again_only_for_a_refit_short_of_the_floor
     calls = []
     monkeypatch.setattr(effects, "_initial_states_again", lambda sim, fit, *a: calls.append(fit) or fit)
     settled = SimpleNamespace(vector=np.zeros(3), x0=None, rmse=3e-3, free=("damping",))
-    monkeypatch.setattr(effects, "_settle", lambda *a: (settled, "linearised"))
+    monkeypatch.setattr(effects, "_settle", lambda *a, **k: (settled, "linearised"))
     for name in ("fallback_starts", "sliding_starts", "_equation_error_starts", "_explore"):
         monkeypatch.setattr(effects, name, lambda *a, **k: [])
     current = SimpleNamespace(tau_scale=1.0, free=("motor_inertia", "damping", "coulomb"))

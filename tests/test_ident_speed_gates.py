@@ -18,6 +18,10 @@ Each rule decides what is computed, so each is a gate: these tests fail when it 
 - search._judge_round assesses a refit that leaves nothing but sensor noise before the refits
   judged earlier that do not, so those face the model at the floor (refused without
   cross-validation when materially worse) instead of going through every test first.
+- effects._settle carries its two best starts best first and stops once one leaves nothing but
+  sensor noise (the second could at best tie).
+- effects.refit_candidate carries the linearised starts only EXPLORE_ITERATIONS further while
+  fallback starts may follow; the best of all is then carried to convergence.
 """
 
 from __future__ import annotations
@@ -291,3 +295,75 @@ def test_own_params_counts_what_an_effect_adds():
     assert search.own_params(Evidence("stribeck", params=("stribeck_torque", "stribeck_velocity"))) == 2
     cogging = Evidence("cogging", params=("cogging_amplitude", "cogging_phase", "cogging_period"))
     assert search.own_params(cogging) == 2  # the period is held on its grid
+
+
+def _carries(monkeypatch, rmse_after):
+    """effects.fit_output_error replaced: each call logged as (start rmse, max_iter, damping) and
+    answered with ``rmse_after(start rmse)`` after max_iter iterations (a crawl)."""
+    from admittance.ident import effects
+
+    calls = []
+
+    def fake_fit(sim, vector, free, x0, *, max_iter=60, damping=1e-3, **kwargs):
+        start = float(vector[0])
+        calls.append((start, max_iter, damping))
+        after = rmse_after(start)
+        return SimpleNamespace(vector=np.array([after]), free=free, x0=x0, rmse=after, iterations=max_iter,
+                               residuals=None, end_point=None, tau_scale=1.0, damping=damping)
+
+    monkeypatch.setattr(effects, "fit_output_error", fake_fit)
+    return calls
+
+
+def _entry(rmse):
+    fit = SimpleNamespace(vector=np.array([rmse]), free=("damping",), x0=None, rmse=rmse, residuals=None,
+                          end_point=None, tau_scale=1.0, damping=0.5)
+    return [fit, f"start at {rmse}", False]
+
+
+def test_settling_stops_once_a_start_leaves_nothing_but_sensor_noise(monkeypatch):
+    """effects._settle carries the best starts best first; once one is at the floor the next
+    could at best tie with it and is not carried (without a floor both are)."""
+    from admittance.ident import effects
+
+    calls = _carries(monkeypatch, lambda start: start - 0.1e-3)
+    sim = SimpleNamespace(tau_scale=1.0)
+    explored = [_entry(2.6e-3), _entry(2.1e-3)]
+    best, label = effects._settle(sim, explored, 1.0, Evidence("stribeck"), lambda fit: fit.rmse < 2.05e-3)
+    assert [c[0] for c in calls] == [2.1e-3] and label == "start at 0.0021"
+    assert explored[1][2] is False  # the second start left where its short refits ended
+    calls.clear()
+    effects._settle(sim, [_entry(2.6e-3), _entry(2.1e-3)], 1.0, Evidence("stribeck"), lambda fit: False)
+    assert [c[0] for c in calls] == [2.1e-3, 2.6e-3]
+
+
+def test_with_fallbacks_to_come_the_linearised_starts_are_carried_only_a_bounded_way(monkeypatch):
+    """effects.refit_candidate: while fallback starts may follow, the linearised starts are
+    carried EXPLORE_ITERATIONS further (from their own damping), not to convergence; the
+    fallbacks are then explored and the best of all is carried to convergence. Without
+    fallbacks (another candidate is at the floor) they are carried to convergence at once."""
+    from admittance.ident import effects
+
+    calls = _carries(monkeypatch, lambda start: start if start > 5e-3 else 1.9e-3)  # the linearised start crawls
+    explored_fallbacks = []
+
+    def explore(sim, current, evidence, starts, *a, **k):
+        explored_fallbacks.append(len(calls))
+        return [_entry(2.3e-3)]
+
+    monkeypatch.setattr(effects, "_explore", explore)
+    for name in ("sliding_starts", "_equation_error_starts"):
+        monkeypatch.setattr(effects, name, lambda *a, **k: [])
+    monkeypatch.setattr(effects, "fallback_starts", lambda *a, **k: [{"quadratic_drag": 1.0}])
+    current = SimpleNamespace(tau_scale=1.0, free=("damping",))
+    sim = SimpleNamespace(with_tau_scale=lambda scale: sim, trials=[], mode="lumped", tau_scale=1.0)
+    evidence = Evidence("quadratic_drag", params=("quadratic_drag",))
+    done = lambda fit: fit.rmse < 2.0e-3  # noqa: E731
+    best = effects.refit_candidate(sim, current, evidence, 1.0, {}, done, fallbacks=True,
+                                   explored=[_entry(14e-3)])
+    assert calls[0] == (14e-3, effects.EXPLORE_ITERATIONS, 0.5)
+    assert explored_fallbacks == [1]  # explored right after the bounded carry
+    assert calls[1][0] == 2.3e-3 and calls[1][1] > effects.EXPLORE_ITERATIONS and best.rmse == 1.9e-3
+    calls.clear()
+    effects.refit_candidate(sim, current, evidence, 1.0, {}, done, fallbacks=False, explored=[_entry(14e-3)])
+    assert calls[0][1] > effects.EXPLORE_ITERATIONS
