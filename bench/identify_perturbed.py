@@ -8,7 +8,7 @@ from the test oracle, tests/oracles/ivp.py, in plain SciPy), so a row whose verd
 effects differ between the two runs is a verdict that hangs on rounding: the same data would
 give another answer on another machine's C library, on a Pi, or after any change that moves a
 sum in its last bit. On 2026-11-28 this comparison found five such verdicts; four were fixed by
-general rules (docs/identification.md, *The plant's sine changed in its last bit*).
+general rules (docs/identification-speed-log.md, *The plant's sine changed in its last bit*).
 
 The perturbed extension is built with this venv's maturin into ``rtcore/target/perturbed``
 (its own Cargo target folder: the first build takes a few minutes, later ones only what changed)

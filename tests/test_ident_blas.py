@@ -2,7 +2,8 @@
 process its threads back after, also when it fails.
 
 Why it matters: BLAS threads spinning beside the Rust plant's own took 16 % more CPU on 30 drops
-with a drag, on a 2-core machine with another job running (docs/identification.md, *Speed*)."""
+with a drag, on a 2-core machine with another job running (docs/identification-speed-log.md,
+*Parameter sets side by side, with a smaller substep: kept*)."""
 
 from __future__ import annotations
 

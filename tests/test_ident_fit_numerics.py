@@ -1,11 +1,11 @@
 """The fit's numerics around the simulations (fit.py) give, bit for bit, what the plain
 formulas give: the normal equations, the finite-difference Jacobian blocks, the residual's
 autocovariances, the start screen and the covariance (and the LM's damped system, a change
-measured and not kept: docs/identification.md, *The fit's numerics*).
+measured and not kept: docs/identification-speed-log.md, *The fit's numerics*).
 
 Each *_oracle below is the straightforward version (the code before it was made faster),
 kept here as the test oracle: ``identify`` must not move a single bit when the numerics
-around the plant are reorganised (docs/identification.md, *The fit's numerics*)."""
+around the plant are reorganised (docs/identification-speed-log.md, *The fit's numerics*)."""
 
 from __future__ import annotations
 

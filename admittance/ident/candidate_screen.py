@@ -33,7 +33,8 @@ on driven trials a torque bias and an asymmetric Coulomb level are one equation 
 same steps (16.405 and 16.403 mrad after three), while their reaches differed (7 and under 3
 noise variances); refused on the reach alone, the torque bias lost its group. Not exact: a start
 that trails by that much after three iterations and then ends within a tie would be lost
-(docs/identification.md, *Speed*, for the family rows run on it).
+(docs/identification-speed-log.md, *A two-stage screen of the short refits*, for the family rows
+run on it).
 
 Nothing else is skipped here: every candidate still gets a verdict; the order decides which one
 sets the floor the others are measured against, and the first stage's fits are the ones the

@@ -414,9 +414,10 @@ def _freed_from_the_grid(sim, fit: FitResult, evidence: Evidence, free, torque_s
     turning points the drops stick. On 30 test-oracle drops with Stribeck at 1.5× the Coulomb
     level (bench/identify_families.py's regime row, seed 1) the refit freed from 0.1 rad/s ended
     at 0.123 and 2.41 mrad with the plant's sine from the libm crate (tried, not landed:
-    docs/identification.md) and at the truth's 0.144 and the 2.0 mrad noise with glibc's; from
-    the stuck end, 0.3 rad/s reached 0.140 and 2.0 mrad, while 0.055, 0.071, 0.17 and 0.21 (half
-    steps of the grid) ended at 2.1-2.7 mrad. Only a fit short of the noise floor pays for this."""
+    docs/identification-speed-log.md) and at the truth's 0.144 and the 2.0 mrad noise with
+    glibc's; from the stuck end, 0.3 rad/s reached 0.140 and 2.0 mrad, while 0.055, 0.071, 0.17
+    and 0.21 (half steps of the grid) ended at 2.1-2.7 mrad. Only a fit short of the noise floor
+    pays for this."""
     best = fit
     for name in (n for n in SHAPE_PARAMS[evidence.effect] if n in FREED_SHAPES):
         for value in SHAPE_GRIDS[name]:

@@ -67,7 +67,8 @@ ABS_STEP = {
 # The tangent is the exact derivative of the branch the plant took, and that is what loses: on
 # 30 drops with a Stribeck term (bench/identify_speed.py's set) LM with exact derivatives
 # stalled in worse optima, Stribeck ended a stand-in instead of named, its torque 3.8 of its σ
-# from the finite-difference fit's, and the CPU time was 3× higher (docs/identification.md, *Speed*).
+# from the finite-difference fit's, and the CPU time was 3× higher
+# (docs/identification-speed-log.md, *With an effect in the data*).
 # The 1 % chords step over the kinks of stick friction; the tangent sees every kink.
 JACOBIAN = "differences"
 
@@ -500,8 +501,9 @@ class _Covariance:
 
     Most fits are never asked for their σ (the initial-state fits, the short refits of the
     screen, the cross-validation folds), and the residual's autocorrelation time and the
-    pseudo-inverse were a tenth of an effect search's CPU (cProfile, docs/identification.md,
-    *Speed*). Computed later from the same Jacobian and residuals, it is bit for bit the same."""
+    pseudo-inverse were a tenth of an effect search's CPU (cProfile,
+    docs/identification-speed-log.md, *The Python around the simulations*). Computed later from
+    the same Jacobian and residuals, it is bit for bit the same."""
 
     def __init__(self, jac: list[np.ndarray], residuals: list[np.ndarray], n_g: int, fit_x0: bool,
                  jtj: np.ndarray | None = None):

@@ -295,8 +295,8 @@ def one_blas_thread():
     threads, while the Rust plant's own threads keep the cores busy; BLAS threads that wake
     and spin beside them take cores from the simulations. Measured on 30 drops with a drag,
     another job on the 2 cores: 2.9–3.0 s of CPU against 3.5–3.7 s with BLAS's default threads
-    (docs/identification.md, *Speed*). The results do not change (the products are the same
-    sums on one thread; tests/test_ident_blas.py)."""
+    (docs/identification-speed-log.md, *Parameter sets side by side*). The results do not
+    change (the products are the same sums on one thread; tests/test_ident_blas.py)."""
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=1, user_api="blas")

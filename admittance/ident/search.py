@@ -317,7 +317,7 @@ def _judge_round(ctx: SearchContext, current: Scored, ranking: list[Evidence], e
     is a guess at which candidate will reach the floor, and a poor one when the right effect
     needs a fallback start to get there: on 30 drops with a Stribeck term (the base fit landed
     a little differently with the plant's sine from the libm crate, tried and not landed:
-    docs/identification.md) a cogging term and a
+    docs/identification-speed-log.md) a cogging term and a
     friction ripple led after twelve iterations (6.1 and 5.0 mrad) while Stribeck reached the
     2 mrad floor only from its equation-error start; each was then cross-validated and put
     through the regime and transfer tests before Stribeck was judged, and the search took

@@ -8,8 +8,8 @@
 //! every platform. It differs from glibc's sine by 1 ulp in about 3 % of arguments, which is
 //! what it is for: `bench/identify_perturbed.py` builds the extension with it and asks which of
 //! identify's verdicts change when nothing but the last bit of a sine does (on 2026-11-28 five
-//! did; docs/identification.md, *The plant's sine changed in its last bit*). It was also ~22 %
-//! faster per substep side by side; not the default while a verdict still hangs on it.
+//! did; docs/identification-speed-log.md, *The plant's sine changed in its last bit*). It was
+//! also ~22 % faster per substep side by side; not the default while a verdict still hangs on it.
 
 /// sin(x); NaN for a non-finite x.
 #[inline(always)]
