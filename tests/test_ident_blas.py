@@ -1,7 +1,7 @@
 """`identify` runs NumPy's BLAS on one thread (ident/identify.py, one_blas_thread) and gives the
 process its threads back after, also when it fails.
 
-Why it matters: BLAS threads spinning beside the Rust plant's own took 16 % more CPU on 30 drops
+Why it matters: BLAS threads spinning beside the Rust plant's own took 18–28 % more CPU on 30 drops
 with a drag, on a 2-core machine with another job running (docs/identification-speed-log.md,
 *Parameter sets side by side, with a smaller substep: kept*)."""
 
