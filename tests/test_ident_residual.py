@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from admittance.formats.dataset import TrialData
 from admittance.ident.fit import autocorrelation_time
@@ -75,3 +76,38 @@ def test_ljung_box_ignores_an_empty_segment():
         warnings.simplefilter("error")
         with_empty = ljung_box([segments[0], np.array([]), segments[1]])
     assert with_empty == ljung_box(segments)
+
+
+def _fitted_drops(tmp_path):
+    """Four synthetic drops, the base model fitted to them, and their angle sensor."""
+    from admittance.formats.dataset import load_dataset
+    from admittance.ident.angle_sensor import sensor_for
+    from admittance.ident.equation_error import fit_equation_error, initial_states
+    from admittance.ident.fit import fit_output_error
+    from admittance.ident.model import Simulator, free_params
+    from admittance.ident.synthetic import SynthSpec, generate
+
+    ds = load_dataset(generate(tmp_path, SynthSpec(n_trials=4, duration=3.0, seed=3)))
+    start, tau = fit_equation_error(ds.trials, ds.mode)
+    sim = Simulator(ds.trials, ds.mode, "stick", 1e-3, tau)
+    fit = fit_output_error(sim, start, free_params(ds.mode, [], False), initial_states(ds.trials), max_iter=5)
+    return sim, fit, sensor_for(ds.trials, None)
+
+
+def test_a_fits_noise_verdict_is_computed_once_per_simulator_and_sensor(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from admittance.ident.residual import noise_of
+
+    sim, fit, sensor = _fitted_drops(tmp_path)
+    runs = []
+    real_run = type(sim).run
+    monkeypatch.setattr(type(sim), "run", lambda self, *a, **k: runs.append(1) or real_run(self, *a, **k))
+    first = noise_of(sim, fit, sensor)
+    simulated = len(runs)
+    assert simulated > 0 and noise_of(sim, fit, sensor) is first and len(runs) == simulated
+    # Another simulator (even of the same trials), or a fit made from this one, is asked again.
+    other = sim.subset(range(len(sim.trials)))
+    assert noise_of(other, fit, sensor) == first and len(runs) == 2 * simulated
+    moved = replace(fit, residuals=[2.0 * r for r in fit.residuals])
+    assert noise_of(sim, moved, sensor).rmse == pytest.approx(2.0 * first.rmse)

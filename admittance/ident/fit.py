@@ -97,6 +97,10 @@ class FitResult:
     # Where it ended with the Jacobian taken there (it stopped on a failed step), else None: a
     # fit started exactly there can take both (EndPoint).
     end_point: "EndPoint | None" = field(repr=False, default=None)
+    # (simulator, sensor, verdict) of each noise verdict asked of this fit (residual.noise_of):
+    # the search asks the same fit up to four times. Not an __init__ field, so a fit made by
+    # dataclasses.replace starts with none.
+    noise_verdicts: list = field(repr=False, default_factory=list, init=False, compare=False)
 
     @property
     def covariance(self) -> np.ndarray:
