@@ -40,7 +40,14 @@ import numpy as np
 
 from admittance.errors import DataError
 from admittance.ident.equation_error import effect_start, fit_equation_error
-from admittance.ident.fit import FitResult, closest_starts, fit_output_error, normal_equations, states_again
+from admittance.ident.fit import (
+    FitResult,
+    chord_slopes,
+    closest_starts,
+    fit_output_error,
+    normal_equations,
+    states_again,
+)
 from admittance.ident.model import EFFECTS, INDEX, LOWER, UPPER, Simulator, default_vector
 
 STRIBECK_VELOCITIES = (0.03, 0.1, 0.3, 1.0)  # rad/s
@@ -233,7 +240,7 @@ def _sensitivities(sim: Simulator, fit: FitResult, columns: Sequence[Column]) ->
     x0 = np.repeat(fit.x0[None, :, :], len(columns), axis=0)
     steps = np.array([c.step for c in columns])
     sims = sim.run(rows, x0)
-    return [(s - (r + m)[None, :]) / steps[:, None] for s, r, m in zip(sims, fit.residuals, sim.measured)]
+    return [chord_slopes(s, r + m, steps) for s, r, m in zip(sims, fit.residuals, sim.measured)]
 
 
 def _explained(jac: list[np.ndarray], extra: list[np.ndarray], residuals: list[np.ndarray], n_g: int):
