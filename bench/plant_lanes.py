@@ -1,19 +1,23 @@
-"""Parameter sets stepped side by side (rtcore/plant/src/trial.rs, `simulate_lanes`) against one
-at a time, in one run on one build.
+"""Simulations stepped side by side (rtcore/plant/src/lanes.rs, `simulate_lanes`): S parameter
+sets in one call against one call per set, in one run on one build.
 
-`simulate_batch` hands the plant up to 4 parameter sets of one trial as one work item and steps
-them side by side (`plant::batch::LANES`); a call with a single set has nothing to step beside
-it. So S sets in one call against S calls of one set each, on the same trials, starts and
-thread count, measures what the lanes gain, with the numbers checked equal (bit for bit).
+`simulate_batch` cuts its (set, trial) pairs into work items of up to 4 and steps each item's
+pairs side by side (`plant::batch::LANES`), whichever trials they are of. S sets in one call
+against S calls of one set each, on the same trials, starts and thread count, shows what the
+lanes gain beside one another; the S = 1 row is identification's single-set call (a damped
+trial) over 30 trials, which before the lanes took different trials had one lane per work item.
+Every number of both ways is checked equal, bit for bit, to each pair simulated alone (a call
+with one set and one trial: one lane).
 
 The workload is an identification's: 30 synthetic MX-64-like drops (`admittance synth`, seed 0,
 quadratic drag 0.002: the Rust plant at a 10× finer step, 2 mrad noise), the base model's
 parameters near the truth, each set's damping 1 % apart (a Jacobian's rows). Printed per S:
 the time per call of both ways (the shortest of ``--repeats`` alternating rounds: the least
-disturbed by the machine's other work), their ratio, and the time per moving substep (the
-substeps of a drop before it rests for good, which are the ones the plant steps).
+disturbed by the machine's other work), their ratio, the time per trial simulation of the call
+(its time over S × 30) and per moving substep (the substeps of a drop before it rests for good,
+which are the ones the plant steps).
 
-Usage: ``.venv/bin/python bench/plant_lanes.py [--sets 1 2 3 4 6 8] [--threads 1] [--repeats 7]``
+Usage: ``.venv/bin/python bench/plant_lanes.py [--sets 1 2 3 4 5 6 7 8] [--threads 1] [--repeats 7]``
 """
 
 from __future__ import annotations
@@ -73,9 +77,14 @@ def measure(sim: Simulator, n_sets: int, threads: int, repeats: int) -> tuple[fl
                                        threads=threads) for s in range(n_sets)]
         return [np.concatenate([run[k] for run in runs]) for k in range(len(sim.trials))]
 
-    joint, single = together(), apart()
-    if not all(np.array_equal(a, b) for a, b in zip(joint, single)):
-        raise SystemExit(f"{n_sets} sets: side by side and one at a time disagree")
+    def alone():
+        return [np.concatenate([_rtcore.simulate_batch([trial], rows[s:s + 1], x0[s:s + 1, k:k + 1], max_step=MAX_STEP,
+                                                       friction="stick", threads=threads)[0] for s in range(n_sets)])
+                for k, trial in enumerate(sim._rt)]
+
+    joint, single, lone = together(), apart(), alone()
+    if not all(np.array_equal(a, c) and np.array_equal(b, c) for a, b, c in zip(joint, single, lone)):
+        raise SystemExit(f"{n_sets} sets: side by side, one call per set and each pair alone disagree")
     best = {"together": np.inf, "apart": np.inf}
     for _ in range(repeats):
         for name, run in (("together", together), ("apart", apart)):
@@ -87,7 +96,7 @@ def measure(sim: Simulator, n_sets: int, threads: int, repeats: int) -> tuple[fl
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sets", type=int, nargs="+", default=[1, 2, 3, 4, 6, 8])
+    parser.add_argument("--sets", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args()
@@ -97,12 +106,14 @@ def main() -> None:
         dataset = load_dataset(Path(tmp) / "drag")
     sim = Simulator(dataset.trials, dataset.mode, "stick", MAX_STEP)
     print(f"30 synthetic drops (quadratic drag), {args.threads} thread(s), best of {args.repeats}; load {' '.join(load)}")
-    print("| sets | one call, side by side | one call per set | ratio | ns per moving substep (side by side / apart) |")
-    print("|---|---|---|---|---|")
+    print("| sets | one call | one call per set | ratio | µs per trial simulation (one call) "
+          "| ns per moving substep (one call / per set) |")
+    print("|---|---|---|---|---|---|")
     for n_sets in args.sets:
         together, apart, substeps = measure(sim, n_sets, args.threads, args.repeats)
+        per_simulation = 1e6 * together / (n_sets * len(sim.trials))
         print(f"| {n_sets} | {1e3 * together:.2f} ms | {1e3 * apart:.2f} ms | {apart / together:.2f}× | "
-              f"{1e9 * together / substeps:.1f} / {1e9 * apart / substeps:.1f} |")
+              f"{per_simulation:.1f} | {1e9 * together / substeps:.1f} / {1e9 * apart / substeps:.1f} |")
 
 
 if __name__ == "__main__":

@@ -1,23 +1,27 @@
 //! Many trials × many parameter sets in one call, in parallel.
 //!
 //! Identification needs, per iteration, every trial simulated under S = 1 + n_params
-//! parameter sets (a forward-difference Jacobian). Each (set, trial) pair is independent, so
-//! the S×T pairs are the rayon work items; each writes its own disjoint slice of the output,
-//! so there is no locking and no per-step allocation. Everything is validated before any
-//! thread starts: a batch runs completely or returns an error.
+//! parameter sets (a forward-difference Jacobian), and many times every trial under a single
+//! set (a damped trial of its fit). Each (set, trial) pair is independent: the S×T pairs are
+//! cut, in order (a trial's sets together), into rayon work items of up to `LANES` pairs
+//! stepped side by side (`lanes::simulate_lanes`), whichever trials they are of. Each pair
+//! writes its own disjoint slice of the output, so there is no locking and no per-step
+//! allocation. Everything is validated before any thread starts: a batch runs completely or
+//! returns an error.
 use rayon::prelude::*;
 
 use crate::error::{require_finite, PlantError};
 use crate::friction::FrictionLaw;
 use crate::model::State;
 use crate::params::Params;
-use crate::trial::{simulate_lanes, validate_max_step, Trial};
+use crate::lanes::{simulate_lanes, Run};
+use crate::trial::{validate_max_step, Trial};
 
-/// Parameter sets stepped side by side in one work item. Measured by bench/plant_lanes.py (30
-/// drops, one thread): 16.4 ns per substep with 2 lanes, 15.1 with 4, 15.0 with 8, against 31
-/// alone; 4 take a Jacobian's 6–7 sets of a trial in two items.
+/// Simulations stepped side by side in one work item. Measured by bench/plant_lanes.py (30
+/// drops, one thread, lanes of one trial): 16.4 ns per substep with 2 lanes, 15.1 with 4, 15.0
+/// with 8, against 31 alone.
 pub const LANES: usize = 4;
-const _: () = assert!(LANES == 4, "Batch::run_group dispatches 1 to 4 lanes");
+const _: () = assert!(LANES == 4, "Batch::run_item dispatches 1 to 4 lanes");
 
 /// What a batch returns per sample: the angle, or the angle and the velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -79,57 +83,69 @@ impl Batch<'_> {
         let n_sets = self.params.len();
         let mut outs: Vec<Vec<f64>> =
             self.trials.iter().map(|tr| vec![0.0; n_sets * tr.n_samples() * width]).collect();
-        // (trial, first set, the sets' rows): up to LANES sets per item (`lanes_for`).
-        let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(n_sets * self.trials.len());
+        let mut pairs: Vec<Pair> = Vec::with_capacity(n_sets * self.trials.len());
         for (k, out) in outs.iter_mut().enumerate() {
             let row = self.trials[k].n_samples() * width;
-            let mut rest: &mut [f64] = out;
-            let mut s = 0;
-            while s < n_sets {
-                let lanes = lanes_for(n_sets - s);
-                let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(lanes * row);
-                jobs.push((k, s, chunk));
-                rest = tail;
-                s += lanes;
-            }
+            pairs.extend(out.chunks_mut(row).enumerate().map(|(s, out)| Pair { s, k, out }));
         }
+        let items = work_items(&mut pairs);
         in_pool(self.threads, move || {
-            jobs.into_par_iter().for_each(|(k, s, chunk)| self.run_group(k, s, chunk));
+            items.into_par_iter().for_each(|item| self.run_item(item));
         })?;
         Ok(outs)
     }
 
-    /// Sets `s..s + n` on trial `k`, `n` = `chunk`'s rows (1 to `LANES`).
-    fn run_group(&self, k: usize, s: usize, chunk: &mut [f64]) {
-        let row = self.trials[k].n_samples() * self.output.width();
-        match chunk.len() / row.max(1) {
-            4 => self.run_lanes::<4>(k, s, chunk),
-            3 => self.run_lanes::<3>(k, s, chunk),
-            2 => self.run_lanes::<2>(k, s, chunk),
-            _ => self.run_lanes::<1>(k, s, chunk),
+    /// One work item: 1 to `LANES` pairs stepped side by side.
+    fn run_item(&self, item: &mut [Pair]) {
+        match item.len() {
+            4 => self.run_lanes::<4>(item),
+            3 => self.run_lanes::<3>(item),
+            2 => self.run_lanes::<2>(item),
+            _ => self.run_lanes::<1>(item),
         }
     }
 
-    fn run_lanes<const L: usize>(&self, k: usize, s: usize, chunk: &mut [f64]) {
-        let trial = self.trials[k];
-        let n = trial.n_samples();
-        let params: [&Params; L] = std::array::from_fn(|l| &self.params[s + l]);
-        let x0: [State; L] = std::array::from_fn(|l| self.x0[(s + l) * self.trials.len() + k]);
+    fn run_lanes<const L: usize>(&self, item: &mut [Pair]) {
+        let n_trials = self.trials.len();
+        let runs: [Run; L] = std::array::from_fn(|l| {
+            let Pair { s, k, .. } = item[l];
+            Run { trial: self.trials[k], params: &self.params[s], x0: self.x0[s * n_trials + k] }
+        });
+        let mut rows = item.iter_mut().map(|pair| &mut *pair.out);
+        let rows: [&mut [f64]; L] = std::array::from_fn(|_| rows.next().unwrap());
         match self.output {
-            Output::Theta => {
-                simulate_lanes(trial, params, self.law, x0, self.max_step, |l, i, st| chunk[l * n + i] = st.theta)
-            }
-            Output::ThetaOmega => simulate_lanes(trial, params, self.law, x0, self.max_step, |l, i, st| {
-                chunk[2 * (l * n + i)] = st.theta;
-                chunk[2 * (l * n + i) + 1] = st.omega;
+            Output::Theta => simulate_lanes(runs, self.law, self.max_step, |l, i, st| rows[l][i] = st.theta),
+            Output::ThetaOmega => simulate_lanes(runs, self.law, self.max_step, |l, i, st| {
+                rows[l][2 * i] = st.theta;
+                rows[l][2 * i + 1] = st.omega;
             }),
         }
     }
 }
 
-/// How many of `remaining` sets the next work item takes: all of them up to `LANES`, and never
-/// so many that a single set is left for an item of its own (5 = 3 + 2, not 4 + 1): one lane
-/// alone has nothing to overlap with.
+/// One (parameter set, trial) pair of a batch and its row of the output.
+struct Pair<'a> {
+    s: usize,
+    k: usize,
+    out: &'a mut [f64],
+}
+
+/// `pairs` cut in order into work items of `LANES`, but the last two: a single pair is never
+/// left for an item of its own (5 = 3 + 2, not 4 + 1), since one lane alone has nothing to
+/// overlap with. Any two pairs may share an item: lanes of different trials are as fast as
+/// lanes of one (docs/plant.md, *The batch simulator*).
+fn work_items<T>(pairs: &mut [T]) -> Vec<&mut [T]> {
+    let mut items = Vec::with_capacity(pairs.len() / LANES + 1);
+    let mut rest = pairs;
+    while !rest.is_empty() {
+        let (item, tail) = rest.split_at_mut(lanes_for(rest.len()));
+        items.push(item);
+        rest = tail;
+    }
+    items
+}
+
+/// How many of `remaining` pairs the next work item takes (`work_items`).
 fn lanes_for(remaining: usize) -> usize {
     match remaining {
         0..=LANES => remaining,
@@ -149,4 +165,25 @@ pub(crate) fn in_pool<F: FnOnce() + Send>(threads: Option<usize>, work: F) -> Re
             .install(work),
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every item has `LANES` pairs but the last two, which split 5 as 3 + 2; none has one pair
+    /// unless the whole batch has; the pairs stay in order, each in one item.
+    #[test]
+    fn items_are_full_but_the_last_and_never_a_lone_pair() {
+        for n in 0..40 {
+            let mut pairs: Vec<usize> = (0..n).collect();
+            let items = work_items(&mut pairs);
+            let sizes: Vec<usize> = items.iter().map(|item| item.len()).collect();
+            assert_eq!(items.concat(), (0..n).collect::<Vec<usize>>(), "{n} pairs");
+            assert_eq!(sizes.len(), n.div_ceil(LANES), "{n} pairs: {sizes:?}");
+            let full = sizes.len().saturating_sub(2);
+            assert!(sizes[..full].iter().all(|&s| s == LANES), "{n} pairs: {sizes:?}");
+            assert!(n == 1 || !sizes.contains(&1), "{n} pairs: {sizes:?}");
+        }
+    }
 }

@@ -35,6 +35,7 @@ pub mod batch;
 pub mod error;
 pub mod friction;
 pub mod inverse;
+pub mod lanes;
 pub mod model;
 pub mod params;
 pub mod sensitivity;

@@ -11,7 +11,8 @@
 //! is O(1) and a simulation allocates nothing.
 use crate::error::{require_finite, PlantError};
 use crate::friction::FrictionLaw;
-use crate::model::{rests_for_good, Load, State, Substep};
+use crate::lanes::{simulate_lanes, Run};
+use crate::model::{Load, State};
 use crate::params::Params;
 
 /// The inputs of one experiment, copied once and simulated many times.
@@ -83,6 +84,10 @@ impl Trial {
 
     pub fn load(&self) -> Load {
         self.load
+    }
+
+    pub(crate) fn load_ref(&self) -> &Load {
+        &self.load
     }
 
     /// Substeps the simulation takes at `max_step` (for throughput figures).
@@ -213,95 +218,7 @@ pub fn simulate_into<F: FnMut(usize, &State)>(
     max_step: f64,
     mut record: F,
 ) {
-    simulate_lanes(trial, [p], law, [x0], max_step, |_, i, state| record(i, state));
-}
-
-/// `simulate_into` for `L` parameter sets on the same trial, stepped side by side: lane `l`
-/// runs `params[l]` from `x0[l]` and hands its states to `record(l, i, &state)`, the numbers
-/// `simulate_into` gives for it alone, to the bit (tests/lanes.rs).
-///
-/// Why side by side: a substep is a chain of dependent operations (a sine of the angle, then
-/// the velocity, then the angle again) that leaves most of a core idle while it waits; the
-/// independent chains of a few parameter sets fill that wait. A Jacobian by finite differences
-/// simulates every trial under several parameter sets, so they come in groups anyway
-/// (`batch::Batch` hands them over up to `LANES` at a time). A lane that rests for good is
-/// no longer stepped; the simulation ends when all have.
-pub fn simulate_lanes<const L: usize, F: FnMut(usize, usize, &State)>(
-    trial: &Trial,
-    params: [&Params; L],
-    law: FrictionLaw,
-    x0: [State; L],
-    max_step: f64,
-    record: F,
-) {
-    match trial.tau.as_deref() {
-        Some(tau) => {
-            let params: [Params; L] = params.map(|p| *p);
-            let mut cursors: [TorqueCursor; L] = std::array::from_fn(|_| TorqueCursor::new(&trial.t, tau));
-            let delays = params.map(|p| p.time_delay);
-            integrate(trial, &params, law, x0, max_step, |l, tk| cursors[l].at(tk - delays[l]), false, record);
-        }
-        None => {
-            let params = params.map(|p| Params { torque_bias: 0.0, torque_drift: 0.0, ..*p });
-            integrate(trial, &params, law, x0, max_step, |_, _| 0.0, true, record);
-        }
-    }
-}
-
-/// The substep loop, generic over the torque source (`applied_at(lane, t)`) so each case
-/// compiles to its own loop. `undriven`: the torque is 0 throughout, so a rest for good ends a
-/// lane's stepping.
-#[allow(clippy::too_many_arguments)]
-fn integrate<const L: usize, T: FnMut(usize, f64) -> f64, F: FnMut(usize, usize, &State)>(
-    trial: &Trial,
-    params: &[Params; L],
-    law: FrictionLaw,
-    x0: [State; L],
-    max_step: f64,
-    mut applied_at: T,
-    undriven: bool,
-    mut record: F,
-) {
-    let t0 = trial.t[0];
-    let substeps: [Substep; L] = std::array::from_fn(|l| Substep::new(&params[l], &trial.load, law));
-    let mut states = x0;
-    let mut rested = [false; L];
-    // h / inertia per lane, recomputed only when the substep length changes (once per sample
-    // interval at most; never on uniform sampling).
-    let (mut h_of_gains, mut gains) = (f64::NAN, [0.0; L]);
-    let stopped = walk_while(&trial.t, max_step, |event| match event {
-        Walk::Substep { t, h } => {
-            if h != h_of_gains {
-                h_of_gains = h;
-                gains = std::array::from_fn(|l| h / substeps[l].inertia);
-            }
-            for l in 0..L {
-                if !rested[l] {
-                    substeps[l].advance(&mut states[l], applied_at(l, t), t - t0, gains[l], h);
-                }
-            }
-            WalkOn::Go
-        }
-        Walk::Sample(i) => {
-            for l in 0..L {
-                record(l, i, &states[l]);
-                // ω == 0 first: the test costs a sine or two, and a moving joint skips it.
-                if undriven && !rested[l] && states[l].omega == 0.0 {
-                    rested[l] = rests_for_good(&states[l], &params[l], &trial.load, law, 0.0);
-                    if rested[l] {
-                        // What every later substep would leave: ω set to 0, θ + h·0.
-                        states[l] = State { theta: states[l].theta + 0.0, omega: 0.0 };
-                    }
-                }
-            }
-            if rested.iter().all(|&r| r) { WalkOn::Stop } else { WalkOn::Go }
-        }
-    });
-    for i in stopped + 1..trial.t.len() {
-        for (l, state) in states.iter().enumerate() {
-            record(l, i, state);
-        }
-    }
+    simulate_lanes([Run { trial, params: p, x0 }], law, max_step, |_, i, state| record(i, state));
 }
 
 /// One event of a walk through sample times (`walk`).
@@ -313,41 +230,20 @@ pub(crate) enum Walk {
 }
 
 /// Walks the intervals between consecutive times of `t` in equal substeps of at most
-/// `max_step` (`substep_count`), telling `visit` each substep and each sample reached: the one
-/// stepping scheme of the plant's and the servo's simulators.
+/// `max_step` (`substep_count`), telling `visit` each substep and each sample reached: the
+/// stepping scheme of the servo's simulator and the sensitivities, and of each lane of
+/// `lanes::simulate_lanes` (which walks its lanes' trials side by side instead).
 #[inline(always)]
 pub(crate) fn walk(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk)) {
-    walk_while(t, max_step, |event| {
-        visit(event);
-        WalkOn::Go
-    });
-}
-
-/// Whether a walk goes on after a sample (`walk_while`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum WalkOn {
-    Go,
-    Stop,
-}
-
-/// `walk`, ended early when `visit` answers a sample with `WalkOn::Stop` (what it answers to a
-/// substep is ignored). Returns the index of the sample it stopped at, or the last one.
-#[inline(always)]
-pub(crate) fn walk_while(t: &[f64], max_step: f64, mut visit: impl FnMut(Walk) -> WalkOn) -> usize {
-    if visit(Walk::Sample(0)) == WalkOn::Stop {
-        return 0;
-    }
+    visit(Walk::Sample(0));
     for i in 1..t.len() {
         let n = substep_count(t[i] - t[i - 1], max_step);
         let h = (t[i] - t[i - 1]) / n as f64;
         for k in 0..n {
             visit(Walk::Substep { t: t[i - 1] + k as f64 * h, h });
         }
-        if visit(Walk::Sample(i)) == WalkOn::Stop {
-            return i;
-        }
+        visit(Walk::Sample(i));
     }
-    t.len() - 1
 }
 
 /// Simulates one trial and returns the state at every sample time (checks its inputs).

@@ -52,31 +52,78 @@ fn batch_matches_single_runs_on_any_thread_count() {
     }
 }
 
-/// Any number of sets: the batch cuts them into groups stepped side by side (4, 3 + 2, ...),
-/// and every set still gets its own numbers, on both outputs.
+/// Trials of different lengths and sample periods (jittered), driven and not, with loads that
+/// let some drops rest early, some late and one not before its end.
+fn mixed_trials() -> Vec<Trial> {
+    let jittered = |n: usize, dt: f64| {
+        let mut t = vec![0.0];
+        for i in 1..n {
+            t.push(t[i - 1] + dt * (1.0 + 0.3 * ((i * 7 % 11) as f64 / 11.0 - 0.5)));
+        }
+        t
+    };
+    let driven = |t: Vec<f64>| {
+        let tau = t.iter().map(|x| 0.04 * (5.0 * x).sin()).collect();
+        Trial::new(t, Some(tau), Load { inertia: 1e-3, gravity_torque: 0.1 }).unwrap()
+    };
+    vec![
+        Trial::new(jittered(300, 0.0083), None, Load { inertia: 1e-3, gravity_torque: 0.05 }).unwrap(),
+        driven(jittered(121, 0.0041)),
+        Trial::new(jittered(45, 0.012), None, Load { inertia: 0.0, gravity_torque: 0.2 }).unwrap(),
+        Trial::new(times(1.0, 1.0 / 120.0), None, Load { inertia: 2e-3, gravity_torque: 0.02 }).unwrap(),
+        driven(times(0.5, 1.0 / 250.0)),
+        Trial::new(vec![0.0], None, Load::default()).unwrap(),
+        Trial::new(jittered(200, 0.0007), None, Load { inertia: 0.0, gravity_torque: 0.3 }).unwrap(),
+    ]
+}
+
+fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Any number of sets over trials of every kind: the batch cuts the (set, trial) pairs into
+/// items of up to four, a trial's sets together and the rest packed across trials (1 set over 7
+/// trials: 4 + 3 items of different trials; 6 sets: items of two trials), and every pair still
+/// gets its own numbers, to the bit, on both outputs, both laws, one thread or two.
 #[test]
 fn batches_of_one_to_nine_sets_match_single_runs() {
-    let owned = trials();
+    let owned = mixed_trials();
     let refs: Vec<&Trial> = owned.iter().collect();
+    let mut rests = 0;
     for n_sets in 1..=9 {
         let params: Vec<Params> = (0..n_sets)
-            .map(|s| Params { damping: 0.003 * s as f64, coulomb: 0.002 + 0.001 * s as f64, ..bare(2e-3) })
+            .map(|s| Params {
+                damping: 0.003 * s as f64,
+                coulomb: 0.002 + 0.004 * s as f64,
+                time_delay: 0.002 * s as f64,
+                torque_bias: 0.001,
+                ..bare(2e-3)
+            })
             .collect();
-        let starts = x0(n_sets * refs.len());
-        for output in [Output::Theta, Output::ThetaOmega] {
-            let out = Batch { output, ..batch(&refs, &params, &starts) }.run().unwrap();
-            let width = if output == Output::Theta { 1 } else { 2 };
-            for (k, trial) in refs.iter().enumerate() {
-                let n = trial.n_samples();
-                for (s, p) in params.iter().enumerate() {
-                    let single = run(trial, p, FrictionLaw::Stick, starts[s * refs.len() + k], 5e-4);
-                    let row = &out[k][s * n * width..(s + 1) * n * width];
-                    let got: Vec<f64> = row.iter().step_by(width).copied().collect();
-                    assert_eq!(got, thetas(&single), "{n_sets} sets, set {s}, trial {k}, {output:?}");
+        let starts: Vec<State> = (0..n_sets * refs.len()).map(|i| at(0.05 * i as f64 - 0.4, 0.3 * (i % 3) as f64)).collect();
+        for law in [FrictionLaw::Stick, FrictionLaw::Tanh] {
+            for output in [Output::Theta, Output::ThetaOmega] {
+                let request = Batch { law, output, ..batch(&refs, &params, &starts) };
+                let out = request.run().unwrap();
+                assert_eq!(out, Batch { threads: Some(1), ..request }.run().unwrap());
+                let width = if output == Output::Theta { 1 } else { 2 };
+                for (k, trial) in refs.iter().enumerate() {
+                    let n = trial.n_samples();
+                    for (s, p) in params.iter().enumerate() {
+                        let single = run(trial, p, law, starts[s * refs.len() + k], 5e-4);
+                        let row = &out[k][s * n * width..(s + 1) * n * width];
+                        let want: Vec<f64> = match output {
+                            Output::Theta => thetas(&single),
+                            Output::ThetaOmega => single.iter().flat_map(|st| [st.theta, st.omega]).collect(),
+                        };
+                        assert_eq!(bits(row), bits(&want), "{n_sets} sets, set {s}, trial {k}, {law:?}, {output:?}");
+                        rests += usize::from(law == FrictionLaw::Stick && n > 2 && single[n - 1] == single[n / 2]);
+                    }
                 }
             }
         }
     }
+    assert!(rests > 0, "some drops rest for good");
 }
 
 #[test]
