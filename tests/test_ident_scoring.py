@@ -77,9 +77,9 @@ def test_nearby_starts_span_the_grid_around_each_trial():
 
 
 def test_a_trial_scored_as_well_as_the_training_trials_gets_no_nearby_starts(held_out, monkeypatch):
-    """The nearby starts cost a batch of 168 simulations per trial: paid only where a trial is
-    scored NEARBY_TRIGGER times worse than the model fits its own (a 4 % slower identify on 30
-    drops otherwise)."""
+    """The nearby starts cost a batch of 153 simulations per trial: paid only where a trial is
+    scored NEARBY_TRIGGER times worse than the model fits its own (3–6 % more trial simulations
+    of identify on 30 drops otherwise)."""
     sim, model, data_starts, sensor = held_out
     from admittance.ident import identify
 

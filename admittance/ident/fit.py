@@ -667,15 +667,14 @@ NEARBY_RATES = range(-8, 9)  # multiples of its rate step
 
 def nearby_starts(x0: np.ndarray, angle_step: float, rate_step: float) -> list[np.ndarray]:
     """Starts around each trial's ``x0`` (T, 2): its angle moved by k·``angle_step`` and its
-    velocity by m·``rate_step``, for every k, m of :data:`NEARBY_STEPS` but both 0 (48 starts;
-    a step of 0 moves nothing).
+    velocity by m·``rate_step``, for every k of :data:`NEARBY_ANGLES` and m of
+    :data:`NEARBY_RATES` but both 0 (152 starts; a step of 0 moves nothing).
 
     Why: with stick friction a trial's error is a landscape of basins in its initial state, one
     per turning point the simulated swing sticks at; LM from the data's own starts cannot cross
     from one to the next. On 4096-tick encoder drops with Stribeck at 1.5× the Coulomb level
-    (bench/identify_families.py's regime row, seed 1) a held-out trial scored 5.18 mrad from the
-    data's starts and 0.47 from the best of these screened (the sensor's rounding alone leaves
-    0.38)."""
+    (bench/identify_families.py's regime row, seed 1) a held-out trial scored 5.17 mrad from the
+    data's starts and 1.15 with these screened too (the sensor's rounding alone leaves 0.38)."""
     x0 = np.asarray(x0, dtype=float).reshape(-1, 2)
     angles = [k * angle_step for k in NEARBY_ANGLES] if angle_step > 0 else [0.0]
     rates = [m * rate_step for m in NEARBY_RATES] if rate_step > 0 else [0.0]

@@ -10,8 +10,9 @@
    or time segments of few long trials: crossval.py), so the held-out trials never influence
    which effects are chosen and their score stays an honest estimate.
 5. Refit of the final model on all training trials; both models scored on the held-out trials
-   (only their initial states fitted, from several starts, some nearby the data's); residual verdict (residual.py)
-   and, when structure is left, what the library could not explain (unexplained.py).
+   (only their initial states fitted, from several starts, some nearby the data's); residual
+   verdict (residual.py) and, when structure is left, what the library could not explain
+   (unexplained.py).
 
 Every step logs a one-line progress on stderr unless quiet; the result converts to the JSON of
 ``datasets.md`` (:meth:`IdentifyResult.to_json`) and to a Contract 2 parameter file.
@@ -371,9 +372,10 @@ def _scores(sim_held: Simulator, base: FitResult, final: FitResult, data_starts:
     its own training trials (or the sensor's grid, if coarser) may be in the wrong basin of its
     initial state (fit.nearby_starts): the starts nearby the data's are screened too, and each
     trial keeps the better. (Nearby the fitted states instead, on the set of
-    tests/test_ident_scoring.py: 2.60 mrad held out, against 0.83.) Their steps are the same for both models: the angle to within the final
-    model's training error (or the grid), the velocity to within what that error leaves of a
-    velocity smoothed over :data:`SMOOTH_WINDOW_S`."""
+    tests/test_ident_scoring.py: 2.60 mrad held out, against 0.83.) Their steps are the same
+    for both models: the angle to within the final model's training error (or the grid), the
+    velocity to within what that error leaves of a velocity smoothed over
+    :data:`SMOOTH_WINDOW_S`."""
     angle = max(final.rmse, sensor.quantum)
     rate = angle / SMOOTH_WINDOW_S
 
