@@ -382,13 +382,11 @@ def _scores(sim_held: Simulator, base: FitResult, final: FitResult, data_starts:
     def score(fit: FitResult, more: list[np.ndarray]) -> FitResult:
         sim = sim_held.with_tau_scale(fit.tau_scale)
         picked = screen_starts(sim, fit.vector, data_starts)
-        scored = fit_initial_states_multi(sim_held, fit.vector, [picked, *more], tau_scale=fit.tau_scale,
-                                          progress=progress, label="scoring")
+        scored = fit_initial_states_multi(sim, fit.vector, [picked, *more], progress=progress, label="scoring")
         if max(rmse([r]) for r in scored.residuals) <= NEARBY_TRIGGER * max(fit.rmse, sensor.quantum):
             return scored
         nearby = screen_starts(sim, fit.vector, [picked, *nearby_starts(picked, angle, rate)])
-        return fit_initial_states_multi(sim_held, fit.vector, [scored.x0, nearby], tau_scale=fit.tau_scale,
-                                        progress=progress, label="scoring")
+        return fit_initial_states_multi(sim, fit.vector, [scored.x0, nearby], progress=progress, label="scoring")
 
     before = score(base, [])
     return before, before if final is base else score(final, [before.x0])
