@@ -89,6 +89,8 @@ pub struct Substep<'a> {
     /// Nothing but gravity, damping, drag and a plain Coulomb level: a drop's base model, the
     /// commonest set of an identification, stepped with one test instead of seven.
     plain: bool,
+    /// `friction::stribeck_cut` of the set: the exponential left out where it cannot count.
+    stribeck_cut: f64,
 }
 
 impl<'a> Substep<'a> {
@@ -110,6 +112,7 @@ impl<'a> Substep<'a> {
                 && p.friction_ripple_amplitude == 0.0
                 && p.stribeck_torque == 0.0
                 && p.load_coulomb == 0.0,
+            stribeck_cut: friction::stribeck_cut(p),
         }
     }
 
@@ -140,7 +143,7 @@ impl<'a> Substep<'a> {
         if self.spring {
             drive -= p.spring_stiffness * (state.theta - p.spring_neutral);
         }
-        (drive, friction::level(p, state.theta, state.omega, drive, gravity - tau_corrected))
+        (drive, friction::level_within(p, self.stribeck_cut, state.theta, state.omega, drive, gravity - tau_corrected))
     }
 }
 
