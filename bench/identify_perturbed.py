@@ -69,8 +69,12 @@ def families(args: list[str], out: Path, pythonpath: Path | None) -> list[dict]:
     env = dict(os.environ)
     if pythonpath is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(pythonpath), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    # Run from the script's folder, as the families run is: `python -c` would put the working
+    # directory first on sys.path, and from the repository root it found this tree's extension
+    # while the families run took the perturbed one (2026-11-28: both lines named the default).
     probe = "import admittance._rtcore as m; print(m.__file__)"
-    where = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True)
+    where = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True,
+                           cwd=ROOT / "bench")
     print(f"identify_families.py with {where.stdout.strip()}", flush=True)
     subprocess.run([sys.executable, str(ROOT / "bench" / "identify_families.py"), *args, "--json", str(out)],
                    env=env, check=True, stdout=subprocess.DEVNULL)
