@@ -119,6 +119,9 @@ pub fn stribeck_cut(p: &Params) -> f64 {
         return f64::INFINITY;
     }
     let ulp = f64::from_bits(level.to_bits() + 1) - level;
+    if !ulp.is_finite() {
+        return f64::INFINITY; // L is the largest double: no spacing above it to round into
+    }
     (4.0 * size / ulp).ln() + 1.0
 }
 

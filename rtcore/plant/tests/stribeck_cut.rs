@@ -49,6 +49,7 @@ fn no_cut_where_the_level_before_the_term_varies_or_is_zero() {
         Params { friction_ripple_amplitude: 0.01, friction_ripple_period: 8.0, ..base },
         Params { coulomb: 0.0, ..base },
         Params { stribeck_torque: 0.0, ..base },
+        Params { coulomb: f64::MAX, stribeck_torque: f64::MAX, ..base },
     ] {
         assert_eq!(stribeck_cut(&p), f64::INFINITY, "{p:?}");
     }
