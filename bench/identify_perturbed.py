@@ -75,7 +75,11 @@ def families(args: list[str], out: Path, pythonpath: Path | None) -> list[dict]:
     probe = "import admittance._rtcore as m; print(m.__file__)"
     where = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True,
                            cwd=ROOT / "bench")
-    print(f"identify_families.py with {where.stdout.strip()}", flush=True)
+    extension = Path(where.stdout.strip())
+    print(f"identify_families.py with {extension}", flush=True)
+    if pythonpath is not None and pythonpath.resolve() not in extension.resolve().parents:
+        raise SystemExit(f"the perturbed run would import {extension}, not the extension under {pythonpath}: "
+                         "an installed admittance shadows PYTHONPATH; nothing compared")
     subprocess.run([sys.executable, str(ROOT / "bench" / "identify_families.py"), *args, "--json", str(out)],
                    env=env, check=True, stdout=subprocess.DEVNULL)
     return json.loads(out.read_text())
