@@ -80,7 +80,7 @@ pub fn level(p: &Params, theta: f64, omega: f64, drive: f64, load_torque: f64) -
 /// `level`, the Stribeck term left out where (ω/v_s)² exceeds `stribeck_cut`
 /// (`stribeck_cut(p)`, or ∞ to always add it): there it cannot change the sum, so the result
 /// is `level`'s to the bit, without the exponential (12 % of an identification's CPU on drops
-/// with a Stribeck term, perf; docs/plant.md, *The Stribeck term's cut*).
+/// with a Stribeck term, perf; docs/plant.md, *The integrator*, the Stribeck term's cut).
 #[inline(always)]
 pub fn level_within(p: &Params, stribeck_cut: f64, theta: f64, omega: f64, drive: f64, load_torque: f64) -> f64 {
     // Without an asymmetry the direction is not needed (the product would be a signed zero).

@@ -62,7 +62,7 @@ fn angle_torques(p: &Params, load: &Load, theta: f64, with_spring: bool) -> Stat
 /// substeps with one parameter set prepares them once (`Substep`); this is the same substep.
 #[inline]
 pub fn step(state: &mut State, p: &Params, load: &Load, law: FrictionLaw, tau: f64, t: f64, h: f64) {
-    let substep = Substep::new(p, load, law);
+    let substep = Substep::once(p, load, law);
     substep.advance(state, tau, t, h / substep.inertia, h);
 }
 
@@ -94,8 +94,22 @@ pub struct Substep<'a> {
 }
 
 impl<'a> Substep<'a> {
+    /// Prepared for the many substeps of a simulation (the Stribeck cut computed: a logarithm).
     #[inline]
     pub fn new(p: &'a Params, load: &'a Load, law: FrictionLaw) -> Self {
+        Self::with_cut(p, load, law, friction::stribeck_cut(p))
+    }
+
+    /// For a single substep or test (`step`, `rests_for_good`): no cut, so no logarithm for
+    /// a substep it could save at most one exponential in; the numbers are the same (the cut
+    /// is exact).
+    #[inline]
+    fn once(p: &'a Params, load: &'a Load, law: FrictionLaw) -> Self {
+        Self::with_cut(p, load, law, f64::INFINITY)
+    }
+
+    #[inline]
+    fn with_cut(p: &'a Params, load: &'a Load, law: FrictionLaw, stribeck_cut: f64) -> Self {
         Substep {
             p,
             load,
@@ -112,7 +126,7 @@ impl<'a> Substep<'a> {
                 && p.friction_ripple_amplitude == 0.0
                 && p.stribeck_torque == 0.0
                 && p.load_coulomb == 0.0,
-            stribeck_cut: friction::stribeck_cut(p),
+            stribeck_cut,
         }
     }
 
@@ -162,7 +176,7 @@ pub fn rests_for_good(state: &State, p: &Params, load: &Load, law: FrictionLaw, 
     if law != FrictionLaw::Stick || state.omega != 0.0 || p.torque_drift != 0.0 {
         return false;
     }
-    let substep = Substep::new(p, load, law);
+    let substep = Substep::once(p, load, law);
     if !(substep.inertia.is_normal() && substep.inertia > 0.0) {
         return false;
     }
